@@ -1,0 +1,136 @@
+#!/usr/bin/env bash
+# Print the absolute path of a User-Mode Linux kernel with SocketCAN (vcan,
+# vxcan) and gpio-sim built in, building it from Debian's linux-source-6.1 on
+# first use.
+#
+# Usage: tests/hil/uml_kernel.sh
+#
+# The kernel is cached outside the work tree in
+#   ${ALACS_CACHE:-${XDG_CACHE_HOME:-$HOME/.cache}/alacs}/uml/<key>/linux
+# where <key> hashes the config fragment, the linux-source package version and
+# the build recipe below, so editing any of them builds a new kernel and the old
+# one is simply left behind. Only stdout's last line is meant for callers:
+# progress goes to stderr and the full build log to a file whose path is
+# printed when the build fails.
+set -euo pipefail
+
+readonly kSourcePackage=linux-source-6.1
+readonly kSourceTarball=/usr/src/linux-source-6.1.tar.xz
+
+# Everything the bench needs, built in (=y): no modules are loaded inside UML.
+readonly kOptions=(
+    CAN CAN_RAW CAN_BCM CAN_GW CAN_DEV CAN_VCAN CAN_VXCAN
+    GPIOLIB GPIO_CDEV GPIO_CDEV_V1 GPIO_SIM CONFIGFS_FS
+    HOSTFS DEVTMPFS DEVTMPFS_MOUNT TMPFS
+)
+
+die() {
+    echo "uml_kernel.sh: $*" >&2
+    exit 1
+}
+
+# The build recipe. Its text (declare -f) is part of the cache key, so keep
+# every step that shapes the binary inside this function.
+# $1: empty build directory; $2: log file. Leaves $1/linux (stripped) and
+# $1/config.
+build_kernel() {
+    local dir=$1 log=$2 opt
+    local -a enable=()
+    for opt in "${kOptions[@]}"; do
+        enable+=(-e "$opt")
+    done
+    # nice: the machines that run this are shared; the build is not urgent.
+    local -a run=(nice -n 19)
+    (
+        set -euo pipefail
+        cd "$dir"
+        "${run[@]}" tar xJf "$kSourceTarball"
+        cd linux-source-6.1
+        "${run[@]}" make ARCH=um defconfig
+        ./scripts/config "${enable[@]}"
+        "${run[@]}" make ARCH=um olddefconfig
+        "${run[@]}" make ARCH=um -j"$(nproc)" linux
+        strip -o "$dir/linux" linux
+        cp .config "$dir/config"
+    ) >>"$log" 2>&1
+}
+
+# Fails unless every option in kOptions is =y in the .config at $1.
+verify_config() {
+    local config=$1 opt missing=()
+    for opt in "${kOptions[@]}"; do
+        grep -qx "CONFIG_${opt}=y" "$config" || missing+=("$opt")
+    done
+    if ((${#missing[@]})); then
+        echo "uml_kernel.sh: not built in (=y) after olddefconfig:" \
+            "${missing[*]}" >&2
+        return 1
+    fi
+}
+
+main() {
+    [[ -r $kSourceTarball ]] ||
+        die "$kSourceTarball missing: apt-get install $kSourcePackage flex bison bc"
+    local version
+    version=$(dpkg-query -W -f='${Version}' "$kSourcePackage") ||
+        die "cannot read the version of $kSourcePackage"
+
+    local key
+    key=$(
+        {
+            printf '%s\n' "${kOptions[@]}"
+            echo "$kSourcePackage $version"
+            declare -f build_kernel
+        } | sha256sum | cut -c1-16
+    )
+    local root=${ALACS_CACHE:-${XDG_CACHE_HOME:-$HOME/.cache}/alacs}/uml
+    local final=$root/$key
+
+    # Fast path, no lock: $final only ever appears complete (rename below).
+    if [[ -x $final/linux ]]; then
+        echo "$final/linux"
+        return 0
+    fi
+
+    mkdir -p "$root"
+    root=$(cd "$root" && pwd -P)
+    final=$root/$key
+    local lock_fd
+    exec {lock_fd}>"$root/$key.lock"
+    if ! flock -n "$lock_fd"; then
+        echo "uml_kernel.sh: waiting for another build of $key to finish" >&2
+        flock "$lock_fd"
+    fi
+    # Another caller may have built it while we waited.
+    if [[ -x $final/linux ]]; then
+        echo "$final/linux"
+        return 0
+    fi
+
+    local work
+    work=$(mktemp -d "$root/build.$key.XXXXXX")
+    # shellcheck disable=SC2064 # expand $work now: it is local to main.
+    trap "rm -rf '$work'" EXIT
+    local log=$root/$key.build.log
+    : >"$log"
+    echo "uml_kernel.sh: building the UML kernel $key from $kSourcePackage" \
+        "$version (first run on this machine, ~8 min on 2 cores); log: $log" >&2
+
+    local start=$SECONDS
+    if ! build_kernel "$work" "$log"; then
+        tail -n 30 "$log" >&2
+        die "kernel build failed; full log: $log"
+    fi
+    verify_config "$work/config" || die "full log: $log"
+
+    # Publish atomically: a directory rename within one filesystem.
+    local stage=$work/out
+    mkdir "$stage"
+    mv "$work/linux" "$work/config" "$stage/"
+    printf '%s %s\n' "$kSourcePackage" "$version" >"$stage/source"
+    mv -T "$stage" "$final"
+    echo "uml_kernel.sh: built in $((SECONDS - start)) s: $final/linux" >&2
+    echo "$final/linux"
+}
+
+main "$@"
