@@ -114,7 +114,7 @@ main() {
     local log=$root/$key.build.log
     : >"$log"
     echo "uml_kernel.sh: building the UML kernel $key from $kSourcePackage" \
-        "$version (first run on this machine, ~8 min on 2 cores); log: $log" >&2
+        "$version (first run on this machine: 3-8 min on 2 cores); log: $log" >&2
 
     local start=$SECONDS
     if ! build_kernel "$work" "$log"; then

@@ -1,0 +1,18 @@
+# Warnings are errors everywhere we own the code. The image kernels and the geometry add
+# the conversion family (libcanard's set), where a silent narrowing is a wrong pixel or mm.
+set(ALACS_WARNINGS -Wall -Wextra -Wpedantic -Werror -Wshadow -Wnon-virtual-dtor
+    -Wold-style-cast -Wcast-align -Wunused -Woverloaded-virtual -Wnull-dereference
+    -Wimplicit-fallthrough)
+set(ALACS_STRICT_WARNINGS -Wconversion -Wsign-conversion -Wdouble-promotion -Wswitch-enum)
+
+# alacs_component(NAME SOURCES... [STRICT] [DEPS ...])
+function(alacs_component name)
+  cmake_parse_arguments(ARG "STRICT" "" "SOURCES;DEPS;PRIVATE_DEPS" ${ARGN})
+  add_library(${name} STATIC ${ARG_SOURCES})
+  target_include_directories(${name} PUBLIC ${PROJECT_SOURCE_DIR}/edge)
+  target_compile_options(${name} PRIVATE $<$<COMPILE_LANGUAGE:CXX>:${ALACS_WARNINGS}>)
+  if(ARG_STRICT)
+    target_compile_options(${name} PRIVATE $<$<COMPILE_LANGUAGE:CXX>:${ALACS_STRICT_WARNINGS}>)
+  endif()
+  target_link_libraries(${name} PUBLIC ${ARG_DEPS} PRIVATE ${ARG_PRIVATE_DEPS})
+endfunction()

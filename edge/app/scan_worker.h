@@ -1,0 +1,88 @@
+// The worker thread that does everything that blocks: homing, moves, exposures and
+// the per-frame image work of a scan. The event loop submits one job at a time and
+// receives one WorkerEvent per job through a queue and an eventfd.
+#pragma once
+
+#include <atomic>
+#include <condition_variable>
+#include <deque>
+#include <mutex>
+#include <optional>
+#include <string>
+#include <thread>
+
+#include "app/laser_guard.h"
+#include "localize/localizer.h"
+#include "motion/step_runner.h"
+#include "ports/frame_source.h"
+#include "protocol/codec.h"
+
+namespace alacs::app {
+
+struct WorkerJob {
+  enum class Kind { kHome, kLocalize } kind = Kind::kHome;
+  protocol::LocalizeCommand localize;
+  TimeNs commandTimeNs = 0;
+};
+
+struct WorkerEvent {
+  WorkerJob job;
+  Status status;
+  uint16_t faultBit = 0;               // set when the failure is a device fault
+  protocol::ResultStatus resultStatus = protocol::ResultStatus::kValid;
+  std::optional<localize::AppleEstimate> estimate;
+  TimeNs lastExposureNs = 0;
+  TimeNs doneNs = 0;
+  TimeNs maxStepLatenessNs = 0;
+};
+
+struct WorkerDeps {
+  const Clock* clock = nullptr;
+  Sleeper* sleeper = nullptr;
+  motion::SlideLimits limits;
+  motion::StepLines stepLines;
+  ports::DigitalOut* enable = nullptr;
+  LaserGuard* laser = nullptr;
+  ports::FrameSource* camera = nullptr;
+  ports::CaptureRequest capture;
+  std::string debugDir;                // overlay PNGs go here when not empty
+};
+
+class ScanWorker {
+ public:
+  ScanWorker(WorkerDeps deps, const localize::Localizer& localizer, int eventFd);
+  ~ScanWorker();
+
+  void submit(const WorkerJob& job);
+  std::optional<WorkerEvent> takeEvent();
+  void cancel() { cancel_.store(true); }
+  bool busy() const { return busy_.load(); }
+  bool homed() const { return homed_.load(); }
+  double positionMm() const { return deps_.limits.mmFor(positionSteps_.load()); }
+  void setLocalizer(const localize::Localizer& l);
+  void setExposureUs(int64_t us);
+  void markUnhomed() { homed_.store(false); }
+
+ private:
+  void run();
+  WorkerEvent doHome(const WorkerJob& job);
+  WorkerEvent doLocalize(const WorkerJob& job);
+  Status moveTo(double mm, WorkerEvent& ev);
+
+  WorkerDeps deps_;
+  localize::Localizer localizer_;
+  int eventFd_;
+  std::thread thread_;
+  std::mutex mu_;
+  std::condition_variable cv_;
+  std::deque<WorkerJob> jobs_;
+  std::deque<WorkerEvent> events_;
+  bool quit_ = false;
+  std::atomic<bool> cancel_{false};
+  std::atomic<bool> busy_{false};
+  std::atomic<bool> homed_{false};
+  std::atomic<int64_t> positionSteps_{0};
+  image::LleWorkspace ws_;
+};
+
+}  // namespace alacs::app

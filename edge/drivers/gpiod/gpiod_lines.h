@@ -1,0 +1,38 @@
+// libgpiod adapter: the box's lines requested by NAME from one GPIO chip, exposed as
+// the ports' DigitalOut/DigitalIn. Built against the v1 API (Debian 12, libgpiod 1.6)
+// or the v2 API (Yocto scarthgap, libgpiod 2.x), chosen at configure time. No gpiod
+// type leaves this folder; its errors become Status here.
+#pragma once
+
+#include <memory>
+#include <string>
+
+#include "ports/digital_io.h"
+
+namespace alacs::drivers {
+
+struct GpioLineNames {
+  std::string step = "STEP";
+  std::string dir = "DIR";
+  std::string enable = "ENABLE";
+  std::string laser = "LASER";
+  std::string home = "HOME";
+  std::string end = "END";        // empty: no end switch
+  bool homeActiveLow = false;
+  bool endActiveLow = false;
+};
+
+class GpiodLines {
+ public:
+  // `chip` is a device path (/dev/gpiochip0) or a chip label (alacs-sim). Outputs are
+  // requested deasserted (laser off, motor disabled). Errors name the missing line.
+  static Result<std::unique_ptr<GpiodLines>> open(const std::string& chip, const GpioLineNames& names,
+                                                  const std::string& consumer);
+  virtual ~GpiodLines() = default;
+  virtual ports::SensorLines lines() = 0;
+  // Drives every output to its safe level (laser off, motor disabled, STEP low).
+  virtual void makeSafe() = 0;
+  virtual std::string chipName() const = 0;
+};
+
+}  // namespace alacs::drivers

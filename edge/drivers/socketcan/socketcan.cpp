@@ -1,0 +1,77 @@
+#include "drivers/socketcan/socketcan.h"
+
+#include <linux/can.h>
+#include <linux/can/error.h>
+#include <linux/can/raw.h>
+#include <net/if.h>
+#include <sys/ioctl.h>
+#include <sys/socket.h>
+#include <unistd.h>
+
+#include <cerrno>
+#include <cstring>
+
+namespace alacs::drivers {
+
+Result<std::unique_ptr<SocketCan>> SocketCan::open(const std::string& iface, const std::vector<CanFilter>& filters) {
+  if (iface.empty() || iface.size() >= IFNAMSIZ) return Status(Error::kInvalidArgument, "bad CAN interface name '" + iface + "'");
+  const int fd = ::socket(PF_CAN, SOCK_RAW | SOCK_NONBLOCK | SOCK_CLOEXEC, CAN_RAW);
+  if (fd < 0) {
+    if (errno == EAFNOSUPPORT) return Status(Error::kUnsupported, "this kernel has no SocketCAN (AF_CAN unsupported)");
+    return Status(Error::kIo, std::string("socket(PF_CAN): ") + std::strerror(errno));
+  }
+  auto self = std::unique_ptr<SocketCan>(new SocketCan(fd));
+  ifreq ifr{};
+  std::strncpy(ifr.ifr_name, iface.c_str(), IFNAMSIZ - 1);
+  if (::ioctl(fd, SIOCGIFINDEX, &ifr) < 0) return Status(Error::kNotFound, "no CAN interface '" + iface + "'");
+  std::vector<can_filter> kf;
+  for (const auto& f : filters) kf.push_back({f.id, f.mask | CAN_EFF_FLAG | CAN_RTR_FLAG});
+  if (!kf.empty() && ::setsockopt(fd, SOL_CAN_RAW, CAN_RAW_FILTER, kf.data(),
+                                  static_cast<socklen_t>(kf.size() * sizeof(can_filter))) < 0)
+    return Status(Error::kIo, std::string("CAN_RAW_FILTER: ") + std::strerror(errno));
+  const can_err_mask_t errMask = CAN_ERR_TX_TIMEOUT | CAN_ERR_CRTL | CAN_ERR_BUSOFF | CAN_ERR_BUSERROR | CAN_ERR_RESTARTED;
+  if (::setsockopt(fd, SOL_CAN_RAW, CAN_RAW_ERR_FILTER, &errMask, sizeof errMask) < 0)
+    return Status(Error::kIo, std::string("CAN_RAW_ERR_FILTER: ") + std::strerror(errno));
+  sockaddr_can addr{};
+  addr.can_family = AF_CAN;
+  addr.can_ifindex = ifr.ifr_ifindex;
+  if (::bind(fd, reinterpret_cast<sockaddr*>(&addr), sizeof addr) < 0)
+    return Status(Error::kIo, "bind to '" + iface + "': " + std::strerror(errno));
+  return self;
+}
+
+SocketCan::~SocketCan() { ::close(fd_); }
+
+Result<bool> SocketCan::read(ports::CanFrame* out) {
+  can_frame f{};
+  const ssize_t n = ::read(fd_, &f, sizeof f);
+  if (n < 0) {
+    if (errno == EAGAIN || errno == EWOULDBLOCK) return false;
+    return Status(Error::kIo, std::string("CAN read: ") + std::strerror(errno));
+  }
+  if (static_cast<size_t>(n) != sizeof f) return Status(Error::kBadInput, "short CAN frame");
+  *out = {};
+  out->error = (f.can_id & CAN_ERR_FLAG) != 0;
+  out->extended = (f.can_id & CAN_EFF_FLAG) != 0;
+  out->rtr = (f.can_id & CAN_RTR_FLAG) != 0;
+  out->id = f.can_id & (out->extended ? CAN_EFF_MASK : CAN_SFF_MASK);
+  if (out->error) out->errorClass = f.can_id & CAN_ERR_MASK;
+  out->dlc = f.len > 8 ? 8 : f.len;
+  std::memcpy(out->data.data(), f.data, 8);
+  return true;
+}
+
+Status SocketCan::write(const ports::CanFrame& frame) {
+  can_frame f{};
+  f.can_id = frame.id & (frame.extended ? CAN_EFF_MASK : CAN_SFF_MASK);
+  if (frame.extended) f.can_id |= CAN_EFF_FLAG;
+  f.len = frame.dlc > 8 ? 8 : frame.dlc;
+  std::memcpy(f.data, frame.data.data(), 8);
+  const ssize_t n = ::write(fd_, &f, sizeof f);
+  if (n == static_cast<ssize_t>(sizeof f)) return Status::ok();
+  if (n < 0 && (errno == ENOBUFS || errno == EAGAIN || errno == EWOULDBLOCK))
+    return {Error::kBusy, "CAN transmit queue full"};
+  return {Error::kIo, std::string("CAN write: ") + (n < 0 ? std::strerror(errno) : "short write")};
+}
+
+}  // namespace alacs::drivers

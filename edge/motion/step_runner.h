@@ -1,0 +1,59 @@
+// Turns a planned move into STEP/DIR pulses on digital outputs, watching the limit
+// switches. Time comes from a Clock and waits go through a Sleeper, so the same code
+// drives a real motor from a real-time thread and runs in virtual time in tests.
+#pragma once
+
+#include <atomic>
+#include <cstdint>
+
+#include "common/clock.h"
+#include "motion/trapezoid.h"
+#include "ports/digital_io.h"
+
+namespace alacs::motion {
+
+struct StepLines {
+  ports::DigitalOut* step = nullptr;
+  ports::DigitalOut* dir = nullptr;
+  ports::DigitalIn* home = nullptr;
+  ports::DigitalIn* end = nullptr;  // optional
+};
+
+enum class MoveOutcome : uint8_t {
+  kCompleted,
+  kSwitchReached,  // homing: the home switch closed (success)
+  kLimitHit,       // a switch closed during an ordinary move (fault)
+  kCancelled,      // stop requested
+  kIoError,
+};
+
+struct MoveReport {
+  MoveOutcome outcome = MoveOutcome::kCompleted;
+  int64_t stepsDone = 0;
+  TimeNs maxLatenessNs = 0;  // worst delay of a STEP edge after its planned time
+  Status status;
+};
+
+class StepRunner {
+ public:
+  StepRunner(const SlideLimits& limits, StepLines lines, const Clock& clock, Sleeper& sleeper)
+      : limits_(limits), lines_(lines), clock_(clock), sleeper_(sleeper) {}
+
+  // Runs `move` towards increasing slide mm when `forward`. A switch closing in the
+  // direction of travel ends the move with kLimitHit. Blocking.
+  MoveReport run(const TrapezoidMove& move, bool forward, const std::atomic<bool>& cancel);
+
+  // Moves towards home at the homing speed until the home switch closes (kSwitchReached),
+  // or fails with kLimitHit status kTimeout after the homing timeout / travel budget.
+  MoveReport home(const std::atomic<bool>& cancel);
+
+ private:
+  MoveReport runSteps(const TrapezoidMove& move, bool forward, const std::atomic<bool>& cancel, bool homing,
+                      TimeNs deadline);
+  SlideLimits limits_;
+  StepLines lines_;
+  const Clock& clock_;
+  Sleeper& sleeper_;
+};
+
+}  // namespace alacs::motion

@@ -1,0 +1,48 @@
+// The camera port. One implementation per source: libcamera (drivers/libcamera), a
+// replay of a scan directory, and the simulator (sim/). Frames are owned by the source
+// and lent to the caller until the next capture.
+#pragma once
+
+#include <cstdint>
+#include <functional>
+
+#include "common/clock.h"
+#include "common/result.h"
+#include "image/image_view.h"
+
+namespace alacs::ports {
+
+struct CaptureRequest {
+  int64_t exposureUs = 2000;
+  int64_t timeoutMs = 1000;
+};
+
+struct FrameInfo {
+  uint64_t sequence = 0;
+  TimeNs exposureStartNs = 0;
+  int64_t exposureUs = 0;
+};
+
+struct CapturedFrame {
+  image::ImageView view;  // valid until the next capture()
+  FrameInfo info;
+};
+
+class FrameSource {
+ public:
+  virtual ~FrameSource() = default;
+  // Exposes and returns one frame. Blocking; call from a worker thread, never from the
+  // event loop. `onExposureEnd` is called (on the same thread) as soon as the sensor
+  // stops integrating, before readout, so the laser can be switched off at once.
+  // Errors: kTimeout, kBadInput (corrupted frame), kIo.
+  Result<CapturedFrame> capture(const CaptureRequest& request, const std::function<void()>& onExposureEnd) {
+    return doCapture(request, onExposureEnd);
+  }
+  virtual const char* name() const = 0;
+
+ private:
+  virtual Result<CapturedFrame> doCapture(const CaptureRequest& request,
+                                          const std::function<void()>& onExposureEnd) = 0;
+};
+
+}  // namespace alacs::ports

@@ -1,0 +1,223 @@
+#include "protocol/codec.h"
+
+#include <algorithm>
+#include <cmath>
+
+extern "C" {
+#include "alacs.h"
+#include "alacs_protocol.h"
+}
+
+namespace alacs::protocol {
+namespace {
+
+ports::CanFrame frameFor(uint32_t baseId, uint8_t nodeId, uint8_t dlc) {
+  ports::CanFrame f;
+  f.id = alacs_frame_id(baseId, nodeId);
+  f.dlc = dlc;
+  return f;
+}
+
+template <typename T>
+T saturate(double v) {
+  const double lo = static_cast<double>(std::numeric_limits<T>::min());
+  const double hi = static_cast<double>(std::numeric_limits<T>::max());
+  if (!std::isfinite(v)) return T{0};
+  return static_cast<T>(std::lround(std::clamp(v, lo, hi)));
+}
+
+}  // namespace
+
+CommandDecode decodeCommand(const ports::CanFrame& frame) {
+  CommandDecode out;
+  out.command.opcode = frame.dlc > 0 ? static_cast<Opcode>(frame.data[0] <= 7 ? frame.data[0] : 0) : Opcode::kInvalid;
+  out.command.counter = frame.dlc > 1 ? static_cast<uint8_t>(frame.data[1] & 0x0F) : 0;
+  if (frame.dlc != ALACS_COMMAND_DLC) {
+    out.reason = NackReason::kBadDlc;
+    return out;
+  }
+  if (!alacs_command_checksum_ok(frame.data.data(), frame.dlc)) {
+    out.reason = NackReason::kBadChecksum;
+    return out;
+  }
+  alacs_alacs_command_t m{};
+  if (alacs_alacs_command_unpack(&m, frame.data.data(), frame.dlc) != 0) {
+    out.reason = NackReason::kBadDlc;
+    return out;
+  }
+  if (m.cmd_opcode < 1 || m.cmd_opcode > 7) {
+    out.command.opcode = Opcode::kInvalid;
+    out.reason = NackReason::kUnknownOpcode;
+    return out;
+  }
+  Command& c = out.command;
+  c.opcode = static_cast<Opcode>(m.cmd_opcode);
+  c.counter = m.cmd_counter;
+  switch (c.opcode) {
+    case Opcode::kLocalize:
+      if (m.localize_mode > 1) {
+        out.reason = NackReason::kBadValue;
+        return out;
+      }
+      c.localize.mode = static_cast<ScanMode>(m.localize_mode);
+      c.localize.targetId = m.target_id;
+      c.localize.roughMm = Eigen::Vector3d(alacs_alacs_command_rough_x_decode(m.rough_x),
+                                           alacs_alacs_command_rough_y_decode(m.rough_y),
+                                           alacs_alacs_command_rough_z_decode(m.rough_z));
+      break;
+    case Opcode::kScanAll:
+      if (m.scan_all_mode > 1) {
+        out.reason = NackReason::kBadValue;
+        return out;
+      }
+      c.scanAllMode = static_cast<ScanMode>(m.scan_all_mode);
+      break;
+    case Opcode::kSetConfig: {
+      SetConfigCommand& s = c.config;
+      s.page = m.cfg_page;
+      if (m.cfg_page == 0) {
+        if (m.cfg_exposure_valid) s.exposureUs = m.cfg_exposure_us;
+        if (m.cfg_brce_step_valid) s.brceStep = m.cfg_brce_step;
+        if (m.cfg_brce_threshold_valid) s.brceThreshold = m.cfg_brce_threshold;
+      } else if (m.cfg_page == 1) {
+        if (m.cfg_scan_stops_valid) s.scanStops = m.cfg_scan_stops;
+        if (m.cfg_stop_spacing_valid) s.stopSpacingMm = alacs_alacs_command_cfg_stop_spacing_mm_decode(m.cfg_stop_spacing_mm);
+        if (m.cfg_heartbeat_valid) s.heartbeatMs = m.cfg_heartbeat_ms;
+      } else {
+        out.reason = NackReason::kBadValue;
+        return out;
+      }
+      break;
+    }
+    case Opcode::kHome:
+    case Opcode::kStop:
+    case Opcode::kGetVersion:
+    case Opcode::kClearFault:
+    case Opcode::kInvalid:
+      break;
+  }
+  out.ok = true;
+  return out;
+}
+
+ports::CanFrame encodeAck(uint8_t nodeId, const Ack& ack) {
+  alacs_alacs_ack_t m{};
+  m.ack_opcode = static_cast<uint8_t>(ack.opcode);
+  m.ack_counter = static_cast<uint8_t>(ack.counter & 0x0F);
+  m.ack_result = static_cast<uint8_t>(ack.result);
+  m.nack_reason = static_cast<uint8_t>(ack.reason);
+  ports::CanFrame f = frameFor(ALACS_BASE_ID_ACK, nodeId, 8);
+  (void)alacs_alacs_ack_pack(f.data.data(), &m, f.data.size());
+  return f;
+}
+
+ports::CanFrame encodeVersionAck(uint8_t nodeId, uint8_t counter, int major, int minor, int patch) {
+  alacs_alacs_ack_t m{};
+  m.ack_opcode = static_cast<uint8_t>(Opcode::kGetVersion);
+  m.ack_counter = static_cast<uint8_t>(counter & 0x0F);
+  m.ack_result = static_cast<uint8_t>(AckResult::kAck);
+  m.sw_major = static_cast<uint8_t>(major);
+  m.sw_minor = static_cast<uint8_t>(minor);
+  m.sw_patch = static_cast<uint8_t>(patch);
+  m.protocol_version = static_cast<uint8_t>(ALACS_PROTOCOL_VERSION);
+  ports::CanFrame f = frameFor(ALACS_BASE_ID_ACK, nodeId, 8);
+  (void)alacs_alacs_ack_pack(f.data.data(), &m, f.data.size());
+  return f;
+}
+
+ports::CanFrame encodeStatus(uint8_t nodeId, const StatusReport& s) {
+  alacs_alacs_status_t m{};
+  m.state = static_cast<uint8_t>(s.state);
+  m.homed = s.homed;
+  m.laser_on = s.laserOn;
+  m.calibrated = s.calibrated;
+  m.home_switch = s.homeSwitch;
+  auto bit = [&](uint16_t b) { return static_cast<uint8_t>((s.faults & b) != 0 ? 1 : 0); };
+  m.fault_homing_timeout = bit(kFaultHomingTimeout);
+  m.fault_limit_hit = bit(kFaultLimitHit);
+  m.fault_camera_timeout = bit(kFaultCameraTimeout);
+  m.fault_camera_corrupt = bit(kFaultCameraCorrupt);
+  m.fault_can_bus_off = bit(kFaultCanBusOff);
+  m.fault_can_tx_overflow = bit(kFaultCanTxOverflow);
+  m.fault_config_invalid = bit(kFaultConfigInvalid);
+  m.fault_not_calibrated = bit(kFaultNotCalibrated);
+  m.fault_laser_overtime = bit(kFaultLaserOvertime);
+  m.fault_internal = bit(kFaultInternal);
+  m.fault_stop_requested = bit(kFaultStopRequested);
+  m.last_latency_ms = static_cast<uint16_t>(std::min<uint32_t>(s.lastLatencyMs, 4095));
+  m.max_latency_ms = static_cast<uint16_t>(std::min<uint32_t>(s.maxLatencyMs, 4095));
+  m.dropped_frames = static_cast<uint8_t>(std::min<uint32_t>(s.droppedFrames, 255));
+  m.rx_error_count = static_cast<uint8_t>(std::min<uint32_t>(s.rxErrors, 255));
+  ports::CanFrame f = frameFor(ALACS_BASE_ID_STATUS, nodeId, 8);
+  (void)alacs_alacs_status_pack(f.data.data(), &m, f.data.size());
+  return f;
+}
+
+ports::CanFrame encodeResultHeader(uint8_t nodeId, const ResultHeader& h) {
+  alacs_alacs_result_header_t m{};
+  m.meas_counter = h.measCounter;
+  m.object_count = h.objectCount;
+  m.result_target_id = h.targetId;
+  m.scan_age_ms = static_cast<uint16_t>(std::min<uint32_t>(h.scanAgeMs, 65535));
+  m.result_status = static_cast<uint8_t>(h.status);
+  m.result_mode = h.mode;
+  m.cycle_time = alacs_alacs_result_header_cycle_time_encode(std::min(5100.0, static_cast<double>(h.cycleTimeMs)));
+  ports::CanFrame f = frameFor(ALACS_BASE_ID_RESULT_HEADER, nodeId, 8);
+  (void)alacs_alacs_result_header_pack(f.data.data(), &m, f.data.size());
+  return f;
+}
+
+void encodeResultObject(uint8_t nodeId, uint16_t measCounter, const ResultObject& o, ports::CanFrame out[4]) {
+  for (uint8_t page = 0; page < 4; ++page) {
+    alacs_alacs_result_object_t m{};
+    m.obj_page = page;
+    m.obj_index = static_cast<uint8_t>(o.index & 0x0F);
+    m.obj_meas_counter = static_cast<uint8_t>(measCounter & 0xFF);
+    switch (page) {
+      case 0:
+        m.center_x = saturate<int16_t>(o.centerMm.x() * 10.0);
+        m.center_y = saturate<int16_t>(o.centerMm.y() * 10.0);
+        m.center_z = saturate<uint16_t>(o.centerMm.z() * 10.0);
+        break;
+      case 1:
+        m.approach_x = saturate<int16_t>(o.approachMm.x() * 10.0);
+        m.approach_y = saturate<int16_t>(o.approachMm.y() * 10.0);
+        m.approach_z = saturate<uint16_t>(o.approachMm.z() * 10.0);
+        break;
+      case 2:
+        m.sigma_mm = saturate<uint8_t>(o.sigmaMm * 10.0);
+        m.confidence = saturate<uint8_t>(std::min(100.0, o.confidencePct));
+        m.diameter_mm = saturate<uint8_t>(o.diameterMm * 2.0);
+        m.occlusion_pct = saturate<uint8_t>(std::min(100.0, o.occlusionPct));
+        m.lines_used = static_cast<uint8_t>(std::clamp(o.linesUsed, 0, 15));
+        m.points_used = static_cast<uint16_t>(std::clamp(o.pointsUsed, 0, 4095));
+        break;
+      default:
+        m.normal_x = saturate<int16_t>(o.normal.x() * 32767.0);
+        m.normal_y = saturate<int16_t>(o.normal.y() * 32767.0);
+        m.normal_z = saturate<int16_t>(o.normal.z() * 32767.0);
+        break;
+    }
+    out[page] = frameFor(ALACS_BASE_ID_RESULT_OBJECT, nodeId, 8);
+    (void)alacs_alacs_result_object_pack(out[page].data.data(), &m, out[page].data.size());
+  }
+}
+
+ports::CanFrame encodeHeartbeat(uint8_t nodeId, uint8_t nmtState) {
+  ports::CanFrame f = frameFor(ALACS_BASE_ID_HEARTBEAT, nodeId, 1);
+  f.data[0] = nmtState;
+  return f;
+}
+
+ports::CanFrame encodeEmcy(uint8_t nodeId, uint16_t errorCode, uint16_t faults, uint8_t reason) {
+  alacs_emcy_t m{};
+  m.emcy_error_code = errorCode;
+  m.emcy_error_register = errorCode != 0 ? 0x01 : 0x00;
+  m.emcy_fault_bits = faults;
+  m.emcy_reason = reason;
+  ports::CanFrame f = frameFor(ALACS_BASE_ID_EMCY, nodeId, 8);
+  (void)alacs_emcy_pack(f.data.data(), &m, f.data.size());
+  return f;
+}
+
+}  // namespace alacs::protocol

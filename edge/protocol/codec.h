@@ -1,0 +1,124 @@
+// Typed C++ view of the ALACS CAN messages on top of the codec that cantools generates
+// from can_protocol/alacs.dbc. Pure functions: frames in, structs out, and back.
+#pragma once
+
+#include <Eigen/Core>
+#include <cstdint>
+#include <optional>
+
+#include "ports/can_port.h"
+
+namespace alacs::protocol {
+
+enum class Opcode : uint8_t {
+  kInvalid = 0, kLocalize = 1, kScanAll = 2, kHome = 3, kStop = 4, kSetConfig = 5, kGetVersion = 6, kClearFault = 7,
+};
+
+enum class NackReason : uint8_t {
+  kNone = 0, kBadDlc = 1, kBadChecksum = 2, kBadCounter = 3, kUnknownOpcode = 4, kBusy = 5, kNotHomed = 6,
+  kNotCalibrated = 7, kOutOfRange = 8, kFaultActive = 9, kNmtNotOperational = 10, kBadValue = 11, kInternal = 12,
+};
+
+enum class AckResult : uint8_t { kAck = 0, kNack = 1, kDone = 2 };
+
+enum class ScanMode : uint8_t { kStopAndGo = 0, kContinuous = 1 };
+
+struct LocalizeCommand {
+  ScanMode mode = ScanMode::kStopAndGo;
+  uint8_t targetId = 0;
+  Eigen::Vector3d roughMm = Eigen::Vector3d::Zero();
+};
+
+struct SetConfigCommand {
+  uint8_t page = 0;
+  std::optional<uint16_t> exposureUs;
+  std::optional<uint8_t> brceStep;
+  std::optional<uint8_t> brceThreshold;
+  std::optional<uint8_t> scanStops;
+  std::optional<double> stopSpacingMm;
+  std::optional<uint16_t> heartbeatMs;
+};
+
+struct Command {
+  Opcode opcode = Opcode::kInvalid;
+  uint8_t counter = 0;
+  LocalizeCommand localize;
+  ScanMode scanAllMode = ScanMode::kStopAndGo;
+  SetConfigCommand config;
+};
+
+// Decoded command or the reason it was refused (with the opcode/counter to echo).
+struct CommandDecode {
+  bool ok = false;
+  Command command;
+  NackReason reason = NackReason::kNone;
+};
+
+// Checks DLC and checksum, then unpacks. The counter rule is the node's (node.h).
+CommandDecode decodeCommand(const ports::CanFrame& frame);
+
+struct Ack {
+  Opcode opcode = Opcode::kInvalid;
+  uint8_t counter = 0;
+  AckResult result = AckResult::kAck;
+  NackReason reason = NackReason::kNone;
+};
+
+enum class State : uint8_t { kBoot = 0, kHoming = 1, kIdle = 2, kScanning = 3, kFault = 4, kStopped = 5 };
+
+// Fault bits, as in ALACS_Status.Fault* and EMCY.
+enum FaultBit : uint16_t {
+  kFaultHomingTimeout = 1U << 0, kFaultLimitHit = 1U << 1, kFaultCameraTimeout = 1U << 2,
+  kFaultCameraCorrupt = 1U << 3, kFaultCanBusOff = 1U << 4, kFaultCanTxOverflow = 1U << 5,
+  kFaultConfigInvalid = 1U << 6, kFaultNotCalibrated = 1U << 7, kFaultLaserOvertime = 1U << 8,
+  kFaultInternal = 1U << 9, kFaultStopRequested = 1U << 10,
+};
+
+struct StatusReport {
+  State state = State::kBoot;
+  bool homed = false;
+  bool laserOn = false;
+  bool calibrated = false;
+  bool homeSwitch = false;
+  uint16_t faults = 0;
+  uint32_t lastLatencyMs = 0;
+  uint32_t maxLatencyMs = 0;
+  uint32_t droppedFrames = 0;
+  uint32_t rxErrors = 0;
+};
+
+enum class ResultStatus : uint8_t { kValid = 0, kNoObject = 1, kPartial = 2, kFailed = 3, kAborted = 4 };
+
+struct ResultHeader {
+  uint16_t measCounter = 0;
+  uint8_t objectCount = 0;
+  uint8_t targetId = 0;
+  uint32_t scanAgeMs = 0;
+  ResultStatus status = ResultStatus::kValid;
+  uint8_t mode = 0;  // 0 LOCALIZE, 1 SCAN_ALL
+  uint32_t cycleTimeMs = 0;
+};
+
+struct ResultObject {
+  uint8_t index = 0;
+  Eigen::Vector3d centerMm = Eigen::Vector3d::Zero();
+  Eigen::Vector3d approachMm = Eigen::Vector3d::Zero();
+  Eigen::Vector3d normal = Eigen::Vector3d::Zero();
+  double sigmaMm = 0.0;
+  double confidencePct = 0.0;
+  double diameterMm = 0.0;
+  double occlusionPct = 0.0;
+  int linesUsed = 0;
+  int pointsUsed = 0;
+};
+
+ports::CanFrame encodeAck(uint8_t nodeId, const Ack& ack);
+ports::CanFrame encodeVersionAck(uint8_t nodeId, uint8_t counter, int major, int minor, int patch);
+ports::CanFrame encodeStatus(uint8_t nodeId, const StatusReport& s);
+ports::CanFrame encodeResultHeader(uint8_t nodeId, const ResultHeader& h);
+// The four pages of one object: CENTER, APPROACH_POINT, QUALITY, APPROACH_NORMAL.
+void encodeResultObject(uint8_t nodeId, uint16_t measCounter, const ResultObject& o, ports::CanFrame out[4]);
+ports::CanFrame encodeHeartbeat(uint8_t nodeId, uint8_t nmtState);
+ports::CanFrame encodeEmcy(uint8_t nodeId, uint16_t errorCode, uint16_t faults, uint8_t reason);
+
+}  // namespace alacs::protocol

@@ -1,0 +1,35 @@
+#include "sim/sim_camera.h"
+
+#include <chrono>
+#include <thread>
+
+namespace alacs::sim {
+
+SimCamera::SimCamera(const SimScene& scene, const Clock& clock, std::function<bool()> laserLevel,
+                     std::function<double()> slideMm)
+    : renderer_(scene), clock_(clock), laserLevel_(std::move(laserLevel)), slideMm_(std::move(slideMm)) {}
+
+Result<ports::CapturedFrame> SimCamera::doCapture(const ports::CaptureRequest& request,
+                                                  const std::function<void()>& onExposureEnd) {
+  if (request.exposureUs <= 0 || request.exposureUs > 1000000)
+    return Status(Error::kInvalidArgument, "exposure must be in 1..1000000 us");
+  const TimeNs start = clock_.now();
+  const bool laserAtStart = laserLevel_();
+  const double slideAtStart = slideMm_();
+  std::this_thread::sleep_for(std::chrono::microseconds(request.exposureUs));
+  const bool laserAtEnd = laserLevel_();
+  const double slideAtEnd = slideMm_();
+  if (onExposureEnd) onExposureEnd();
+  // The laser counts for the part of the exposure it was seen on (start and end samples).
+  const double laserFraction = 0.5 * ((laserAtStart ? 1.0 : 0.0) + (laserAtEnd ? 1.0 : 0.0));
+  lastSlideMm_ = 0.5 * (slideAtStart + slideAtEnd);
+  renderer_.render(lastSlideMm_, laserFraction, sequence_, frame_);
+  ports::CapturedFrame out;
+  out.view = {frame_.data, frame_.cols, frame_.rows, frame_.step[0], image::PixelFormat::kBgr888};
+  out.info.sequence = sequence_++;
+  out.info.exposureStartNs = start;
+  out.info.exposureUs = request.exposureUs;
+  return out;
+}
+
+}  // namespace alacs::sim

@@ -1,0 +1,34 @@
+// The simulated camera: a FrameSource that renders the scene at the slide's position
+// with the laser as it really was during the exposure (read from the laser line).
+#pragma once
+
+#include <functional>
+#include <opencv2/core.hpp>
+
+#include "ports/frame_source.h"
+#include "sim/renderer.h"
+
+namespace alacs::sim {
+
+class SimCamera final : public ports::FrameSource {
+ public:
+  // `laserLevel` and `slideMm` are sampled at the start and the end of each exposure.
+  SimCamera(const SimScene& scene, const Clock& clock, std::function<bool()> laserLevel,
+            std::function<double()> slideMm);
+  const char* name() const override { return "sim"; }
+  // The last rendered frame's slide position (mean over the exposure), for tests.
+  double lastSlideMm() const { return lastSlideMm_; }
+
+ private:
+  Result<ports::CapturedFrame> doCapture(const ports::CaptureRequest& request,
+                                         const std::function<void()>& onExposureEnd) override;
+  Renderer renderer_;
+  const Clock& clock_;
+  std::function<bool()> laserLevel_;
+  std::function<double()> slideMm_;
+  cv::Mat frame_;
+  uint64_t sequence_ = 0;
+  double lastSlideMm_ = 0.0;
+};
+
+}  // namespace alacs::sim
