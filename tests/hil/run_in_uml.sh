@@ -121,16 +121,18 @@ main() {
     trap 'on_signal TERM' TERM
     trap 'on_signal HUP' HUP
 
-    run=$(mktemp -d "${TMPDIR:-/tmp}/alacs-uml-XXXXXX")
-    run=$(cd "$run" && pwd -P)
+    # The guest mounts its own /proc, /sys, /dev and /run over the host's:
+    # the run directory must live elsewhere to be shared.
+    local base
+    base=$(cd "${TMPDIR:-/tmp}" && pwd -P)
+    case $base/ in
+    /proc/* | /sys/* | /dev/* | /run/*) base=/tmp ;;
+    esac
+    run=$(mktemp -d "$base/alacs-uml-XXXXXX")
     umid=${run##*/}
-    # Both travel on the kernel command line, which splits on blanks; the
-    # guest mounts its own /proc, /sys, /dev and /run over the host's.
+    # Both travel on the kernel command line, which splits on blanks.
     [[ $run != *[[:space:]]* && $here != *[[:space:]]* ]] ||
         die "$run or $here contains a blank; set TMPDIR or move the tree"
-    case $run/ in
-    /proc/* | /sys/* | /dev/* | /run/*) die "TMPDIR=$TMPDIR is hidden inside UML; use e.g. /tmp" ;;
-    esac
     memdir=$(pick_memdir "$run")
 
     write_env >"$run/env.sh"

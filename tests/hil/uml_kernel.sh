@@ -84,6 +84,8 @@ main() {
         } | sha256sum | cut -c1-16
     )
     local root=${ALACS_CACHE:-${XDG_CACHE_HOME:-$HOME/.cache}/alacs}/uml
+    mkdir -p "$root" || die "cannot create the cache directory $root"
+    root=$(cd "$root" && pwd -P)
     local final=$root/$key
 
     # Fast path, no lock: $final only ever appears complete (rename below).
@@ -92,9 +94,6 @@ main() {
         return 0
     fi
 
-    mkdir -p "$root"
-    root=$(cd "$root" && pwd -P)
-    final=$root/$key
     local lock_fd
     exec {lock_fd}>"$root/$key.lock"
     if ! flock -n "$lock_fd"; then
