@@ -98,9 +98,10 @@ main() {
     local timeout_s=600
     while (($#)); do
         case $1 in
-        --mem) mem=${2:?--mem needs a size}; shift 2 ;;
+        --mem | --timeout) (($# >= 2)) || die "$1 needs a value" ;;&
+        --mem) mem=$2; shift 2 ;;
         --mem=*) mem=${1#*=}; shift ;;
-        --timeout) timeout_s=${2:?--timeout needs seconds}; shift 2 ;;
+        --timeout) timeout_s=$2; shift 2 ;;
         --timeout=*) timeout_s=${1#*=}; shift ;;
         -h | --help) usage; exit 0 ;;
         --) shift; break ;;
