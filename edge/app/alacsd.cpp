@@ -504,17 +504,19 @@ void Daemon::flushTx() {
 }
 
 int Daemon::run() {
-  if (Status s = setUp(); !s) {
-    ALACS_LOG_ERROR("main", "%s", s.toString().c_str());
-    if (laser_) (void)laser_->off();
-    return 1;
-  }
+  // Block the signals before any thread starts, so that they all inherit the mask and
+  // only the signalfd sees SIGTERM.
   sigset_t mask;
   sigemptyset(&mask);
   sigaddset(&mask, SIGTERM);
   sigaddset(&mask, SIGINT);
   sigaddset(&mask, SIGHUP);
   pthread_sigmask(SIG_BLOCK, &mask, nullptr);
+  if (Status s = setUp(); !s) {
+    ALACS_LOG_ERROR("main", "%s", s.toString().c_str());
+    if (laser_) (void)laser_->off();
+    return 1;
+  }
   const int sfd = signalfd(-1, &mask, SFD_NONBLOCK | SFD_CLOEXEC);
   const int tfd = timerfd_create(CLOCK_MONOTONIC, TFD_NONBLOCK | TFD_CLOEXEC);
   itimerspec tick{};
