@@ -1,0 +1,21 @@
+"""``python -m alacs_can dbc|golden ...``: write the DBC or the golden vectors."""
+
+from __future__ import annotations
+
+import sys
+
+from . import dbc, golden
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = sys.argv[1:] if argv is None else argv
+    tools = {"dbc": dbc.main, "golden": golden.main}
+    if not args or args[0] not in tools:
+        print("usage: python -m alacs_can {dbc,golden} [options]  (--help for each)",
+              file=sys.stderr)
+        return 2
+    return tools[args[0]](args[1:])
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,291 @@
+"""Golden vectors: known frames with their physical and raw signal values.
+
+``python -m alacs_can golden -o can_protocol/vectors/golden.json`` writes the
+committed file (``can_protocol/generate.sh`` does it); the pytest suite recomputes
+it and fails if it differs, and the C/C++ tests read it to check their codecs.
+Every frame is encoded by cantools from the DBC; commands carry the right CRC.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from collections.abc import Sequence
+from typing import Any
+
+import can
+from cantools.database import Database
+
+from . import constants as c
+from .codec import (
+    check_command,
+    command_checksum,
+    decode,
+    decode_raw,
+    encode_command,
+    encode_message,
+)
+from .crc import CRC8_J1850_INIT, CRC8_J1850_POLY, CRC8_J1850_XOROUT, crc8_j1850
+from .dbc import load_database
+
+FORMAT_VERSION = 1
+
+# (name, opcode, counter, payload) for ALACS_Command.
+COMMAND_CASES: list[tuple[str, str, int, dict[str, Any]]] = [
+    ("command_localize_typical", "LOCALIZE", 1,
+     dict(LocalizeMode="STOP_AND_GO", TargetId=3, RoughX=-120, RoughY=45, RoughZ=650)),
+    ("command_localize_min", "LOCALIZE", 0,
+     dict(LocalizeMode="STOP_AND_GO", TargetId=0, RoughX=-2048, RoughY=-2048, RoughZ=0)),
+    ("command_localize_max", "LOCALIZE", 15,
+     dict(LocalizeMode="CONTINUOUS", TargetId=255, RoughX=2047, RoughY=2047, RoughZ=2550)),
+    ("command_localize_minus_one", "LOCALIZE", 7,
+     dict(LocalizeMode="CONTINUOUS", TargetId=128, RoughX=-1, RoughY=-1, RoughZ=10)),
+    ("command_scan_all_stop_and_go", "SCAN_ALL", 2, dict(ScanAllMode="STOP_AND_GO")),
+    ("command_scan_all_continuous", "SCAN_ALL", 3, dict(ScanAllMode="CONTINUOUS")),
+    ("command_home", "HOME", 4, {}),
+    ("command_stop", "STOP", 5, {}),
+    ("command_get_version", "GET_VERSION", 6, {}),
+    ("command_clear_fault", "CLEAR_FAULT", 8, {}),
+    ("command_set_config_acquisition", "SET_CONFIG", 9,
+     dict(CfgPage="ACQUISITION", CfgExposureValid=1, CfgExposureUs=800, CfgBrceStepValid=1,
+          CfgBrceStep=4, CfgBrceThresholdValid=1, CfgBrceThreshold=40)),
+    ("command_set_config_acquisition_max", "SET_CONFIG", 10,
+     dict(CfgPage="ACQUISITION", CfgExposureValid=1, CfgExposureUs=65535, CfgBrceStepValid=1,
+          CfgBrceStep=15, CfgBrceThresholdValid=1, CfgBrceThreshold=255)),
+    ("command_set_config_exposure_only", "SET_CONFIG", 11,
+     dict(CfgPage="ACQUISITION", CfgExposureValid=1, CfgExposureUs=1200)),
+    ("command_set_config_scan", "SET_CONFIG", 12,
+     dict(CfgPage="SCAN", CfgScanStopsValid=1, CfgScanStops=9, CfgStopSpacingValid=1,
+          CfgStopSpacingMm=2.5, CfgHeartbeatValid=1, CfgHeartbeatMs=1000)),
+    ("command_set_config_scan_max", "SET_CONFIG", 13,
+     dict(CfgPage="SCAN", CfgScanStopsValid=1, CfgScanStops=15, CfgStopSpacingValid=1,
+          CfgStopSpacingMm=25.5, CfgHeartbeatValid=1, CfgHeartbeatMs=65535)),
+    ("command_set_config_heartbeat_only", "SET_CONFIG", 14,
+     dict(CfgPage="SCAN", CfgHeartbeatValid=1, CfgHeartbeatMs=0)),
+]
+
+# (name, message, physical signals) for everything else.
+MESSAGE_CASES: list[tuple[str, str, dict[str, Any]]] = [
+    ("ack_localize", c.MSG_ACK,
+     dict(AckOpcode="LOCALIZE", AckCounter=1, AckResult="ACK", NackReason="NONE")),
+    ("ack_localize_nack_busy", c.MSG_ACK,
+     dict(AckOpcode="LOCALIZE", AckCounter=15, AckResult="NACK", NackReason="BUSY")),
+    ("ack_home_done", c.MSG_ACK,
+     dict(AckOpcode="HOME", AckCounter=4, AckResult="DONE", NackReason="NONE")),
+    ("ack_set_config_nack_bad_value", c.MSG_ACK,
+     dict(AckOpcode="SET_CONFIG", AckCounter=9, AckResult="NACK", NackReason="BAD_VALUE")),
+    ("ack_get_version", c.MSG_ACK,
+     dict(AckOpcode="GET_VERSION", AckCounter=6, AckResult="ACK", NackReason="NONE",
+          SwMajor=1, SwMinor=2, SwPatch=3, ProtocolVersion=c.PROTOCOL_VERSION)),
+    ("ack_get_version_max", c.MSG_ACK,
+     dict(AckOpcode="GET_VERSION", AckCounter=15, AckResult="ACK", NackReason="NONE",
+          SwMajor=255, SwMinor=255, SwPatch=255, ProtocolVersion=255)),
+    ("ack_invalid_unknown_opcode", c.MSG_ACK,
+     dict(AckOpcode="INVALID", AckCounter=3, AckResult="NACK", NackReason="UNKNOWN_OPCODE",
+          RejectedOpcode=0x42)),
+    ("ack_invalid_bad_dlc_empty", c.MSG_ACK,
+     dict(AckOpcode="INVALID", AckCounter=0, AckResult="NACK", NackReason="BAD_DLC",
+          RejectedOpcode=0)),
+    ("ack_stop_nack_internal", c.MSG_ACK,
+     dict(AckOpcode="STOP", AckCounter=2, AckResult="NACK", NackReason="INTERNAL")),
+    ("result_header_valid_one", c.MSG_RESULT_HEADER,
+     dict(MeasCounter=42, ObjectCount=1, ResultTargetId=3, ScanAgeMs=35, ResultStatus="VALID",
+          ResultMode="LOCALIZE", CycleTime=860)),
+    ("result_header_no_object", c.MSG_RESULT_HEADER,
+     dict(MeasCounter=0, ObjectCount=0, ResultTargetId=0, ScanAgeMs=0, ResultStatus="NO_OBJECT",
+          ResultMode="LOCALIZE", CycleTime=0)),
+    ("result_header_max", c.MSG_RESULT_HEADER,
+     dict(MeasCounter=65535, ObjectCount=16, ResultTargetId=255, ScanAgeMs=65535,
+          ResultStatus="ABORTED", ResultMode="SCAN_ALL", CycleTime=5100)),
+    ("result_object_center_typical", c.MSG_RESULT_OBJECT,
+     dict(ObjPage="CENTER", ObjIndex=0, ObjMeasCounter=42, CenterX=-123.4, CenterY=56.7,
+          CenterZ=612.3)),
+    ("result_object_center_min", c.MSG_RESULT_OBJECT,
+     dict(ObjPage="CENTER", ObjIndex=0, ObjMeasCounter=0, CenterX=-3276.8, CenterY=-3276.8,
+          CenterZ=0)),
+    ("result_object_center_max", c.MSG_RESULT_OBJECT,
+     dict(ObjPage="CENTER", ObjIndex=15, ObjMeasCounter=255, CenterX=3276.7, CenterY=3276.7,
+          CenterZ=6553.5)),
+    ("result_object_approach_typical", c.MSG_RESULT_OBJECT,
+     dict(ObjPage="APPROACH_POINT", ObjIndex=0, ObjMeasCounter=42, ApproachX=-110.2,
+          ApproachY=50.1, ApproachZ=540.0)),
+    ("result_object_approach_minus_tenth", c.MSG_RESULT_OBJECT,
+     dict(ObjPage="APPROACH_POINT", ObjIndex=1, ObjMeasCounter=43, ApproachX=-0.1,
+          ApproachY=-0.1, ApproachZ=0.1)),
+    ("result_object_quality_typical", c.MSG_RESULT_OBJECT,
+     dict(ObjPage="QUALITY", ObjIndex=0, ObjMeasCounter=42, SigmaMm=0.8, Confidence=93,
+          DiameterMm=78.5, OcclusionPct=20, LinesUsed=9, PointsUsed=1234)),
+    ("result_object_quality_max", c.MSG_RESULT_OBJECT,
+     dict(ObjPage="QUALITY", ObjIndex=15, ObjMeasCounter=255, SigmaMm=25.5, Confidence=100,
+          DiameterMm=127.5, OcclusionPct=100, LinesUsed=15, PointsUsed=4095)),
+    ("result_object_normal_forward", c.MSG_RESULT_OBJECT,
+     dict(ObjPage="APPROACH_NORMAL", ObjIndex=0, ObjMeasCounter=42, NormalX=0, NormalY=0,
+          NormalZ=1)),
+    ("result_object_normal_negative", c.MSG_RESULT_OBJECT,
+     dict(ObjPage="APPROACH_NORMAL", ObjIndex=2, ObjMeasCounter=7, NormalX=-1, NormalY=0.6,
+          NormalZ=-0.8)),
+    ("status_idle_homed", c.MSG_STATUS,
+     dict(State="IDLE", Homed=1, LaserOn=0, Calibrated=1, HomeSwitch=0,
+          **{s: 0 for s in c.FAULT_SIGNALS.values()},
+          LastLatencyMs=180, MaxLatencyMs=240, DroppedFrames=0, RxErrorCount=0)),
+    ("status_fault_all_max", c.MSG_STATUS,
+     dict(State="FAULT", Homed=1, LaserOn=1, Calibrated=1, HomeSwitch=1,
+          **{s: 1 for s in c.FAULT_SIGNALS.values()},
+          LastLatencyMs=4095, MaxLatencyMs=4095, DroppedFrames=255, RxErrorCount=255)),
+    ("status_boot_camera_timeout", c.MSG_STATUS,
+     dict(State="BOOT", Homed=0, LaserOn=0, Calibrated=0, HomeSwitch=0,
+          **{s: int(f == c.Fault.CAMERA_TIMEOUT) for f, s in c.FAULT_SIGNALS.items()},
+          LastLatencyMs=0, MaxLatencyMs=0, DroppedFrames=3, RxErrorCount=1)),
+    ("nmt_start_sensor", c.MSG_NMT, dict(NmtCommand="START", NmtNodeId=c.DEFAULT_NODE_ID)),
+    ("nmt_reset_all", c.MSG_NMT, dict(NmtCommand="RESET_NODE", NmtNodeId=0)),
+    ("heartbeat_bootup", c.MSG_HEARTBEAT, dict(NmtState="BOOTUP")),
+    ("heartbeat_operational", c.MSG_HEARTBEAT, dict(NmtState="OPERATIONAL")),
+    ("heartbeat_pre_operational", c.MSG_HEARTBEAT, dict(NmtState="PRE_OPERATIONAL")),
+    ("emcy_camera_timeout", c.MSG_EMCY,
+     dict(EmcyErrorCode="HARDWARE", EmcyErrorRegister=0x01,
+          EmcyFaultBits=int(c.Fault.CAMERA_TIMEOUT), EmcyReason="CAMERA_TIMEOUT")),
+    ("emcy_cleared", c.MSG_EMCY,
+     dict(EmcyErrorCode="NO_ERROR", EmcyErrorRegister=0, EmcyFaultBits=0, EmcyReason="NONE")),
+    ("sdo_rx_upload_request", c.MSG_SDO_RX,
+     dict(SdoRxCommand="UPLOAD_REQUEST", SdoRxIndex=0x1018, SdoRxSubIndex=1, SdoRxData=0)),
+    ("sdo_tx_upload_4b", c.MSG_SDO_TX,
+     dict(SdoTxCommand="UPLOAD_4B", SdoTxIndex=0x1018, SdoTxSubIndex=1, SdoTxData=0xFFFFFFFF)),
+]
+
+
+def _number(value: float | int) -> float | int:
+    if isinstance(value, int):
+        return value
+    # Keep the JSON free of binary noise like 56.300000000000004.
+    rounded = round(float(value), 9)
+    return int(rounded) if rounded.is_integer() and abs(rounded) < 2**53 else rounded
+
+
+def _vector(db: Database, name: str, msg: can.Message) -> dict[str, Any]:
+    db_msg = db.get_message_by_frame_id(msg.arbitration_id)
+    physical = decode(db, msg, choices=False)
+    named = decode(db, msg, choices=True)
+    raw = decode_raw(db, msg)
+    signals: dict[str, Any] = {}
+    for sig_name, value in physical.items():
+        entry: dict[str, Any] = {"raw": raw[sig_name], "physical": _number(float(value))}
+        if isinstance(named[sig_name], str):
+            entry["choice"] = named[sig_name]
+        unit = db_msg.get_signal_by_name(sig_name).unit
+        if unit:
+            entry["unit"] = unit
+        signals[sig_name] = entry
+    return {
+        "name": name,
+        "message": db_msg.name,
+        "frame_id": msg.arbitration_id,
+        "dlc": msg.dlc,
+        "data": bytes(msg.data).hex().upper(),
+        "signals": signals,
+    }
+
+
+def _command_checks(db: Database) -> list[dict[str, Any]]:
+    """Frames a command parser must accept or reject, with the expected NACK reason."""
+    fid = db.get_message_by_name(c.MSG_COMMAND).frame_id
+    good = bytes(encode_command(db, "LOCALIZE", 1, LocalizeMode=0, TargetId=3, RoughX=-120,
+                                RoughY=45, RoughZ=650).data)
+    bad_crc = bytearray(good)
+    bad_crc[7] ^= 0x01
+    flipped = bytearray(good)
+    flipped[3] ^= 0x80
+    unknown = bytearray([0x09, 0x01, 0, 0, 0, 0, 0, 0])
+    unknown[7] = command_checksum(unknown)
+    zero = bytearray(8)
+    zero[7] = command_checksum(zero)
+    cases = [
+        ("valid_localize", good, "NONE"),
+        ("bad_checksum_byte7", bytes(bad_crc), "BAD_CHECKSUM"),
+        ("bad_checksum_payload_bit", bytes(flipped), "BAD_CHECKSUM"),
+        ("bad_dlc_7", good[:7], "BAD_DLC"),
+        ("bad_dlc_0", b"", "BAD_DLC"),
+        ("unknown_opcode_9", bytes(unknown), "UNKNOWN_OPCODE"),
+        ("unknown_opcode_0", bytes(zero), "UNKNOWN_OPCODE"),
+    ]
+    return [
+        {
+            "name": name,
+            "frame_id": fid,
+            "dlc": len(data),
+            "data": data.hex().upper(),
+            "checksum_ok": check_command(data),
+            "expected_nack": reason,
+        }
+        for name, data, reason in cases
+    ]
+
+
+def golden_vectors(db: Database | None = None) -> dict[str, Any]:
+    """The golden-vector document (for the default node id unless ``db`` is given)."""
+    db = db or load_database(c.DEFAULT_NODE_ID)
+    vectors = [
+        _vector(db, name, encode_command(db, op, counter, **payload))
+        for name, op, counter, payload in COMMAND_CASES
+    ]
+    vectors += [
+        _vector(db, name, encode_message(db, msg, sigs)) for name, msg, sigs in MESSAGE_CASES
+    ]
+    return {
+        "format_version": FORMAT_VERSION,
+        "generator": "python -m alacs_can golden (can_protocol/generate.sh)",
+        "protocol_version": c.PROTOCOL_VERSION,
+        "node_id": c.DEFAULT_NODE_ID,
+        "byte_order": "little_endian",
+        "crc8_j1850": {
+            "poly": CRC8_J1850_POLY,
+            "init": CRC8_J1850_INIT,
+            "xorout": CRC8_J1850_XOROUT,
+            "covers_bytes": [0, 6],
+            "stored_in_byte": 7,
+            "check_input": "123456789",
+            "check_value": crc8_j1850(b"123456789"),
+        },
+        "vectors": vectors,
+        "command_checks": _command_checks(db),
+    }
+
+
+def _dumps(value: Any, indent: str = "") -> str:
+    """JSON with one line per vector signal, so diffs of the committed file stay readable."""
+    inner = indent + " "
+    if isinstance(value, dict) and value and not all(
+        isinstance(v, dict) and "raw" in v for v in value.values()
+    ) or (isinstance(value, list) and value and isinstance(value[0], dict)):
+        if isinstance(value, list):
+            items = [inner + _dumps(v, inner) for v in value]
+            return "[\n" + ",\n".join(items) + "\n" + indent + "]"
+        items = [f"{inner}{json.dumps(k)}: {_dumps(v, inner)}" for k, v in value.items()]
+        return "{\n" + ",\n".join(items) + "\n" + indent + "}"
+    if isinstance(value, dict) and value:
+        # a "signals" map: one compact line per signal
+        items = [f"{inner}{json.dumps(k)}: {json.dumps(v)}" for k, v in value.items()]
+        return "{\n" + ",\n".join(items) + "\n" + indent + "}"
+    return json.dumps(value)
+
+
+def golden_json(db: Database | None = None) -> str:
+    """The committed text of ``can_protocol/vectors/golden.json``."""
+    return _dumps(golden_vectors(db)) + "\n"
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description="Write the ALACS golden vectors.")
+    parser.add_argument("-o", "--output", help="file to write (default: stdout)")
+    args = parser.parse_args(argv)
+    text = golden_json()
+    if args.output:
+        with open(args.output, "w", encoding="ascii", newline="\n") as f:
+            f.write(text)
+    else:
+        sys.stdout.write(text)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,320 @@
+"""The ALACS CAN protocol as data: every message and signal, once.
+
+``dbc.py`` renders this into DBC text (the committed ``can_protocol/alacs.dbc`` is
+that text for node id 0x10) and everything else (cantools encode/decode, the
+generated C codec, the golden vectors) is derived from the DBC. Edit the protocol
+here, then run ``can_protocol/generate.sh``.
+
+All signals are little-endian (Intel). Bit numbers are DBC start bits, i.e. bit
+``n`` is bit ``n % 8`` of byte ``n // 8``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from enum import IntEnum
+from typing import Final
+
+from . import constants as c
+
+
+@dataclass(frozen=True)
+class SignalSpec:
+    """One DBC signal. ``minimum``/``maximum`` are physical and default to the raw range."""
+
+    name: str
+    start: int
+    length: int
+    comment: str
+    signed: bool = False
+    scale: float = 1
+    offset: float = 0
+    unit: str = ""
+    minimum: float | None = None
+    maximum: float | None = None
+    choices: type[IntEnum] | None = None
+    mux: tuple[str, int] | None = None
+    """(multiplexer signal, value) under which this signal is present."""
+    is_multiplexer: bool = False
+
+    def raw_range(self) -> tuple[int, int]:
+        if self.signed:
+            return -(1 << (self.length - 1)), (1 << (self.length - 1)) - 1
+        return 0, (1 << self.length) - 1
+
+    def phys_range(self) -> tuple[float, float]:
+        lo, hi = self.raw_range()
+        lo_p = lo * self.scale + self.offset if self.minimum is None else self.minimum
+        hi_p = hi * self.scale + self.offset if self.maximum is None else self.maximum
+        return lo_p, hi_p
+
+
+@dataclass(frozen=True)
+class MessageSpec:
+    name: str
+    base_id: int
+    dlc: int
+    sender: str
+    receiver: str
+    comment: str
+    signals: tuple[SignalSpec, ...]
+    cycle_ms: int = 0
+    """0 = sent on event only."""
+    node_offset: bool = True
+    extra: dict[str, str] = field(default_factory=dict)
+
+    def frame_id(self, node_id: int) -> int:
+        return self.base_id + c.check_node_id(node_id) if self.node_offset else self.base_id
+
+    def signal(self, name: str) -> SignalSpec:
+        for s in self.signals:
+            if s.name == name:
+                return s
+        raise KeyError(name)
+
+    @property
+    def has_nested_mux(self) -> bool:
+        return sum(1 for s in self.signals if s.is_multiplexer) > 1
+
+
+S = SignalSpec
+SENSOR, ARM = c.SENSOR_NODE, c.CONTROLLER_NODE
+_POS_SCALE: Final = 0.1
+_NORMAL_SCALE: Final = 1 / 32767
+
+
+def _op(op: c.Opcode) -> tuple[str, int]:
+    return ("CmdOpcode", int(op))
+
+
+def _cfg(page: c.CfgPage) -> tuple[str, int]:
+    return ("CfgPage", int(page))
+
+
+def _xyz(prefix: str, page: c.ObjPage, what: str) -> tuple[SignalSpec, ...]:
+    mux = ("ObjPage", int(page))
+    return (
+        S(f"{prefix}X", 16, 16, f"{what}, camera frame x (right).", signed=True,
+          scale=_POS_SCALE, unit="mm", mux=mux),
+        S(f"{prefix}Y", 32, 16, f"{what}, camera frame y (down).", signed=True,
+          scale=_POS_SCALE, unit="mm", mux=mux),
+        S(f"{prefix}Z", 48, 16, f"{what}, camera frame z (forward, >= 0).",
+          scale=_POS_SCALE, unit="mm", mux=mux),
+    )
+
+
+COMMAND = MessageSpec(
+    c.MSG_COMMAND, c.BASE_ID_COMMAND, 8, ARM, SENSOR,
+    "Command from the arm controller. Byte 7 is CRC-8/SAE-J1850 over bytes 0..6. "
+    "Answered by ALACS_Ack with the same counter.",
+    (
+        S("CmdOpcode", 0, 8, "What to do; selects the payload layout.", is_multiplexer=True,
+          minimum=1, maximum=7, choices=c.Opcode),
+        S("CmdCounter", 8, 4, "4-bit rolling counter, +1 per command; echoed in AckCounter. "
+          "A command repeating the previous accepted counter within 1 s is NACKed BAD_COUNTER."),
+        S("CmdChecksum", 56, 8,
+          "CRC-8/SAE-J1850 (poly 0x1D, init 0xFF, xorout 0xFF) over bytes 0..6."),
+        # LOCALIZE
+        S("LocalizeMode", 12, 4, "Slide motion during the scan.", maximum=1,
+          choices=c.ScanMode, mux=_op(c.Opcode.LOCALIZE)),
+        S("TargetId", 16, 8, "Caller's id for this apple, echoed in ResultTargetId.",
+          mux=_op(c.Opcode.LOCALIZE)),
+        S("RoughX", 24, 12, "Rough apple position from the arm's camera, x (right), camera frame.",
+          signed=True, unit="mm", mux=_op(c.Opcode.LOCALIZE)),
+        S("RoughY", 36, 12, "Rough apple position, y (down), camera frame.",
+          signed=True, unit="mm", mux=_op(c.Opcode.LOCALIZE)),
+        S("RoughZ", 48, 8, "Rough apple position, z (forward), camera frame, 10 mm/bit.",
+          scale=10, unit="mm", mux=_op(c.Opcode.LOCALIZE)),
+        # SCAN_ALL
+        S("ScanAllMode", 12, 4, "Slide motion during the scan.", maximum=1,
+          choices=c.ScanMode, mux=_op(c.Opcode.SCAN_ALL)),
+        # SET_CONFIG: two pages; a field is applied only if its valid bit is 1.
+        S("CfgPage", 12, 4, "Which group of settings this SET_CONFIG frame carries.",
+          is_multiplexer=True, maximum=1, choices=c.CfgPage, mux=_op(c.Opcode.SET_CONFIG)),
+        S("CfgExposureValid", 16, 1, "1: apply CfgExposureUs.", mux=_cfg(c.CfgPage.ACQUISITION)),
+        S("CfgBrceStepValid", 17, 1, "1: apply CfgBrceStep.", mux=_cfg(c.CfgPage.ACQUISITION)),
+        S("CfgBrceThresholdValid", 18, 1, "1: apply CfgBrceThreshold.",
+          mux=_cfg(c.CfgPage.ACQUISITION)),
+        S("CfgExposureUs", 24, 16, "Camera exposure time (0 is rejected with BAD_VALUE).",
+          unit="us", minimum=1, mux=_cfg(c.CfgPage.ACQUISITION)),
+        S("CfgBrceStep", 40, 4, "bRCE laser-line extraction step, 1..15.",
+          minimum=1, mux=_cfg(c.CfgPage.ACQUISITION)),
+        S("CfgBrceThreshold", 48, 8, "bRCE laser-line intensity threshold (grey levels).",
+          mux=_cfg(c.CfgPage.ACQUISITION)),
+        S("CfgScanStopsValid", 16, 1, "1: apply CfgScanStops.", mux=_cfg(c.CfgPage.SCAN)),
+        S("CfgStopSpacingValid", 17, 1, "1: apply CfgStopSpacingMm.", mux=_cfg(c.CfgPage.SCAN)),
+        S("CfgHeartbeatValid", 18, 1, "1: apply CfgHeartbeatMs.", mux=_cfg(c.CfgPage.SCAN)),
+        S("CfgScanStops", 20, 4, "Number of slide stops (laser lines) per scan, 1..15.",
+          minimum=1, mux=_cfg(c.CfgPage.SCAN)),
+        S("CfgStopSpacingMm", 24, 8, "Slide distance between stops.", scale=0.1, unit="mm",
+          mux=_cfg(c.CfgPage.SCAN)),
+        S("CfgHeartbeatMs", 32, 16, "Heartbeat producer period (CANopen 0x1017); 0 = off.",
+          unit="ms", mux=_cfg(c.CfgPage.SCAN)),
+    ),
+)
+
+ACK = MessageSpec(
+    c.MSG_ACK, c.BASE_ID_ACK, 8, SENSOR, ARM,
+    "Answer to every ALACS_Command (also to rejected frames). DONE follows ACK when a "
+    "long command (HOME) has finished.",
+    (
+        S("AckOpcode", 0, 8, "Echo of CmdOpcode; INVALID if the command had no known opcode.",
+          is_multiplexer=True, maximum=7, choices=c.AckOpcode),
+        S("AckCounter", 8, 4, "Echo of CmdCounter."),
+        S("AckResult", 12, 4, "ACK: accepted; NACK: rejected (see NackReason); DONE: finished.",
+          maximum=2, choices=c.AckResult),
+        S("NackReason", 16, 8, "Why the command was rejected or failed; NONE unless NACK.",
+          maximum=12, choices=c.NackReason),
+        S("RejectedOpcode", 24, 8, "Byte 0 of the rejected command (0 if its DLC was 0).",
+          mux=("AckOpcode", int(c.AckOpcode.INVALID))),
+        S("SwMajor", 24, 8, "alacsd version, major.", mux=("AckOpcode", int(c.Opcode.GET_VERSION))),
+        S("SwMinor", 32, 8, "alacsd version, minor.", mux=("AckOpcode", int(c.Opcode.GET_VERSION))),
+        S("SwPatch", 40, 8, "alacsd version, patch.", mux=("AckOpcode", int(c.Opcode.GET_VERSION))),
+        S("ProtocolVersion", 48, 8, f"This protocol's version ({c.PROTOCOL_VERSION}).",
+          mux=("AckOpcode", int(c.Opcode.GET_VERSION))),
+    ),
+)
+
+RESULT_HEADER = MessageSpec(
+    c.MSG_RESULT_HEADER, c.BASE_ID_RESULT_HEADER, 8, SENSOR, ARM,
+    "First frame of a measurement result; ObjectCount x 4 ALACS_ResultObject pages follow.",
+    (
+        S("MeasCounter", 0, 16, "Measurement counter, +1 per result (wraps)."),
+        S("ObjectCount", 16, 8, "Number of objects that follow (0..16).", maximum=c.MAX_OBJECTS),
+        S("ResultTargetId", 24, 8, "TargetId of the LOCALIZE command (0 for SCAN_ALL)."),
+        S("ScanAgeMs", 32, 16, "Time since the last camera frame of the scan was exposed "
+          "(saturating).", unit="ms"),
+        S("ResultStatus", 48, 4, "Outcome of the measurement.", maximum=4, choices=c.ResultStatus),
+        S("ResultMode", 52, 4, "Command that produced this result.", maximum=1,
+          choices=c.ResultMode),
+        S("CycleTime", 56, 8, "Time from the localize command to this result, 20 ms/bit "
+          "(saturating).", scale=20, unit="ms"),
+    ),
+)
+
+RESULT_OBJECT = MessageSpec(
+    c.MSG_RESULT_OBJECT, c.BASE_ID_RESULT_OBJECT, 8, SENSOR, ARM,
+    "One page of one object of the result with the same MeasCounter (low byte). "
+    "Sent in page order CENTER, APPROACH_POINT, QUALITY, APPROACH_NORMAL per object.",
+    (
+        S("ObjPage", 0, 4, "Which page of the object this frame carries.", is_multiplexer=True,
+          maximum=3, choices=c.ObjPage),
+        S("ObjIndex", 4, 4, "Object index, 0..ObjectCount-1."),
+        S("ObjMeasCounter", 8, 8, "Low byte of the ResultHeader's MeasCounter."),
+        *_xyz("Center", c.ObjPage.CENTER, "Apple centre"),
+        *_xyz("Approach", c.ObjPage.APPROACH_POINT, "Approach (pre-grasp) point"),
+        S("SigmaMm", 16, 8, "Fit residual standard deviation.", scale=0.1, unit="mm",
+          mux=("ObjPage", int(c.ObjPage.QUALITY))),
+        S("Confidence", 24, 8, "Detection confidence.", unit="%", maximum=100,
+          mux=("ObjPage", int(c.ObjPage.QUALITY))),
+        S("DiameterMm", 32, 8, "Estimated apple diameter.", scale=0.5, unit="mm",
+          mux=("ObjPage", int(c.ObjPage.QUALITY))),
+        S("OcclusionPct", 40, 8, "Estimated occluded share of the visible surface.", unit="%",
+          maximum=100, mux=("ObjPage", int(c.ObjPage.QUALITY))),
+        S("LinesUsed", 48, 4, "Laser lines that hit the object.",
+          mux=("ObjPage", int(c.ObjPage.QUALITY))),
+        S("PointsUsed", 52, 12, "3D points used by the fit (saturating at 4095).",
+          mux=("ObjPage", int(c.ObjPage.QUALITY))),
+        *(S(f"Normal{axis}", start, 16, f"Approach direction unit vector, {axis.lower()} "
+            "component (scale 1/32767).", signed=True, scale=_NORMAL_SCALE,
+            minimum=-1, maximum=1, mux=("ObjPage", int(c.ObjPage.APPROACH_NORMAL)))
+          for axis, start in (("X", 16), ("Y", 32), ("Z", 48))),
+    ),
+)
+
+_FAULT_COMMENTS: Final[dict[c.Fault, str]] = {
+    c.Fault.HOMING_TIMEOUT: "Home switch not reached in time.",
+    c.Fault.LIMIT_HIT: "Slide reached a travel limit.",
+    c.Fault.CAMERA_TIMEOUT: "No camera frame in time.",
+    c.Fault.CAMERA_CORRUPT: "Corrupt or short camera frame.",
+    c.Fault.CAN_BUS_OFF: "CAN controller went bus-off (latched until CLEAR_FAULT).",
+    c.Fault.CAN_TX_OVERFLOW: "CAN transmit queue overflowed.",
+    c.Fault.CONFIG_INVALID: "Stored configuration invalid; defaults in use.",
+    c.Fault.NOT_CALIBRATED: "No valid camera/laser calibration.",
+    c.Fault.LASER_OVERTIME: "Laser on-time limit hit; laser forced off.",
+    c.Fault.INTERNAL: "Internal software error.",
+    c.Fault.STOP_REQUESTED: "STOP command or NMT stop received; cleared by CLEAR_FAULT.",
+}
+
+STATUS = MessageSpec(
+    c.MSG_STATUS, c.BASE_ID_STATUS, 8, SENSOR, ARM,
+    "Sensor status, every 100 ms. Fault bits 0..10 are 1-bit signals Fault* at bits 8..18 "
+    "(bits 19..23 reserved, 0), the same bits as EMCY.EmcyFaultBits.",
+    (
+        S("State", 0, 4, "Sensor state.", maximum=5, choices=c.SensorState),
+        S("Homed", 4, 1, "1: slide homed."),
+        S("LaserOn", 5, 1, "1: laser on."),
+        S("Calibrated", 6, 1, "1: valid calibration loaded."),
+        S("HomeSwitch", 7, 1, "1: home switch active."),
+        *(S(name, 8 + flag.bit_length() - 1, 1, f"Fault bit {flag.bit_length() - 1} "
+            f"{flag.name}: {_FAULT_COMMENTS[flag]}")
+          for flag, name in c.FAULT_SIGNALS.items()),
+        S("LastLatencyMs", 24, 12, "Latency of the last result: last exposure to ResultHeader "
+          "queued (saturating).", unit="ms"),
+        S("MaxLatencyMs", 36, 12, "Largest LastLatencyMs since boot or CLEAR_FAULT (saturating).",
+          unit="ms"),
+        S("DroppedFrames", 48, 8, "Camera frames dropped since boot (saturating)."),
+        S("RxErrorCount", 56, 8, "Received frames with unknown ids or bad content "
+          "(saturating)."),
+    ),
+    cycle_ms=c.STATUS_PERIOD_MS,
+)
+
+NMT = MessageSpec(
+    c.MSG_NMT, c.BASE_ID_NMT, 2, ARM, SENSOR,
+    "CANopen NMT node control (fixed id 0x000).",
+    (
+        S("NmtCommand", 0, 8, "NMT command specifier.", minimum=1, maximum=130,
+          choices=c.NmtCommand),
+        S("NmtNodeId", 8, 8, "Addressed node id; 0 = all nodes.", maximum=127),
+    ),
+    node_offset=False,
+)
+
+HEARTBEAT = MessageSpec(
+    c.MSG_HEARTBEAT, c.BASE_ID_HEARTBEAT, 1, SENSOR, ARM,
+    "CANopen heartbeat / boot-up, every CfgHeartbeatMs (default 1000 ms).",
+    (S("NmtState", 0, 8, "NMT state of the sensor.", maximum=127, choices=c.NmtState),),
+    cycle_ms=c.DEFAULT_HEARTBEAT_MS,
+)
+
+EMCY = MessageSpec(
+    c.MSG_EMCY, c.BASE_ID_EMCY, 8, SENSOR, ARM,
+    "CANopen emergency: sent when a fault is raised and (code NO_ERROR) when all are cleared.",
+    (
+        S("EmcyErrorCode", 0, 16, "CiA 301 error code.", choices=c.EmcyErrorCode),
+        S("EmcyErrorRegister", 16, 8, "CiA 301 error register (object 0x1001)."),
+        S("EmcyFaultBits", 24, 16, "All active fault bits (same bits as ALACS_Status Fault*)."),
+        S("EmcyReason", 40, 8, "The fault that raised this EMCY (fault bit + 1; 0 = cleared).",
+          maximum=11, choices=c.EmcyReason),
+    ),
+)
+
+SDO_TX = MessageSpec(
+    c.MSG_SDO_TX, c.BASE_ID_SDO_TX, 8, SENSOR, ARM,
+    "CANopen SDO response (server to client), expedited transfers only.",
+    (
+        S("SdoTxCommand", 0, 8, "SDO server command specifier.", choices=c.SdoServerCommand),
+        S("SdoTxIndex", 8, 16, "Object dictionary index."),
+        S("SdoTxSubIndex", 24, 8, "Object dictionary subindex."),
+        S("SdoTxData", 32, 32, "Expedited data, or abort code for ABORT."),
+    ),
+)
+
+SDO_RX = MessageSpec(
+    c.MSG_SDO_RX, c.BASE_ID_SDO_RX, 8, ARM, SENSOR,
+    "CANopen SDO request (client to server), expedited transfers only.",
+    (
+        S("SdoRxCommand", 0, 8, "SDO client command specifier.", choices=c.SdoClientCommand),
+        S("SdoRxIndex", 8, 16, "Object dictionary index."),
+        S("SdoRxSubIndex", 24, 8, "Object dictionary subindex."),
+        S("SdoRxData", 32, 32, "Expedited data (download), 0 for upload requests."),
+    ),
+)
+
+MESSAGES: Final[tuple[MessageSpec, ...]] = (
+    NMT, EMCY, ACK, COMMAND, RESULT_HEADER, RESULT_OBJECT, STATUS, SDO_TX, SDO_RX, HEARTBEAT,
+)
+"""All messages, in frame-id order."""
+
+MESSAGES_BY_NAME: Final[dict[str, MessageSpec]] = {m.name: m for m in MESSAGES}

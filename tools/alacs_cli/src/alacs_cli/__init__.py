@@ -1,0 +1,3 @@
+"""``alacs`` command-line tool for the ALACS sensor (see ``alacs --help``)."""
+
+__version__ = "1.0.0"

@@ -1,0 +1,335 @@
+"""``alacs``: talk to an ALACS sensor over CAN from a shell.
+
+Exit codes: 0 success; 1 NACK, or a result that is not VALID/PARTIAL; 2 usage error;
+3 timeout; 4 CAN interface error.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import random
+import sys
+import time
+from collections.abc import Callable, Sequence
+from typing import Any, TextIO
+
+import can
+from cantools.database import Database
+from cantools.database.errors import DecodeError, EncodeError
+
+import alacs_can
+from alacs_can import LocalizationResult, Opcode
+
+from .link import Decoded, Exchange, Rejected, SensorLink, Timeout
+
+EXIT_OK, EXIT_REJECTED, EXIT_USAGE, EXIT_TIMEOUT, EXIT_BUS = 0, 1, 2, 3, 4
+
+NMT_COMMANDS = {
+    "start": alacs_can.NmtCommand.START,
+    "stop": alacs_can.NmtCommand.STOP,
+    "pre-operational": alacs_can.NmtCommand.PRE_OPERATIONAL,
+    "reset-node": alacs_can.NmtCommand.RESET_NODE,
+    "reset-comm": alacs_can.NmtCommand.RESET_COMM,
+}
+
+
+def _int(text: str) -> int:
+    return int(text, 0)
+
+
+def _node_id(text: str) -> int:
+    value = _int(text)
+    try:
+        return int(alacs_can.check_node_id(value))
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
+def _fmt_value(value: Any) -> str:
+    if isinstance(value, float):
+        return f"{value:.4f}".rstrip("0").rstrip(".") if value != int(value) else str(int(value))
+    return str(value)
+
+
+def format_signals(signals: Decoded) -> str:
+    return " ".join(f"{k}={_fmt_value(v)}" for k, v in signals.items())
+
+
+def format_frame(db: Database, frame: can.Message, t0: float | None = None) -> str:
+    """One line: time, id, name and decoded signals (raw bytes if not decodable)."""
+    stamp = f"{frame.timestamp - t0:10.3f}" if t0 is not None else f"{frame.timestamp:.3f}"
+    ident = f"{frame.arbitration_id:08X}" if frame.is_extended_id else f"{frame.arbitration_id:03X}"
+    raw = bytes(frame.data).hex(" ").upper()
+    name = alacs_can.message_name(db, frame)
+    if name is None:
+        return f"{stamp}  {ident}  [{frame.dlc}] {raw}"
+    try:
+        text = format_signals(alacs_can.decode(db, frame))
+    except (DecodeError, ValueError) as exc:
+        return f"{stamp}  {ident}  {name:<18} [{frame.dlc}] {raw}  (undecodable: {exc})"
+    if name == alacs_can.MSG_COMMAND and not alacs_can.check_command(frame.data):
+        text += "  CHECKSUM-BAD"
+    return f"{stamp}  {ident}  {name:<18} {text}"
+
+
+def _result_dict(result: LocalizationResult) -> dict[str, Any]:
+    out = dataclasses.asdict(result)
+    out["status"] = getattr(result.status, "name", result.status)
+    out["mode"] = getattr(result.mode, "name", result.mode)
+    out["complete"] = result.complete
+    return out
+
+
+def print_result(result: LocalizationResult, out: TextIO) -> None:
+    status = getattr(result.status, "name", result.status)
+    mode = getattr(result.mode, "name", result.mode)
+    print(f"result  MeasCounter={result.meas_counter} {mode} {status} target={result.target_id} "
+          f"objects={result.object_count} scan_age={result.scan_age_ms:g} ms "
+          f"cycle={result.cycle_time_ms:g} ms", file=out)
+
+    def vec(v: tuple[float, float, float] | None, fmt: str) -> str:
+        return "-" if v is None else "(" + ", ".join(format(x, fmt) for x in v) + ")"
+
+    for obj in result.objects:
+        q = obj.quality
+        quality = ("-" if q is None else
+                   f"sigma={q.sigma_mm:.1f} mm conf={q.confidence_pct:g}% "
+                   f"diam={q.diameter_mm:g} mm occl={q.occlusion_pct:g}% "
+                   f"lines={q.lines_used} points={q.points_used}")
+        print(f"  object {obj.index}: centre {vec(obj.center_mm, '.1f')} mm  "
+              f"approach {vec(obj.approach_mm, '.1f')} mm  normal {vec(obj.normal, '.3f')}  "
+              f"{quality}", file=out)
+
+
+class Cli:
+    def __init__(self, args: argparse.Namespace, out: TextIO) -> None:
+        self.args = args
+        self.out = out
+        self.node_id: int = args.node_id
+        self.db = alacs_can.load_database(self.node_id)
+        self.counter: int = args.counter if args.counter is not None else random.randrange(16)
+
+    def open_bus(self) -> can.BusABC:
+        kwargs: dict[str, Any] = {"interface": self.args.interface, "channel": self.args.channel}
+        if self.args.bitrate:
+            kwargs["bitrate"] = self.args.bitrate
+        return can.Bus(**kwargs)
+
+    def emit(self, text: str, data: dict[str, Any]) -> None:
+        if self.args.json:
+            print(json.dumps(data), file=self.out)
+        else:
+            print(text, file=self.out)
+
+    def emit_ack(self, label: str, ack: Decoded) -> None:
+        self.emit(f"{label:<7} {format_signals(ack)}", {"type": label, **ack})
+
+    # --- commands -------------------------------------------------------------
+
+    def run_command(self, link: SensorLink, opcode: Opcode, **signals: object) -> Exchange:
+        ex = link.command(opcode, self.counter, self.args.timeout, **signals)
+        self.emit_ack("ack", ex.ack)
+        return ex
+
+    def cmd_localize(self, link: SensorLink) -> int:
+        a = self.args
+        ex = self.run_command(link, Opcode.LOCALIZE, LocalizeMode=a.mode.upper().replace("-", "_"),
+                              TargetId=a.target, RoughX=a.x, RoughY=a.y, RoughZ=a.z)
+        return self._finish_result(link, ex, a.target)
+
+    def cmd_scan_all(self, link: SensorLink) -> int:
+        ex = self.run_command(link, Opcode.SCAN_ALL,
+                              ScanAllMode=self.args.mode.upper().replace("-", "_"))
+        return self._finish_result(link, ex, None)
+
+    def _finish_result(self, link: SensorLink, ex: Exchange, target: int | None) -> int:
+        link.wait_result(ex, self.args.timeout, target)
+        assert ex.result is not None
+        if self.args.json:
+            print(json.dumps({"type": "result", **_result_dict(ex.result)}), file=self.out)
+        else:
+            print_result(ex.result, self.out)
+        ok = ex.result.status in (alacs_can.ResultStatus.VALID, alacs_can.ResultStatus.PARTIAL)
+        return EXIT_OK if ok else EXIT_REJECTED
+
+    def cmd_home(self, link: SensorLink) -> int:
+        ex = self.run_command(link, Opcode.HOME)
+        if not self.args.no_wait:
+            link.wait_done(ex, self.args.timeout)
+            assert ex.done is not None
+            if ex.done is not ex.ack:
+                self.emit_ack("done", ex.done)
+        return EXIT_OK
+
+    def cmd_simple(self, opcode: Opcode) -> Callable[[SensorLink], int]:
+        def run(link: SensorLink) -> int:
+            self.run_command(link, opcode)
+            return EXIT_OK
+        return run
+
+    def cmd_version(self, link: SensorLink) -> int:
+        ex = link.command(Opcode.GET_VERSION, self.counter, self.args.timeout)
+        ack = ex.ack
+        text = (f"alacsd {ack['SwMajor']}.{ack['SwMinor']}.{ack['SwPatch']}  "
+                f"protocol {ack['ProtocolVersion']} (this tool: {alacs_can.PROTOCOL_VERSION})")
+        self.emit(text, {"type": "version", **ack})
+        return EXIT_OK
+
+    def cmd_config(self, link: SensorLink) -> int:
+        a = self.args
+        frames = alacs_can.encode_set_config(
+            self.db, self.counter, exposure_us=a.exposure_us, brce_step=a.brce_step,
+            brce_threshold=a.brce_threshold, scan_stops=a.scan_stops,
+            stop_spacing_mm=a.stop_spacing_mm, heartbeat_ms=a.heartbeat_ms)
+        for frame in frames:
+            counter = frame.data[1] & 0x0F
+            link.bus.send(frame)
+            self.emit_ack("ack", link.wait_ack(Opcode.SET_CONFIG, counter, a.timeout))
+        return EXIT_OK
+
+    def cmd_status(self, link: SensorLink) -> int:
+        status_id = self.db.get_message_by_name(alacs_can.MSG_STATUS).frame_id
+        frame = link.recv_until(
+            lambda f: not f.is_extended_id and f.arbitration_id == status_id, self.args.timeout)
+        status = alacs_can.decode(self.db, frame)
+        faults = alacs_can.fault_bits(status)
+        names = [f.name for f in alacs_can.Fault if f in faults]
+        text = format_signals(status) + f"\nfaults: {' '.join(n or '' for n in names) or 'none'}"
+        self.emit(text, {"type": "status", **status, "faults": names})
+        return EXIT_OK
+
+    def cmd_monitor(self, link: SensorLink) -> int:
+        seen = 0
+        t0 = None
+        deadline = None if self.args.timeout is None else time.monotonic() + self.args.timeout
+        while self.args.count is None or seen < self.args.count:
+            if deadline is not None and time.monotonic() >= deadline:
+                break
+            frame = link.bus.recv(timeout=0.2)
+            if frame is None or frame.is_error_frame:
+                continue
+            t0 = frame.timestamp if t0 is None else t0
+            print(format_frame(self.db, frame, t0), file=self.out, flush=True)
+            seen += 1
+        return EXIT_OK
+
+    def cmd_nmt(self, link: SensorLink) -> int:
+        target = 0 if self.args.all else self.node_id
+        msg = alacs_can.encode_message(self.db, alacs_can.MSG_NMT, {
+            "NmtCommand": int(NMT_COMMANDS[self.args.nmt_command]), "NmtNodeId": target})
+        link.bus.send(msg)
+        self.emit(f"sent NMT {NMT_COMMANDS[self.args.nmt_command].name} to node {target}",
+                  {"type": "nmt", "command": NMT_COMMANDS[self.args.nmt_command].name,
+                   "node_id": target})
+        return EXIT_OK
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="alacs", description="Talk to an ALACS sensor over CAN.")
+    p.add_argument("--interface", default="socketcan", help="python-can interface (socketcan)")
+    p.add_argument("--channel", default="vcan0", help="python-can channel (vcan0)")
+    p.add_argument("--bitrate", type=int, default=None, help="bitrate, for interfaces that set it")
+    p.add_argument("--node-id", type=_node_id, default=alacs_can.DEFAULT_NODE_ID,
+                   help="sensor node id 1..127 (default 0x10)")
+    p.add_argument("--counter", type=lambda s: _int(s) & 0xF, default=None,
+                   help="command counter (default random; the sensor rejects a repeat of its "
+                        "last accepted counter within 1 s)")
+    p.add_argument("--json", action="store_true", help="print one JSON object per answer")
+    sub = p.add_subparsers(dest="cmd", required=True, metavar="COMMAND")
+
+    def timeout(sp: argparse.ArgumentParser, default: float | None) -> None:
+        sp.add_argument("--timeout", type=float, default=default, metavar="S",
+                        help=f"seconds to wait (default {default})")
+
+    modes = ["stop-and-go", "continuous"]
+    sp = sub.add_parser("localize", help="localize one apple near a rough position")
+    sp.add_argument("--x", type=int, required=True, metavar="MM", help="rough x (right), mm")
+    sp.add_argument("--y", type=int, required=True, metavar="MM", help="rough y (down), mm")
+    sp.add_argument("--z", type=int, required=True, metavar="MM", help="rough z (forward), mm")
+    sp.add_argument("--target", type=_int, default=0, metavar="N", help="target id 0..255")
+    sp.add_argument("--mode", choices=modes, default="stop-and-go")
+    timeout(sp, 10.0)
+    sp = sub.add_parser("scan-all", help="scan the whole field of view")
+    sp.add_argument("--mode", choices=modes, default="stop-and-go")
+    timeout(sp, 20.0)
+    sp = sub.add_parser("home", help="home the laser slide (waits for DONE)")
+    sp.add_argument("--no-wait", action="store_true", help="return after the ACK")
+    timeout(sp, 30.0)
+    for name, help_ in (("stop", "stop motion and laser"), ("clear-fault", "clear latched faults")):
+        timeout(sub.add_parser(name, help=help_), 2.0)
+    timeout(sub.add_parser("version", help="print sensor software and protocol version"), 2.0)
+    sp = sub.add_parser("config", help="SET_CONFIG: change sensor settings")
+    sp.add_argument("--exposure-us", type=int)
+    sp.add_argument("--brce-step", type=int)
+    sp.add_argument("--brce-threshold", type=int)
+    sp.add_argument("--scan-stops", type=int)
+    sp.add_argument("--stop-spacing-mm", type=float)
+    sp.add_argument("--heartbeat-ms", type=int)
+    timeout(sp, 2.0)
+    timeout(sub.add_parser("status", help="wait for one ALACS_Status frame and print it"), 2.0)
+    sp = sub.add_parser("monitor", help="print every frame on the bus, decoded")
+    sp.add_argument("--count", type=int, default=None, metavar="N", help="stop after N frames")
+    timeout(sp, None)
+    sp = sub.add_parser("nmt", help="send an NMT command")
+    sp.add_argument("nmt_command", choices=sorted(NMT_COMMANDS))
+    sp.add_argument("--all", action="store_true", help="address all nodes (node id 0)")
+    sp = sub.add_parser("dbc", help="print the DBC for a node id")
+    # own dest: a subparser default would overwrite the global --node-id
+    sp.add_argument("--node-id", dest="dbc_node_id", type=_node_id, default=None)
+    return p
+
+
+def main(argv: Sequence[str] | None = None, out: TextIO | None = None) -> int:
+    out = out or sys.stdout
+    args = build_parser().parse_args(argv)
+    if args.cmd == "dbc":
+        out.write(alacs_can.dbc_text(args.dbc_node_id or args.node_id))
+        return EXIT_OK
+    if args.cmd == "config" and all(
+        getattr(args, f) is None for f in alacs_can.CONFIG_FIELDS
+    ):
+        print("alacs config: give at least one setting", file=sys.stderr)
+        return EXIT_USAGE
+    cli = Cli(args, out)
+    handlers: dict[str, Callable[[SensorLink], int]] = {
+        "localize": cli.cmd_localize,
+        "scan-all": cli.cmd_scan_all,
+        "home": cli.cmd_home,
+        "stop": cli.cmd_simple(Opcode.STOP),
+        "clear-fault": cli.cmd_simple(Opcode.CLEAR_FAULT),
+        "version": cli.cmd_version,
+        "config": cli.cmd_config,
+        "status": cli.cmd_status,
+        "monitor": cli.cmd_monitor,
+        "nmt": cli.cmd_nmt,
+    }
+    try:
+        bus = cli.open_bus()
+    except (can.CanError, OSError, ValueError, ImportError) as exc:
+        print(f"alacs: cannot open {args.interface} {args.channel}: {exc}", file=sys.stderr)
+        return EXIT_BUS
+    try:
+        with bus:
+            return handlers[args.cmd](SensorLink(bus, cli.db))
+    except Rejected as exc:
+        cli.emit_ack("nack", exc.ack)
+        hint = "  (try: alacs nmt start)" if exc.reason == "NMT_NOT_OPERATIONAL" else ""
+        print(f"alacs {args.cmd}: NACK {exc.reason}{hint}", file=sys.stderr)
+        return EXIT_REJECTED
+    except EncodeError as exc:
+        print(f"alacs {args.cmd}: value out of range: {exc}", file=sys.stderr)
+        return EXIT_USAGE
+    except Timeout as exc:
+        print(f"alacs {args.cmd}: timeout: {exc}", file=sys.stderr)
+        return EXIT_TIMEOUT
+    except can.CanError as exc:
+        print(f"alacs {args.cmd}: CAN error: {exc}", file=sys.stderr)
+        return EXIT_BUS
+    except KeyboardInterrupt:
+        return EXIT_OK if args.cmd == "monitor" else 130
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
