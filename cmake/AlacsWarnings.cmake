@@ -1,7 +1,7 @@
 # Warnings are errors everywhere we own the code. The image kernels and the geometry add
 # the conversion family (libcanard's set), where a silent narrowing is a wrong pixel or mm.
 set(ALACS_WARNINGS -Wall -Wextra -Wpedantic -Werror -Wshadow -Wnon-virtual-dtor
-    -Wold-style-cast -Wcast-align -Wunused -Woverloaded-virtual -Wnull-dereference
+    -Wold-style-cast -Wcast-align -Wunused -Woverloaded-virtual
     -Wimplicit-fallthrough)
 set(ALACS_STRICT_WARNINGS -Wconversion -Wsign-conversion -Wdouble-promotion -Wswitch-enum)
 

@@ -358,12 +358,15 @@ void Daemon::onCommand(const protocol::Command& c, TimeNs now) {
       node_->queueVersion(c, ALACS_VERSION_MAJOR, ALACS_VERSION_MINOR, ALACS_VERSION_PATCH);
       return;
     case Opcode::kStop:
+      // Always executed: abort, laser off, latched STOPPED until CLEAR_FAULT.
       node_->ack(c, protocol::AckResult::kAck);
       worker_->cancel();
       (void)laser_->off();
+      faults_ |= protocol::kFaultStopRequested;
+      state_ = State::kStopped;
       return;
     case Opcode::kClearFault:
-      if (state_ == State::kFault && !worker_->busy()) {
+      if ((state_ == State::kFault || state_ == State::kStopped) && !worker_->busy()) {
         faults_ &= static_cast<uint16_t>(protocol::kFaultNotCalibrated);
         laser_->reset();
         state_ = State::kIdle;
@@ -371,14 +374,15 @@ void Daemon::onCommand(const protocol::Command& c, TimeNs now) {
       node_->ack(c, protocol::AckResult::kAck);
       return;
     case Opcode::kHome:
-      if (state_ == State::kFault) return node_->nack(c.opcode, c.counter, NackReason::kFaultActive);
+      if (state_ == State::kFault || state_ == State::kStopped) return node_->nack(c.opcode, c.counter, NackReason::kFaultActive);
       if (worker_->busy()) return node_->nack(c.opcode, c.counter, NackReason::kBusy);
       node_->ack(c, protocol::AckResult::kAck);
       activeCommand_ = c;
       startHoming();
       return;
     case Opcode::kLocalize: {
-      if (state_ == State::kFault) return node_->nack(c.opcode, c.counter, NackReason::kFaultActive);
+      if (state_ == State::kFault || state_ == State::kStopped)
+        return node_->nack(c.opcode, c.counter, NackReason::kFaultActive);
       if (worker_->busy() || state_ != State::kIdle) return node_->nack(c.opcode, c.counter, NackReason::kBusy);
       if (!calibration_) return node_->nack(c.opcode, c.counter, NackReason::kNotCalibrated);
       if (!worker_->homed()) return node_->nack(c.opcode, c.counter, NackReason::kNotHomed);
@@ -429,7 +433,7 @@ void Daemon::onWorkerEvent(const WorkerEvent& ev, TimeNs now) {
   const bool isHome = ev.job.kind == WorkerJob::Kind::kHome;
   if (ev.faultBit != 0) {
     enterFault(ev.faultBit, ev.status);
-  } else if (state_ != protocol::State::kFault) {
+  } else if (state_ != protocol::State::kFault && state_ != protocol::State::kStopped) {
     state_ = protocol::State::kIdle;
   }
   if (isHome) {
@@ -437,7 +441,12 @@ void Daemon::onWorkerEvent(const WorkerEvent& ev, TimeNs now) {
       ALACS_LOG_INFO("motion", "homed (worst step lateness %.1f us)", static_cast<double>(ev.maxStepLatenessNs) / 1e3);
     }
     if (activeCommand_ && activeCommand_->opcode == protocol::Opcode::kHome) {
-      if (ev.status) node_->ack(*activeCommand_, protocol::AckResult::kDone);
+      if (ev.status) {
+        node_->ack(*activeCommand_, protocol::AckResult::kDone);
+      } else {
+        node_->ack(*activeCommand_, protocol::AckResult::kNack,
+                   ev.faultBit != 0 ? protocol::NackReason::kFaultActive : protocol::NackReason::kInternal);
+      }
       activeCommand_.reset();
     }
     return;
@@ -474,12 +483,9 @@ void Daemon::onWorkerEvent(const WorkerEvent& ev, TimeNs now) {
     ALACS_LOG_WARN("scan", "target %u: %s", h.targetId, ev.status.toString().c_str());
   }
   h.objectCount = static_cast<uint8_t>(objects.size());
+  // LOCALIZE is answered by its ACK and then this one result (docs/can-protocol.md).
   node_->publishResult(h, objects);
-  if (activeCommand_) {
-    node_->ack(*activeCommand_, ev.status ? protocol::AckResult::kDone : protocol::AckResult::kNack,
-               ev.status ? protocol::NackReason::kNone : protocol::NackReason::kInternal);
-    activeCommand_.reset();
-  }
+  activeCommand_.reset();
 }
 
 void Daemon::flushTx() {

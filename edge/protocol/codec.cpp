@@ -106,6 +106,7 @@ ports::CanFrame encodeAck(uint8_t nodeId, const Ack& ack) {
   m.ack_counter = static_cast<uint8_t>(ack.counter & 0x0F);
   m.ack_result = static_cast<uint8_t>(ack.result);
   m.nack_reason = static_cast<uint8_t>(ack.reason);
+  m.rejected_opcode = ack.rejectedOpcode;
   ports::CanFrame f = frameFor(ALACS_BASE_ID_ACK, nodeId, 8);
   (void)alacs_alacs_ack_pack(f.data.data(), &m, f.data.size());
   return f;

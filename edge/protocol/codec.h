@@ -62,6 +62,7 @@ struct Ack {
   uint8_t counter = 0;
   AckResult result = AckResult::kAck;
   NackReason reason = NackReason::kNone;
+  uint8_t rejectedOpcode = 0;  // byte 0 of a command with an unknown opcode
 };
 
 enum class State : uint8_t { kBoot = 0, kHoming = 1, kIdle = 2, kScanning = 3, kFault = 4, kStopped = 5 };

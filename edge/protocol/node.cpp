@@ -18,7 +18,6 @@ void CanNode::start(TimeNs now) {
 }
 
 std::optional<Command> CanNode::push(const ports::CanFrame& frame, TimeNs now) {
-  (void)now;
   ++counters_.rxFrames;
   if (frame.error) {
     ++counters_.rxErrorFrames;
@@ -48,23 +47,33 @@ std::optional<Command> CanNode::push(const ports::CanFrame& frame, TimeNs now) {
     ++counters_.rxUnknownId;
     return std::nullopt;
   }
-  if (nmt_ == NmtState::kStopped) return std::nullopt;  // CANopen: a stopped node stays silent
+  // Checks in the documented order (docs/can-protocol.md): DLC, checksum, opcode,
+  // counter, NMT state, value ranges; the application checks the sensor state.
   const CommandDecode d = decodeCommand(frame);
+  const bool structural = !d.ok && d.reason != NackReason::kBadValue;
+  if (structural) {
+    ++counters_.rxBadFrames;
+    nack(d.command.opcode, d.command.counter, d.reason, frame.dlc > 0 ? frame.data[0] : 0);
+    return std::nullopt;
+  }
+  if (lastCounter_.has_value() && *lastCounter_ == d.command.counter &&
+      now - lastCounterTimeNs_ < kDuplicateWindowNs) {
+    ++counters_.rxBadFrames;
+    nack(d.command.opcode, d.command.counter, NackReason::kBadCounter);
+    return std::nullopt;
+  }
+  const bool anyNmtState = d.command.opcode == Opcode::kStop || d.command.opcode == Opcode::kGetVersion;
+  if (nmt_ != NmtState::kOperational && !anyNmtState) {
+    nack(d.command.opcode, d.command.counter, NackReason::kNmtNotOperational);
+    return std::nullopt;
+  }
   if (!d.ok) {
     ++counters_.rxBadFrames;
     nack(d.command.opcode, d.command.counter, d.reason);
     return std::nullopt;
   }
-  if (lastCounter_.has_value() && *lastCounter_ == d.command.counter) {
-    ++counters_.rxBadFrames;
-    nack(d.command.opcode, d.command.counter, NackReason::kBadCounter);
-    return std::nullopt;
-  }
   lastCounter_ = d.command.counter;
-  if (nmt_ != NmtState::kOperational && d.command.opcode != Opcode::kGetVersion) {
-    nack(d.command.opcode, d.command.counter, NackReason::kNmtNotOperational);
-    return std::nullopt;
-  }
+  lastCounterTimeNs_ = now;
   return d.command;
 }
 
@@ -106,8 +115,9 @@ void CanNode::ack(const Command& c, AckResult result, NackReason reason) {
   queueResult(encodeAck(config_.nodeId, {c.opcode, c.counter, result, reason}));
 }
 
-void CanNode::nack(Opcode opcode, uint8_t counter, NackReason reason) {
-  queueResult(encodeAck(config_.nodeId, {opcode, counter, AckResult::kNack, reason}));
+void CanNode::nack(Opcode opcode, uint8_t counter, NackReason reason, uint8_t rejectedByte0) {
+  queueResult(encodeAck(config_.nodeId, {opcode, counter, AckResult::kNack, reason,
+                                         opcode == Opcode::kInvalid ? rejectedByte0 : uint8_t{0}}));
 }
 
 void CanNode::queueVersion(const Command& c, int major, int minor, int patch) {

@@ -52,7 +52,10 @@ class CanNode {
   TimeNs nextDeadline() const;
 
   void ack(const Command& c, AckResult result, NackReason reason = NackReason::kNone);
-  void nack(Opcode opcode, uint8_t counter, NackReason reason);
+  // `rejectedByte0`: byte 0 of a command whose opcode is unknown (sent in RejectedOpcode).
+  void nack(Opcode opcode, uint8_t counter, NackReason reason, uint8_t rejectedByte0 = 0);
+  // A repeated counter within this window is a duplicate (NACK BAD_COUNTER).
+  static constexpr TimeNs kDuplicateWindowNs = 1000 * kNsPerMs;
   void queueVersion(const Command& c, int major, int minor, int patch);
   void publishResult(const ResultHeader& header, const std::vector<ResultObject>& objects);
   void emergency(uint16_t errorCode, uint16_t faults, uint8_t reason);
@@ -75,6 +78,7 @@ class CanNode {
   NodeConfig config_;
   NmtState nmt_ = NmtState::kBootUp;
   std::optional<uint8_t> lastCounter_;
+  TimeNs lastCounterTimeNs_ = 0;
   TimeNs nextHeartbeat_ = 0;
   TimeNs nextStatus_ = 0;
   bool resetRequested_ = false;

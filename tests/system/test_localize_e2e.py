@@ -24,9 +24,10 @@ def test_localize_over_vcan(tmp_path, alacsd, seed):
     assert ex.center_error_mm < 5.0, (ex.center_error_mm, obj.center_mm, ex.truth_center_mm)
     assert ex.approach_error_mm < 5.0, (ex.approach_error_mm, obj.approach_mm, ex.truth_approach_mm)
     assert abs(obj.quality.diameter_mm - 2 * ex.truth_radius_mm) < 6.0
-    # Ack then DONE, echoing the command's counter.
-    results = [str(a["AckResult"]) for a in ex.acks if str(a["AckOpcode"]) == "LOCALIZE"]
-    assert results == ["ACK", "DONE"], ex.acks
+    # Exactly one ACK (then the result), echoing the command's counter.
+    acks = [a for a in ex.acks if str(a["AckOpcode"]) == "LOCALIZE"]
+    assert [str(a["AckResult"]) for a in acks] == ["ACK"], ex.acks
+    assert acks[0]["AckCounter"] == 1
     assert ex.overlay_png.exists() and ex.overlay_png.stat().st_size > 1000
     # The laser and the motor driver are off after the scan and after SIGTERM.
     assert gpio_sim.read_output("LASER") == 0

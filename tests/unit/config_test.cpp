@@ -1,1 +1,36 @@
 #include <catch2/catch.hpp>
+
+#include <fstream>
+
+#include "app/config.h"
+
+using namespace alacs;
+
+namespace {
+std::string write(const std::string& text) {
+  static int n = 0;
+  const std::string path = "/tmp/alacs_cfg_" + std::to_string(n++) + ".json";
+  std::ofstream(path) << text;
+  return path;
+}
+}  // namespace
+
+TEST_CASE("Config: defaults, overrides and errors that name the key", "[config]") {
+  auto ok = app::loadConfig(write(R"({"can": {"node_id": 5, "interface": "can1"}, "scan": {"stops": 7}})"));
+  REQUIRE(ok.isOk());
+  CHECK(ok->nodeId == 5);
+  CHECK(ok->canInterface == "can1");
+  CHECK(ok->scan.stops == 7);
+  CHECK(ok->lle.brceStep == 4);
+
+  CHECK(app::loadConfig("/nonexistent.json").status().code() == Error::kNotFound);
+  CHECK(app::loadConfig(write("{ nope")).status().code() == Error::kBadInput);
+  auto range = app::loadConfig(write(R"({"can": {"node_id": 200}})"));
+  CHECK(range.status().reason().find("can.node_id") != std::string::npos);
+  auto type = app::loadConfig(write(R"({"motion": {"stroke_mm": "long"}})"));
+  CHECK(type.status().reason().find("motion.stroke_mm") != std::string::npos);
+  auto frac = app::loadConfig(write(R"({"scan": {"stops": 2.5}})"));
+  CHECK(frac.status().reason().find("scan.stops") != std::string::npos);
+  auto cross = app::loadConfig(write(R"({"camera": {"exposure_us": 200000}, "laser": {"max_on_ms": 100}})"));
+  CHECK(cross.status().reason().find("camera.exposure_us") != std::string::npos);
+}

@@ -1,1 +1,133 @@
 #include <catch2/catch.hpp>
+
+#include "app/laser_guard.h"
+#include "motion/step_runner.h"
+#include "sim/sim_slide.h"
+
+using namespace alacs;
+using namespace alacs::motion;
+
+TEST_CASE("Trapezoid step times rise monotonically within the speed limit", "[motion]") {
+  SlideLimits lim;
+  auto move = planMove(lim, 0, lim.stepsFor(20.0));
+  REQUIRE(move.isOk());
+  REQUIRE(move->steps() == 800);
+  TimeNs prev = 0;
+  double fastest = 0;
+  for (int64_t k = 1; k <= move->steps(); ++k) {
+    const TimeNs t = move->stepTimeNs(k);
+    REQUIRE(t > prev);
+    fastest = std::max(fastest, 1e9 / static_cast<double>(t - prev));
+    prev = t;
+  }
+  CHECK(fastest <= lim.maxSpeedMmPerS * lim.stepsPerMm * 1.05);
+  // 20 mm at 200 mm/s, 2000 mm/s²: 0.1 s ramp up, 0.1 s down, no cruise.
+  CHECK(static_cast<double>(move->durationNs()) * 1e-9 == Approx(0.2).margin(0.002));
+  CHECK(move->positionAt(move->durationNs()) == Approx(800.0));
+}
+
+TEST_CASE("Soft limits refuse targets outside the stroke", "[motion]") {
+  SlideLimits lim;
+  CHECK(planMove(lim, 0, lim.stepsFor(200.5)).status().code() == Error::kOutOfRange);
+  CHECK(planMove(lim, 0, -1).status().code() == Error::kOutOfRange);
+  CHECK(planMove(lim, 0, lim.stepsFor(200.0)).isOk());
+}
+
+TEST_CASE("The step runner emits the planned pulses in virtual time", "[motion]") {
+  VirtualClock clock(1000);
+  VirtualSleeper sleeper(clock);
+  SlideLimits lim;
+  sim::SimSlide slide(clock, lim.stepsPerMm, lim.strokeMm, 50.0);
+  ports::FakeDigitalOut step(clock);
+  ports::TeeDigitalOut tee(step, slide.stepInput());
+  REQUIRE(slide.enableInput().set(true).isOk());
+  StepRunner runner(lim, {&tee, &slide.dirInput(), &slide.homeSwitch(), &slide.endSwitch()}, clock, sleeper);
+  std::atomic<bool> cancel{false};
+  auto move = planMove(lim, lim.stepsFor(50.0), lim.stepsFor(70.0));
+  REQUIRE(move.isOk());
+  const TimeNs start = clock.now();
+  const MoveReport r = runner.run(*move, true, cancel);
+  CHECK(r.outcome == MoveOutcome::kCompleted);
+  CHECK(r.stepsDone == 800);
+  CHECK(slide.positionMm() == Approx(70.0));
+  const auto edges = step.edges();
+  REQUIRE(edges.size() == 1600);
+  // Each rising edge sits exactly at its planned time; each pulse is stepPulseNs wide.
+  for (int64_t k = 1; k <= 800; ++k) {
+    const auto& rise = edges[static_cast<size_t>(2 * (k - 1))];
+    const auto& fall = edges[static_cast<size_t>(2 * (k - 1) + 1)];
+    REQUIRE(rise.level);
+    REQUIRE(rise.timeNs == start + lim.dirSetupNs + move->stepTimeNs(k));
+    REQUIRE(fall.timeNs - rise.timeNs == lim.stepPulseNs);
+  }
+  CHECK(r.maxLatenessNs == 0);
+}
+
+TEST_CASE("Homing finds the switch, or times out with a reason", "[motion][homing]") {
+  VirtualClock clock;
+  VirtualSleeper sleeper(clock);
+  SlideLimits lim;
+  std::atomic<bool> cancel{false};
+  SECTION("switch found") {
+    sim::SimSlide slide(clock, lim.stepsPerMm, lim.strokeMm, 37.0);
+    REQUIRE(slide.enableInput().set(true).isOk());
+    StepRunner runner(lim, {&slide.stepInput(), &slide.dirInput(), &slide.homeSwitch(), nullptr}, clock, sleeper);
+    const MoveReport r = runner.home(cancel);
+    CHECK(r.outcome == MoveOutcome::kSwitchReached);
+    CHECK(slide.positionSteps() == 0);
+  }
+  SECTION("switch never closes") {
+    sim::SimSlide slide(clock, lim.stepsPerMm, lim.strokeMm, 37.0);
+    ports::FakeDigitalIn deadSwitch(false);
+    REQUIRE(slide.enableInput().set(true).isOk());
+    StepRunner runner(lim, {&slide.stepInput(), &slide.dirInput(), &deadSwitch, nullptr}, clock, sleeper);
+    const MoveReport r = runner.home(cancel);
+    CHECK(r.outcome == MoveOutcome::kLimitHit);
+    CHECK(r.status.code() == Error::kTimeout);
+    CHECK(static_cast<double>(clock.now()) <= static_cast<double>(lim.homingTimeoutMs * kNsPerMs) * 1.01);
+  }
+}
+
+TEST_CASE("A limit switch closing mid-move stops the move as a fault", "[motion]") {
+  VirtualClock clock;
+  VirtualSleeper sleeper(clock);
+  SlideLimits lim;
+  ports::FakeDigitalOut step(clock), dir(clock);
+  ports::FakeDigitalIn end(false);
+  int pulses = 0;
+  step.onChange([&](bool level) {
+    if (level && ++pulses == 100) end.setLevel(true);
+  });
+  ports::FakeDigitalIn home(false);
+  StepRunner runner(lim, {&step, &dir, &home, &end}, clock, sleeper);
+  std::atomic<bool> cancel{false};
+  const MoveReport r = runner.run(TrapezoidMove(800, 8000, 80000), true, cancel);
+  CHECK(r.outcome == MoveOutcome::kLimitHit);
+  CHECK(r.status.code() == Error::kLimitHit);
+  CHECK(r.stepsDone == 100);
+  CHECK_FALSE(step.level());
+}
+
+TEST_CASE("The laser guard forces the laser off beyond its maximum on-time", "[laser]") {
+  VirtualClock clock;
+  ports::FakeDigitalOut line(clock);
+  app::LaserGuard laser(line, clock, 50 * kNsPerMs);
+  REQUIRE(laser.on().isOk());
+  clock.advance(40 * kNsPerMs);
+  CHECK_FALSE(laser.enforce(clock.now()));
+  REQUIRE(laser.off().isOk());
+  REQUIRE(laser.on().isOk());
+  clock.advance(51 * kNsPerMs);
+  CHECK(laser.enforce(clock.now()));
+  CHECK_FALSE(line.level());
+  CHECK(laser.on().code() == Error::kFault);
+  CHECK_FALSE(line.level());
+  const auto edges = line.edges();
+  REQUIRE(edges.size() == 4);
+  // The laser timeline: on 0..40 ms, on again 40..91 ms, forced off.
+  CHECK(edges[0].timeNs == 0);
+  CHECK(edges[1].timeNs == 40 * kNsPerMs);
+  CHECK(edges[3].timeNs - edges[2].timeNs == 51 * kNsPerMs);
+  laser.reset();
+  CHECK(laser.on().isOk());
+}

@@ -149,7 +149,7 @@ def run_exchange(
         decoded.append((time.time(), ac.MSG_COMMAND, ac.decode(node_db, cmd_msg)))
         say(f"sent LOCALIZE rough=({rough[0]:.0f}, {rough[1]:.0f}, {rough[2]:.0f}) mm")
         ack_id = ac.frame_id(ac.MSG_ACK, node_id)
-        done = False
+        done = False  # LOCALIZE: ACK, then one result
         deadline = time.monotonic() + 30.0
         while time.monotonic() < deadline and not done:
             msg = bus.recv(timeout=0.5)
@@ -159,10 +159,9 @@ def run_exchange(
             res = collector.push(msg)
             if res is not None:
                 ex.result = res
-            if msg.arbitration_id == ack_id:
-                sig = ac.decode(node_db, msg)
-                if str(sig["AckResult"]) in ("DONE", "NACK"):
-                    done = ex.result is not None or str(sig["AckResult"]) == "NACK"
+                done = True
+            if msg.arbitration_id == ack_id and str(ac.decode(node_db, msg)["AckResult"]) == "NACK":
+                done = True
         say(f"exchange took {time.monotonic() - sent_at:.2f} s")
     finally:
         bus.shutdown()
