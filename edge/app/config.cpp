@@ -1,6 +1,8 @@
 #include "app/config.h"
 
 #include <opencv2/core.hpp>
+
+#include "common/json_file.h"
 #include <cmath>
 #include <fstream>
 #include <sstream>
@@ -85,17 +87,9 @@ Status validateConfig(const DaemonConfig& c) {
 }
 
 Result<DaemonConfig> loadConfig(const std::string& path) {
-  std::ifstream in(path);
-  if (!in) return Status(Error::kNotFound, "config file '" + path + "' cannot be opened");
-  std::stringstream text;
-  text << in.rdbuf();
-  cv::FileStorage fs;
-  try {
-    if (!fs.open(text.str(), cv::FileStorage::READ | cv::FileStorage::MEMORY | cv::FileStorage::FORMAT_JSON))
-      return Status(Error::kBadInput, "config file '" + path + "' is not valid JSON");
-  } catch (const cv::Exception& e) {
-    return Status(Error::kBadInput, "config file '" + path + "' is not valid JSON: " + e.msg);
-  }
+  Result<cv::FileStorage> file = openJsonFile(path, "config file");
+  if (!file) return file.status();
+  cv::FileStorage& fs = *file;
   DaemonConfig c;
   Reader r{fs.root(), Status::ok()};
   r.integer("can.node_id", &c.nodeId, 1, 127);

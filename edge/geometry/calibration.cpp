@@ -1,6 +1,8 @@
 #include "geometry/calibration.h"
 
 #include <opencv2/core.hpp>
+
+#include "common/json_file.h"
 #include <cmath>
 #include <cstdio>
 #include <fstream>
@@ -77,17 +79,9 @@ Status validateCalibration(const Calibration& cal) {
 }
 
 Result<Calibration> loadCalibration(const std::string& path) {
-  std::ifstream probe(path);
-  if (!probe) return Status(Error::kNotFound, "calibration file '" + path + "' cannot be opened");
-  std::stringstream text;
-  text << probe.rdbuf();
-  cv::FileStorage fs;
-  try {
-    if (!fs.open(text.str(), cv::FileStorage::READ | cv::FileStorage::MEMORY | cv::FileStorage::FORMAT_JSON))
-      return Status(Error::kBadInput, "calibration file '" + path + "' is not valid JSON");
-  } catch (const cv::Exception& e) {
-    return Status(Error::kBadInput, "calibration file '" + path + "' is not valid JSON: " + e.msg);
-  }
+  Result<cv::FileStorage> file = openJsonFile(path, "calibration file");
+  if (!file) return file.status();
+  cv::FileStorage& fs = *file;
   Calibration cal;
   const cv::FileNode cam = fs["camera"];
   if (cam.empty() || !cam.isMap()) return fieldError("camera", "is missing");

@@ -1,6 +1,8 @@
 #include "sim/scene.h"
 
 #include <opencv2/core.hpp>
+
+#include "common/json_file.h"
 #include <Eigen/Geometry>
 #include <cmath>
 #include <fstream>
@@ -64,17 +66,9 @@ Eigen::Vector3d readVec3Or(const cv::FileNode& n, const char* key, const Eigen::
 }  // namespace
 
 Result<SimScene> loadScene(const std::string& path) {
-  std::ifstream in(path);
-  if (!in) return Status(Error::kNotFound, "scene file '" + path + "' cannot be opened");
-  std::stringstream text;
-  text << in.rdbuf();
-  cv::FileStorage fs;
-  try {
-    if (!fs.open(text.str(), cv::FileStorage::READ | cv::FileStorage::MEMORY | cv::FileStorage::FORMAT_JSON))
-      return Status(Error::kBadInput, "scene file '" + path + "' is not valid JSON");
-  } catch (const cv::Exception& e) {
-    return Status(Error::kBadInput, "scene file '" + path + "' is not valid JSON: " + e.msg);
-  }
+  Result<cv::FileStorage> file = openJsonFile(path, "scene file");
+  if (!file) return file.status();
+  cv::FileStorage& fs = *file;
   SimScene s = defaultScene();
   const cv::FileNode root = fs.root();
   s.backgroundDepthMm = readOr(root, "background_depth_mm", s.backgroundDepthMm);
