@@ -15,10 +15,11 @@ pip=$root/.venv/bin/pip
 cxx=${CXX:-g++}
 cc=${CC:-gcc}
 mkdir -p "$work"
-# Same flags as cmake/AlacsWarnings.cmake (ALACS_WARNINGS + ALACS_STRICT_WARNINGS).
-warn=(-Wall -Wextra -Wpedantic -Werror -Wshadow -Wnon-virtual-dtor -Wold-style-cast -Wcast-align -Wunused
-  -Woverloaded-virtual -Wnull-dereference -Wimplicit-fallthrough
-  -Wconversion -Wsign-conversion -Wdouble-promotion -Wswitch-enum)
+# The project's warning flags, read from cmake/AlacsWarnings.cmake: ALACS_WARNINGS, plus
+# ALACS_STRICT_WARNINGS (stricter than the project builds the driver).
+mapfile -t warn < <(sed -n '/^set(ALACS_\(STRICT_\)\?WARNINGS/,/)/p' "$root/cmake/AlacsWarnings.cmake" |
+  sed -e 's/^set(ALACS_[A-Z_]*//' -e 's/)//' | tr ' ' '\n' | grep '^-W')
+((${#warn[@]} > 5)) || { echo "gpiod-v2: FAIL cannot read the warning flags from cmake/AlacsWarnings.cmake"; exit 1; }
 versions=("2.1.3" "${ALACS_GPIOD_PY_LATEST:-2.5.0}")
 fails=0
 for pyver in "${versions[@]}"; do
