@@ -138,13 +138,13 @@ fi
 
 # ------------------------------------------------------------------ Yocto layer
 layer=yocto/meta-alacs
-mapfile -t recipes < <(find "$layer" -name '*.bb' -o -name '*.bbappend' -o -name '*.bbclass' | sort)
+mapfile -t recipes < <(find "$layer" -name '*.bb' -o -name '*.bbappend' -o -name '*.bbclass' -o -name '*.inc' -o -name '*.conf' | sort)
 if ((${#recipes[@]} == 0)); then
   fail "no recipes in $layer"
 else
   out=$("$venv/bin/oelint-adv" --quiet --release scarthgap --suppress oelint.vars.homepageping "${recipes[@]}" 2>&1)
   rc=$?
-  if [[ $rc -eq 0 && -z $out ]]; then pass "oelint-adv --release scarthgap: ${#recipes[@]} recipes clean"; else fail "oelint-adv (exit $rc)"; echo "$out"; fi
+  if [[ $rc -eq 0 && -z $out ]]; then pass "oelint-adv --release scarthgap: ${#recipes[@]} files (recipes, include, layer.conf) clean"; else fail "oelint-adv (exit $rc)"; echo "$out"; fi
 fi
 # Pre-honister override syntax no longer parses (and oelint-adv misses some of it).
 old='(_append|_prepend|_remove)\b|_\$\{PN\}|_(class|pn|virtclass|task)-|_(raspberrypi[0-9a-z-]*|rpi|aarch64|arm|libc-[a-z]+|linux|qemuall)[[:space:]]*([?:+.]?=|=[+.]|\?\?=)'
@@ -168,12 +168,15 @@ for k in yocto/kas/*.yml; do
 import sys, yaml, jsonschema
 from kas.configschema import CONFIGSCHEMA
 doc = yaml.safe_load(open(sys.argv[1]))
-jsonschema.validate(doc, CONFIGSCHEMA)
+try:
+    jsonschema.validate(doc, CONFIGSCHEMA)
+except jsonschema.ValidationError as e:
+    sys.exit("/".join(str(p) for p in e.absolute_path) + ": " + e.message)
 for name, repo in (doc.get("repos") or {}).items():
     if repo and "commit" in repo and not isinstance(repo["commit"], str):
         sys.exit(f"{name}: commit must be a quoted string")
 PY
-  ); then pass "kas schema: $k"; else fail "kas schema: $k"; echo "$out" | tail -5; fi
+  ); then pass "kas schema: $k"; else fail "kas schema: $k: $out"; fi
 done
 
 finish

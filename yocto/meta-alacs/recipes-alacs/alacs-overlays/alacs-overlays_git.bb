@@ -17,6 +17,8 @@ DEPENDS = "dtc-native"
 
 PV = "0.1.0+git"
 
+require recipes-alacs/alacs-source.inc
+
 SRC_URI = "${ALACS_GIT_URI};branch=${ALACS_GIT_BRANCH}"
 # Built from the commit the layer belongs to (see alacsd_git.bb).
 # nooelint: oelint.vars.autorev

@@ -16,6 +16,8 @@ DEPENDS = "libeigen opencv"
 
 PV = "0.1.0+git"
 
+require recipes-alacs/alacs-source.inc
+
 SRC_URI = "${ALACS_GIT_URI};branch=${ALACS_GIT_BRANCH}"
 # The layer sits in the project's repository and builds the commit it belongs to; a
 # release build pins it: SRCREV:pn-alacsd = "<commit>" (docs/yocto.md).
