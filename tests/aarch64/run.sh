@@ -31,7 +31,7 @@ sudo=()
 installed() { dpkg-query -W -f='${Status}' "$1" 2>/dev/null | grep -q "install ok installed"; }
 
 step "host packages"
-host_packages=(file g++-aarch64-linux-gnu qemu-user-static binfmt-support catch2 libeigen3-dev
+host_packages=(file cmake ninja-build pkg-config g++-aarch64-linux-gnu qemu-user-static binfmt-support catch2 libeigen3-dev
   libgpiod-dev:arm64 libcamera-dev:arm64 libsystemd-dev:arm64
   libopencv-core-dev:arm64 libopencv-imgproc-dev:arm64)
 # Unpacked into $extra, never installed (see above).

@@ -21,6 +21,7 @@ sudo=()
 need_apt=()
 command -v dtc >/dev/null || need_apt+=(device-tree-compiler)
 command -v systemd-analyze >/dev/null || need_apt+=(systemd)
+[[ -x $root/.venv/bin/python ]] || python3 -c 'import ensurepip' 2>/dev/null || need_apt+=(python3-venv)
 if ((${#need_apt[@]})); then
   echo "installing: ${need_apt[*]}"
   "${sudo[@]}" apt-get update -q >/dev/null
