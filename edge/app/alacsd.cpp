@@ -386,9 +386,10 @@ void Daemon::onCommand(const protocol::Command& c, TimeNs now) {
       if (worker_->busy() || state_ != State::kIdle) return node_->nack(c.opcode, c.counter, NackReason::kBusy);
       if (!calibration_) return node_->nack(c.opcode, c.counter, NackReason::kNotCalibrated);
       if (!worker_->homed()) return node_->nack(c.opcode, c.counter, NackReason::kNotHomed);
-      const localize::Localizer probe(*calibration_, cfg_.lle, cfg_.scan);
-      if (Result<localize::ScanPlan> p = probe.plan(c.localize.roughMm, cfg_.motion.strokeMm); !p) {
-        ALACS_LOG_WARN("cmd", "localize refused: %s", p.status().toString().c_str());
+      Result<localize::ScanPlan> plan =
+          localize::Localizer(*calibration_, cfg_.lle, cfg_.scan).plan(c.localize.roughMm, cfg_.motion.strokeMm);
+      if (!plan) {
+        ALACS_LOG_WARN("cmd", "localize refused: %s", plan.status().toString().c_str());
         return node_->nack(c.opcode, c.counter, NackReason::kOutOfRange);
       }
       node_->ack(c, protocol::AckResult::kAck);
@@ -397,6 +398,7 @@ void Daemon::onCommand(const protocol::Command& c, TimeNs now) {
       WorkerJob job;
       job.kind = WorkerJob::Kind::kLocalize;
       job.localize = c.localize;
+      job.plan = std::move(*plan);
       job.commandTimeNs = now;
       worker_->submit(job);
       return;
@@ -599,7 +601,7 @@ int Daemon::run() {
       ALACS_LOG_INFO("can", "NMT reset: restarting the node");
       node_->start(now);
     }
-    node_->poll(now, statusReport());
+    node_->poll(now, [this] { return statusReport(); });
     flushTx();
     if (txBlocked_ != epollOut) {
       epoll_event e{};

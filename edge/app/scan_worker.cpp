@@ -155,12 +155,7 @@ WorkerEvent ScanWorker::doLocalize(const WorkerJob& job) {
     std::lock_guard<std::mutex> lock(mu_);
     return deps_.capture;
   }();
-  Result<localize::ScanPlan> plan = localizer.plan(job.localize.roughMm, deps_.limits.strokeMm);
-  if (!plan) {
-    ev.status = plan.status();
-    ev.resultStatus = protocol::ResultStatus::kFailed;
-    return ev;
-  }
+  const localize::ScanPlan* plan = &job.plan;
   if (Status s = deps_.enable->set(true); !s) {
     ev.status = s;
     ev.faultBit = protocol::kFaultInternal;

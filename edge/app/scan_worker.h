@@ -22,6 +22,7 @@ namespace alacs::app {
 struct WorkerJob {
   enum class Kind { kHome, kLocalize } kind = Kind::kHome;
   protocol::LocalizeCommand localize;
+  localize::ScanPlan plan;  // made by the daemon when it accepted the command
   TimeNs commandTimeNs = 0;
 };
 

@@ -46,11 +46,21 @@ TriangulatedPoint triangulate(const LaserGeometry& laser, double slideMm, const 
   return result;
 }
 
-PixelPoint projectPoint(const CameraIntrinsics& cam, const Eigen::Vector3d& pointMm) {
-  std::vector<cv::Point3d> obj{cv::Point3d(pointMm.x(), pointMm.y(), pointMm.z())};
+std::vector<PixelPoint> projectPoints(const CameraIntrinsics& cam, const std::vector<Eigen::Vector3d>& pointsMm) {
+  std::vector<PixelPoint> out;
+  if (pointsMm.empty()) return out;
+  std::vector<cv::Point3d> obj;
+  obj.reserve(pointsMm.size());
+  for (const auto& p : pointsMm) obj.emplace_back(p.x(), p.y(), p.z());
   std::vector<cv::Point2d> img;
   cv::projectPoints(obj, cv::Vec3d(0, 0, 0), cv::Vec3d(0, 0, 0), cameraMatrix(cam), distCoeffs(cam), img);
-  return {img[0].x, img[0].y};
+  out.reserve(img.size());
+  for (const auto& q : img) out.push_back({q.x, q.y});
+  return out;
+}
+
+PixelPoint projectPoint(const CameraIntrinsics& cam, const Eigen::Vector3d& pointMm) {
+  return projectPoints(cam, {pointMm})[0];
 }
 
 }  // namespace alacs::geometry

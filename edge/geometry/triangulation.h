@@ -38,5 +38,6 @@ TriangulatedPoint triangulate(const LaserGeometry& laser, double slideMm, const 
 
 // Projects a camera-frame point to pixels with distortion (OpenCV's model).
 PixelPoint projectPoint(const CameraIntrinsics& cam, const Eigen::Vector3d& pointMm);
+std::vector<PixelPoint> projectPoints(const CameraIntrinsics& cam, const std::vector<Eigen::Vector3d>& pointsMm);
 
 }  // namespace alacs::geometry

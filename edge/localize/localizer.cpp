@@ -36,11 +36,11 @@ Result<ScanPlan> Localizer::plan(const Eigen::Vector3d& roughMm, double strokeMm
   // ROI: the projected box of the rough centre ± (largest radius + margin).
   const auto& cam = cal_.camera;
   const double r = scan_.maxAppleRadiusMm + scan_.roiMarginMm;
+  std::vector<Eigen::Vector3d> corners;
+  for (int corner = 0; corner < 8; ++corner)
+    corners.push_back(roughMm + r * Eigen::Vector3d((corner & 1) ? 1 : -1, (corner & 2) ? 1 : -1, (corner & 4) ? 1 : -1));
   double u0 = 1e9, v0 = 1e9, u1 = -1e9, v1 = -1e9;
-  for (int corner = 0; corner < 8; ++corner) {
-    const Eigen::Vector3d p = roughMm + r * Eigen::Vector3d((corner & 1) ? 1 : -1, (corner & 2) ? 1 : -1,
-                                                             (corner & 4) ? 1 : -1);
-    const geometry::PixelPoint px = geometry::projectPoint(cam, p);
+  for (const geometry::PixelPoint& px : geometry::projectPoints(cam, corners)) {
     u0 = std::min(u0, px.columnPx);
     u1 = std::max(u1, px.columnPx);
     v0 = std::min(v0, px.rowPx);

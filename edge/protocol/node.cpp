@@ -77,7 +77,7 @@ std::optional<Command> CanNode::push(const ports::CanFrame& frame, TimeNs now) {
   return d.command;
 }
 
-void CanNode::poll(TimeNs now, const StatusReport& status) {
+void CanNode::poll(TimeNs now, const std::function<StatusReport()>& status) {
   if (config_.heartbeatPeriodNs > 0 && now >= nextHeartbeat_) {
     urgent_.push_back(encodeHeartbeat(config_.nodeId, static_cast<uint8_t>(nmt_)));
     // Keep the cadence: schedule from the due time, not from a late poll.
@@ -89,7 +89,7 @@ void CanNode::poll(TimeNs now, const StatusReport& status) {
       status_.pop_front();
       ++counters_.txDroppedStatus;
     }
-    StatusReport s = status;
+    StatusReport s = status();
     s.rxErrors = counters_.rxUnknownId + counters_.rxBadFrames + counters_.rxErrorFrames;
     status_.push_back(encodeStatus(config_.nodeId, s));
     nextStatus_ += config_.statusPeriodNs;

@@ -7,6 +7,7 @@
 #include <cstddef>
 #include <cstdint>
 #include <deque>
+#include <functional>
 #include <optional>
 #include <vector>
 
@@ -46,8 +47,9 @@ class CanNode {
   // it (the node has already checked it; the application acks or nacks it).
   std::optional<Command> push(const ports::CanFrame& frame, TimeNs now);
 
-  // Queues the heartbeat and status frames that are due.
-  void poll(TimeNs now, const StatusReport& status);
+  // Queues the heartbeat and status frames that are due; `status` is called only when
+  // a status frame is due (it may read hardware).
+  void poll(TimeNs now, const std::function<StatusReport()>& status);
   // The next time poll() has something to do.
   TimeNs nextDeadline() const;
 

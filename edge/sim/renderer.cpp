@@ -61,6 +61,8 @@ void Renderer::render(double slideMm, double laserFraction, uint64_t frameIndex,
   const double d = scene_.truth.laser.planeOffsetAt(slideMm);
   const Eigen::Vector3d light = scene_.lightDir.normalized();
   const double laserAmp = scene_.laserPeakDn * std::clamp(laserFraction, 0.0, 1.0);
+  // Direction of the light within the sheet (horizontal in the plane), for the incidence.
+  const Eigen::Vector3d beamDir = n.cross(Eigen::Vector3d(0, 1, 0)).normalized();
   for (int v = 0; v < cam.heightPx; ++v) {
     auto* row = out.ptr<uint8_t>(v);
     for (int u = 0; u < cam.widthPx; ++u) {
@@ -109,7 +111,7 @@ void Renderer::render(double slideMm, double laserFraction, uint64_t frameIndex,
         const double haloTerm = halo * std::exp(-0.5 * dist * dist / (scene_.haloSigmaMm * scene_.haloSigmaMm));
         double intensity = core + haloTerm;
         if (intensity > 1e-4) {
-          const double incidence = std::max(0.15, std::abs(normal.dot(n.cross(Eigen::Vector3d(0, 1, 0)).normalized())));
+          const double incidence = std::max(0.15, std::abs(normal.dot(beamDir)));
           const double range = 1200.0 / p.norm();
           intensity *= laserAmp * incidence * range * range * (hit ? 1.0 : 0.6);
           intensity *= std::max(0.0, 1.0 + scene_.speckle * static_cast<double>(rng.normal()));

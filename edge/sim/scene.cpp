@@ -144,6 +144,7 @@ std::vector<RowTruth> laserLineTruth(const SimScene& scene, const SimApple& appl
   constexpr int kSamples = 8192;
   struct Sample { double u, v; bool visible; };
   std::vector<Sample> samples(kSamples);
+  std::vector<Eigen::Vector3d> points(kSamples);
   for (int i = 0; i < kSamples; ++i) {
     const double phi = 2.0 * M_PI * i / kSamples;
     const Eigen::Vector3d p = c0 + rho * (std::cos(phi) * e1 + std::sin(phi) * e2);
@@ -155,8 +156,13 @@ std::vector<RowTruth> laserLineTruth(const SimScene& scene, const SimApple& appl
         if (t > 0.0 && t < 1.0 - 1e-9) visible = false;
       }
     }
-    const geometry::PixelPoint px = geometry::projectPoint(scene.truth.camera, p);
-    samples[static_cast<size_t>(i)] = {px.columnPx, px.rowPx, visible};
+    points[static_cast<size_t>(i)] = p;
+    samples[static_cast<size_t>(i)].visible = visible;
+  }
+  const std::vector<geometry::PixelPoint> projected = geometry::projectPoints(scene.truth.camera, points);
+  for (size_t i = 0; i < samples.size(); ++i) {
+    samples[i].u = projected[i].columnPx;
+    samples[i].v = projected[i].rowPx;
   }
   for (int i = 0; i < kSamples; ++i) {
     const Sample& a = samples[static_cast<size_t>(i)];

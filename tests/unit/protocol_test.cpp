@@ -6,6 +6,10 @@
 #include "protocol/codec.h"
 #include "protocol/node.h"
 
+extern "C" {
+#include "alacs_protocol.h"
+}
+
 using namespace alacs;
 using namespace alacs::protocol;
 
@@ -34,13 +38,7 @@ ports::CanFrame command(Opcode op, uint8_t counter, std::array<uint8_t, 6> paylo
   f.data[0] = static_cast<uint8_t>(op);
   f.data[1] = counter;
   for (size_t i = 0; i < 5; ++i) f.data[i + 2] = payload[i];
-  // CRC-8/SAE-J1850 over bytes 0..6
-  uint8_t crc = 0xFF;
-  for (int i = 0; i < 7; ++i) {
-    crc ^= f.data[static_cast<size_t>(i)];
-    for (int b = 0; b < 8; ++b) crc = static_cast<uint8_t>((crc & 0x80) ? (crc << 1) ^ 0x1D : crc << 1);
-  }
-  f.data[7] = static_cast<uint8_t>(crc ^ 0xFF);
+  f.data[7] = alacs_command_checksum(f.data.data());
   return f;
 }
 }  // namespace
@@ -175,7 +173,7 @@ TEST_CASE("CAN node: NMT, counters, duplicate window and queues", "[protocol][no
     StatusReport s;
     int heartbeats = 0;
     for (TimeNs t = 0; t <= 10500 * kNsPerMs; t += 7 * kNsPerMs) {
-      node.poll(t, s);
+      node.poll(t, [&] { return s; });
       while (const ports::CanFrame* f = node.peekTx()) {
         if (f->id == 0x710) ++heartbeats;
         node.popTx();

@@ -97,8 +97,10 @@ def run_exchange(
     rng = random.Random(seed + 1000)
     rough = tuple(v + rng.uniform(-rough_error_mm, rough_error_mm) for v in c)
 
-    db = cantools.database.load_file(str(DBC))
-    node_db = ac.load_database(node_id)
+    # Decode with the committed DBC, as an integrator would (other node ids: the DBC
+    # that alacs_can writes for them).
+    node_db = (cantools.database.load_file(str(DBC)) if node_id == ac.DEFAULT_NODE_ID
+               else ac.load_database(node_id))
     log_path = workdir / "candump.log"
     dump = subprocess.Popen(["candump", "-L", iface], stdout=log_path.open("w"), stderr=subprocess.DEVNULL)
     cmd = [str(alacsd), "--sim", "--sim-scene", str(scene_path), "--can", iface,
@@ -181,7 +183,6 @@ def run_exchange(
         ex.center_error_mm = math.dist(o.center_mm, ex.truth_center_mm)
         if o.approach_mm is not None:
             ex.approach_error_mm = math.dist(o.approach_mm, ex.truth_approach_mm)
-    del db
     return ex
 
 
