@@ -30,6 +30,7 @@
 #include "sim/scene.h"
 #include "sim/sim_camera.h"
 #include "sim/sim_slide.h"
+#include "ports/frame_source_fault.h"
 #ifdef ALACS_HAVE_GPIOD
 #include "drivers/gpiod/gpiod_lines.h"
 #endif
@@ -60,6 +61,7 @@ struct Options {
   int nodeId = -1;
   bool sim = false;
   double simStartMm = 37.0;
+  std::string simFault;  // injected simulated hardware fault (tests): camera-timeout|camera-corrupt|home-stuck
   log::Level level = log::Level::kInfo;
 };
 
@@ -75,19 +77,22 @@ void usage(FILE* out) {
                "  --sim-scene FILE     scene JSON for --sim\n"
                "  --sim-truth-out FILE write the simulated scene's truth as JSON\n"
                "  --sim-start-mm MM    where the simulated slide starts (default 37)\n"
+               "  --sim-fault FAULT    inject a simulated hardware fault: camera-timeout,\n"
+               "                       camera-corrupt or home-stuck (the home switch never closes)\n"
                "  --debug-dir DIR      write an overlay PNG of the lines found per scan\n"
                "  --log-level LEVEL    error|warning|info|debug\n"
                "  --version            print the version\n");
 }
 
 int parseOptions(int argc, char** argv, Options* o) {
-  enum { kConfig = 1, kCan, kNode, kGpio, kCal, kSim, kScene, kTruth, kStart, kDebug, kLevel, kVersion, kHelp };
+  enum { kConfig = 1, kCan, kNode, kGpio, kCal, kSim, kScene, kTruth, kStart, kDebug, kLevel, kVersion, kHelp, kFault };
   static const option kLong[] = {
       {"config", required_argument, nullptr, kConfig}, {"can", required_argument, nullptr, kCan},
       {"node-id", required_argument, nullptr, kNode},  {"gpio-chip", required_argument, nullptr, kGpio},
       {"calibration", required_argument, nullptr, kCal}, {"sim", no_argument, nullptr, kSim},
       {"sim-scene", required_argument, nullptr, kScene}, {"sim-truth-out", required_argument, nullptr, kTruth},
       {"sim-start-mm", required_argument, nullptr, kStart}, {"debug-dir", required_argument, nullptr, kDebug},
+      {"sim-fault", required_argument, nullptr, kFault},
       {"log-level", required_argument, nullptr, kLevel}, {"version", no_argument, nullptr, kVersion},
       {"help", no_argument, nullptr, kHelp},           {nullptr, 0, nullptr, 0}};
   int c = 0;
@@ -116,6 +121,13 @@ int parseOptions(int argc, char** argv, Options* o) {
         }
         break;
       case kDebug: o->debugDir = optarg; break;
+      case kFault:
+        o->simFault = optarg;
+        if (o->simFault != "camera-timeout" && o->simFault != "camera-corrupt" && o->simFault != "home-stuck") {
+          std::fprintf(stderr, "alacsd: --sim-fault must be camera-timeout|camera-corrupt|home-stuck, got '%s'\n", optarg);
+          return 2;
+        }
+        break;
       case kLevel:
         if (!log::parseLevel(optarg, &o->level)) {
           std::fprintf(stderr, "alacsd: --log-level must be error|warning|info|debug, got '%s'\n", optarg);
@@ -133,8 +145,8 @@ int parseOptions(int argc, char** argv, Options* o) {
     std::fprintf(stderr, "alacsd: unexpected argument '%s'\n", argv[optind]);
     return 2;
   }
-  if (!o->scenePath.empty() && !o->sim) {
-    std::fprintf(stderr, "alacsd: --sim-scene needs --sim\n");
+  if ((!o->scenePath.empty() || !o->simFault.empty()) && !o->sim) {
+    std::fprintf(stderr, "alacsd: --sim-scene and --sim-fault need --sim\n");
     return 2;
   }
   return 0;
@@ -178,6 +190,9 @@ class Daemon {
 #endif
   ports::DigitalIn* realHome_ = nullptr;
   std::unique_ptr<ports::FrameSource> camera_;
+  std::unique_ptr<ports::FaultInjectingFrameSource> faultyCamera_;
+  std::unique_ptr<ports::AnyOfDigitalIn> endSwitch_;
+  ports::FakeDigitalIn stuckOpenHome_{false};
   std::unique_ptr<LaserGuard> laser_;
   std::unique_ptr<ScanWorker> worker_;
   std::optional<geometry::Calibration> calibration_;
@@ -266,8 +281,16 @@ Status Daemon::setUp() {
       lines.enable = &simSlide_->enableInput();
       lines.laser = simLaser_.get();
     }
-    lines.home = &simSlide_->homeSwitch();
-    lines.end = &simSlide_->endSwitch();
+    // The simulated slide closes its own switches; a real END line (bench) can close the
+    // end switch too, as a limit hit mid-move.
+    if (lines.end != nullptr) {
+      endSwitch_ = std::make_unique<ports::AnyOfDigitalIn>(*lines.end, simSlide_->endSwitch());
+      lines.end = endSwitch_.get();
+    } else {
+      lines.end = &simSlide_->endSwitch();
+    }
+    lines.home = opts_.simFault == "home-stuck" ? static_cast<ports::DigitalIn*>(&stuckOpenHome_)
+                                                : &simSlide_->homeSwitch();
     ports::FakeDigitalOut* laserLine = simLaser_.get();
     sim::SimSlide* slide = simSlide_.get();
     camera_ = std::make_unique<sim::SimCamera>(scene, clock_, [laserLine] { return laserLine->level(); },
@@ -289,6 +312,11 @@ Status Daemon::setUp() {
     return {Error::kUnsupported, "this build has no libcamera driver; use --sim"};
 #endif
   }
+  if (opts_.simFault == "camera-timeout" || opts_.simFault == "camera-corrupt") {
+    faultyCamera_ = std::make_unique<ports::FaultInjectingFrameSource>(*camera_);
+    faultyCamera_->setFault(opts_.simFault == "camera-timeout" ? ports::CameraFault::kTimeout
+                                                               : ports::CameraFault::kCorrupt);
+  }
   laser_ = std::make_unique<LaserGuard>(*lines.laser, clock_, cfg_.laserMaxOnMs * kNsPerMs);
   (void)laser_->off();
 
@@ -301,7 +329,8 @@ Status Daemon::setUp() {
   deps.stepLines = {lines.step, lines.dir, lines.home, lines.end};
   deps.enable = lines.enable;
   deps.laser = laser_.get();
-  deps.camera = camera_.get();
+  deps.camera = faultyCamera_ ? static_cast<ports::FrameSource*>(faultyCamera_.get()) : camera_.get();
+  deps.captureRetries = cfg_.frameRetries;
   deps.capture.exposureUs = cfg_.exposureUs;
   deps.capture.timeoutMs = cfg_.frameTimeoutMs;
   deps.debugDir = opts_.debugDir;
@@ -326,6 +355,7 @@ protocol::StatusReport Daemon::statusReport() {
   s.faults = faults_;
   s.lastLatencyMs = lastLatencyMs_;
   s.maxLatencyMs = maxLatencyMs_;
+  s.droppedFrames = worker_->droppedFrames();
   return s;
 }
 

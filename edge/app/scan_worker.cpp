@@ -170,14 +170,27 @@ WorkerEvent ScanWorker::doLocalize(const WorkerJob& job) {
       if (ev.resultStatus == protocol::ResultStatus::kValid) ev.resultStatus = protocol::ResultStatus::kFailed;
       return ev;
     }
-    if (Status s = deps_.laser->on(); !s) {
-      ev.status = s;
-      ev.faultBit = protocol::kFaultLaserOvertime;
-      ev.resultStatus = protocol::ResultStatus::kFailed;
+    // Timeouts and corrupted frames are retried (laser on only for each attempt's
+    // exposure), then become a fault with the last reason.
+    Result<ports::CapturedFrame> frame = Status(Error::kInternal, "no capture attempted");
+    for (int attempt = 0; attempt <= deps_.captureRetries && !cancel_.load(); ++attempt) {
+      if (Status s = deps_.laser->on(); !s) {
+        ev.status = s;
+        ev.faultBit = protocol::kFaultLaserOvertime;
+        ev.resultStatus = protocol::ResultStatus::kFailed;
+        return ev;
+      }
+      frame = deps_.camera->capture(capture, [this] { (void)deps_.laser->off(); });
+      (void)deps_.laser->off();
+      if (frame) break;
+      dropped_.fetch_add(1);
+      ALACS_LOG_WARN("camera", "stop %zu attempt %d: %s", i, attempt + 1, frame.status().toString().c_str());
+    }
+    if (!frame && cancel_.load()) {
+      ev.status = Status(Error::kFault, "scan stopped by command");
+      ev.resultStatus = protocol::ResultStatus::kAborted;
       return ev;
     }
-    Result<ports::CapturedFrame> frame = deps_.camera->capture(capture, [this] { (void)deps_.laser->off(); });
-    (void)deps_.laser->off();
     if (!frame) {
       ev.status = frame.status();
       ev.faultBit = frame.status().code() == Error::kTimeout ? protocol::kFaultCameraTimeout : protocol::kFaultCameraCorrupt;

@@ -46,6 +46,7 @@ struct WorkerDeps {
   LaserGuard* laser = nullptr;
   ports::FrameSource* camera = nullptr;
   ports::CaptureRequest capture;
+  int captureRetries = 2;              // further attempts after a failed frame, then a fault
   std::string debugDir;                // overlay PNGs go here when not empty
 };
 
@@ -63,6 +64,8 @@ class ScanWorker {
   void setLocalizer(const localize::Localizer& l);
   void setExposureUs(int64_t us);
   void markUnhomed() { homed_.store(false); }
+  // Frames that failed (timeout, corrupt) and were retried or led to a fault.
+  uint32_t droppedFrames() const { return dropped_.load(); }
 
  private:
   void run();
@@ -83,6 +86,7 @@ class ScanWorker {
   std::atomic<bool> busy_{false};
   std::atomic<bool> homed_{false};
   std::atomic<int64_t> positionSteps_{0};
+  std::atomic<uint32_t> dropped_{0};
   image::LleWorkspace ws_;
 };
 

@@ -89,3 +89,24 @@ class TeeDigitalOut final : public DigitalOut {
 };
 
 }  // namespace alacs::ports
+
+namespace alacs::ports {
+
+// Asserted when either input is: a real limit switch line beside the simulated slide's
+// own switch, so a bench test can close the switch mid-move. A failed read is an error.
+class AnyOfDigitalIn final : public DigitalIn {
+ public:
+  AnyOfDigitalIn(DigitalIn& a, DigitalIn& b) : a_(a), b_(b) {}
+
+ private:
+  Result<bool> doGet() override {
+    Result<bool> ra = a_.get();
+    if (!ra) return ra;
+    if (*ra) return true;
+    return b_.get();
+  }
+  DigitalIn& a_;
+  DigitalIn& b_;
+};
+
+}  // namespace alacs::ports

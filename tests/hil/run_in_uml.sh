@@ -8,7 +8,7 @@
 # and the venv are all there. Inside, before CMD: /proc, /sys, devtmpfs on
 # /dev, configfs, tmpfs on /run and /dev/shm; vcan0 and vcan1 up; a gpio-sim
 # chip `alacs-sim` with lines STEP DIR ENABLE LASER HOME END SPARE6 SPARE7
-# (offsets 0-7; HOME and END pulled up). CMD runs in the caller's directory
+# (offsets 0-7; HOME and END at 0, normal travel). CMD runs in the caller's directory
 # with the caller's environment plus
 #   ALACS_GPIO_CHIP        /dev/gpiochipN of the sim chip
 #   ALACS_GPIO_CHIP_LABEL  alacs-sim

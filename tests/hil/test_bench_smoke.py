@@ -215,9 +215,10 @@ def gpioget(name: str) -> int:
 
 
 @bench
-def test_limit_inputs_start_pulled_up():
-    assert gpioget("HOME") == 1
-    assert gpioget("END") == 1
+def test_limit_inputs_start_at_normal_travel():
+    # Normally-closed switches to GND (docs/install.md): 0 until a switch is reached.
+    assert gpioget("HOME") == 0
+    assert gpioget("END") == 0
 
 
 @bench

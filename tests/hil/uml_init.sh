@@ -22,7 +22,9 @@ unset ALACS_UML_RUN
 # The gpio-sim line table: offset -> name. The only copy; gpio_sim.py and the
 # daemon find lines by name through the chip itself.
 readonly kGpioLines=(STEP DIR ENABLE LASER HOME END SPARE6 SPARE7)
-readonly kGpioPullUp=(HOME END)   # limit switches idle high
+# Limit switches are normally closed to GND (docs/install.md): in normal travel HOME and
+# END read 0 (gpio-sim's default pull-down); a test drives 1 for "switch reached".
+readonly kGpioPullUp=()
 readonly kGpioLabel=alacs-sim
 readonly kSimConfig=/sys/kernel/config/gpio-sim/alacs
 

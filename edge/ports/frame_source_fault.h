@@ -1,0 +1,46 @@
+// A FrameSource decorator that injects camera faults (a frame that never arrives, a
+// corrupted frame) in front of a real source. Used by `alacsd --sim --sim-fault ...`
+// and by tests, so the retry-then-fault path runs exactly as it would on a real camera.
+#pragma once
+
+#include <atomic>
+#include <chrono>
+#include <thread>
+
+#include "ports/frame_source.h"
+
+namespace alacs::ports {
+
+enum class CameraFault : uint8_t { kNone, kTimeout, kCorrupt };
+
+class FaultInjectingFrameSource final : public FrameSource {
+ public:
+  explicit FaultInjectingFrameSource(FrameSource& inner) : inner_(inner) {}
+  // Every capture fails this way until set back to kNone. Thread-safe.
+  void setFault(CameraFault f) { fault_.store(f); }
+  const char* name() const override { return inner_.name(); }
+
+ private:
+  Result<CapturedFrame> doCapture(const CaptureRequest& request, const std::function<void()>& onExposureEnd) override {
+    switch (fault_.load()) {
+      case CameraFault::kTimeout:
+        // A frame that never comes: the caller waits its whole timeout.
+        std::this_thread::sleep_for(std::chrono::milliseconds(request.timeoutMs));
+        if (onExposureEnd) onExposureEnd();
+        return Status(Error::kTimeout, "camera frame timed out after " + std::to_string(request.timeoutMs) + " ms");
+      case CameraFault::kCorrupt: {
+        Result<CapturedFrame> f = inner_.capture(request, onExposureEnd);
+        if (!f) return f;
+        return Status(Error::kBadInput, "camera delivered a corrupted frame (short buffer)");
+      }
+      case CameraFault::kNone:
+        break;
+    }
+    return inner_.capture(request, onExposureEnd);
+  }
+
+  FrameSource& inner_;
+  std::atomic<CameraFault> fault_{CameraFault::kNone};
+};
+
+}  // namespace alacs::ports

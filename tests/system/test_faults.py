@@ -1,0 +1,115 @@
+"""Faults on the bench: each one puts the sensor in FAULT with its reason on CAN (status
+bit, EMCY, failed result), the laser off and the motion stopped; recovery is by command.
+Real vcan0 and real gpio-sim lines; the simulated hardware injects what a bench cannot
+(a frame that never comes, a home switch that never closes)."""
+
+from __future__ import annotations
+
+import gpio_sim
+import pytest
+from sensor import Sensor
+
+
+def _idle_and_homed(s: dict) -> bool:
+    return str(s["State"]) == "IDLE" and s["Homed"] == 1
+
+
+def _emcy(sensor: Sensor, reason: str) -> dict | None:
+    return sensor.recv(lambda n, s: n == "EMCY" and str(s["EmcyReason"]) == reason, 10.0)
+
+
+def _safe_outputs() -> None:
+    assert gpio_sim.read_output("LASER") == 0
+    assert gpio_sim.read_output("ENABLE") == 0
+
+
+@pytest.fixture(autouse=True)
+def _switches_at_normal_travel():
+    gpio_sim.drive_input("HOME", 0)
+    gpio_sim.drive_input("END", 0)
+    yield
+    gpio_sim.drive_input("END", 0)
+
+
+def test_limit_switch_mid_move_then_recovery(tmp_path, alacsd):
+    sensor = Sensor(alacsd, tmp_path)
+    try:
+        assert sensor.status(_idle_and_homed, 30) is not None, "never IDLE and homed"
+        sensor.localize()
+        assert str(sensor.ack("LOCALIZE")["AckResult"]) == "ACK"
+        # The scan moves towards the target: the end switch closes under it.
+        assert sensor.status(lambda s: str(s["State"]) == "SCANNING", 5) is not None
+        gpio_sim.drive_input("END", 1)
+        assert _emcy(sensor, "LIMIT_HIT") is not None
+        header = sensor.recv(lambda n, s: n == "ALACS_ResultHeader", 10)
+        assert header is not None and str(header["ResultStatus"]) == "FAILED"
+        st = sensor.status(lambda s: str(s["State"]) == "FAULT")
+        assert st["FaultLimitHit"] == 1 and st["LaserOn"] == 0
+        _safe_outputs()
+        # Commands other than CLEAR_FAULT/STOP/GET_VERSION are refused with the reason.
+        sensor.localize()
+        nack = sensor.ack("LOCALIZE")
+        assert str(nack["AckResult"]) == "NACK" and str(nack["NackReason"]) == "FAULT_ACTIVE"
+        # Recovery: clear, re-home (the position was lost), localize again.
+        gpio_sim.drive_input("END", 0)
+        sensor.send("CLEAR_FAULT")
+        assert str(sensor.ack("CLEAR_FAULT")["AckResult"]) == "ACK"
+        st = sensor.status(lambda s: str(s["State"]) == "IDLE")
+        assert st["FaultLimitHit"] == 0 and st["Homed"] == 0
+        sensor.send("HOME")
+        assert sensor.recv(lambda n, s: n == "ALACS_Ack" and str(s["AckOpcode"]) == "HOME"
+                           and str(s["AckResult"]) == "DONE", 30) is not None
+        sensor.localize()
+        header = sensor.recv(lambda n, s: n == "ALACS_ResultHeader", 30)
+        assert header is not None and str(header["ResultStatus"]) == "VALID"
+    finally:
+        assert sensor.stop() == 0, sensor.log
+    _safe_outputs()
+
+
+def test_homing_timeout(tmp_path, alacsd):
+    sensor = Sensor(alacsd, tmp_path, "--sim-fault", "home-stuck", config={"motion": {"homing_timeout_ms": 800}})
+    try:
+        assert _emcy(sensor, "HOMING_TIMEOUT") is not None
+        st = sensor.status(lambda s: str(s["State"]) == "FAULT")
+        assert st["FaultHomingTimeout"] == 1 and st["Homed"] == 0
+        _safe_outputs()
+        sensor.send("CLEAR_FAULT")
+        assert sensor.status(lambda s: str(s["State"]) == "IDLE") is not None
+        sensor.localize()
+        nack = sensor.ack("LOCALIZE")
+        assert str(nack["AckResult"]) == "NACK" and str(nack["NackReason"]) == "NOT_HOMED"
+    finally:
+        assert sensor.stop() == 0, sensor.log
+
+
+@pytest.mark.parametrize("fault,bit,reason", [("camera-timeout", "FaultCameraTimeout", "CAMERA_TIMEOUT"),
+                                              ("camera-corrupt", "FaultCameraCorrupt", "CAMERA_CORRUPT")])
+def test_camera_fault_after_retries(tmp_path, alacsd, fault, bit, reason):
+    cfg = {"camera": {"frame_timeout_ms": 200, "retries": 2}}
+    sensor = Sensor(alacsd, tmp_path, "--sim-fault", fault, config=cfg)
+    try:
+        assert sensor.status(_idle_and_homed, 30) is not None
+        sensor.localize()
+        assert str(sensor.ack("LOCALIZE")["AckResult"]) == "ACK"
+        header = sensor.recv(lambda n, s: n == "ALACS_ResultHeader", 20)
+        assert header is not None and str(header["ResultStatus"]) == "FAILED"
+        assert _emcy(sensor, reason) is not None or any(
+            n == "EMCY" and str(s["EmcyReason"]) == reason for n, s in sensor.seen)
+        st = sensor.status(lambda s: str(s["State"]) == "FAULT")
+        assert st[bit] == 1
+        assert st["DroppedFrames"] == 3  # the first attempt and two retries
+        _safe_outputs()
+    finally:
+        assert sensor.stop() == 0, sensor.log
+    assert "attempt 3" in sensor.log
+
+
+def test_bad_configuration_is_refused_with_the_key(tmp_path, alacsd):
+    import subprocess
+    bad = tmp_path / "bad.json"
+    bad.write_text('{"scan": {"stops": 40}}')
+    out = subprocess.run([str(alacsd), "--sim", "--config", str(bad)], capture_output=True, text=True, timeout=10)
+    assert out.returncode == 2
+    assert "scan.stops" in out.stderr
+    _safe_outputs()
