@@ -1,17 +1,22 @@
-"""``python -m alacs_can dbc|golden ...``: write the DBC or the golden vectors."""
+"""``python -m alacs_can dbc|golden|eds|od-header ...``: write a generated artifact."""
 
 from __future__ import annotations
 
 import sys
 
-from . import dbc, golden
+from . import dbc, eds, golden
 
 
 def main(argv: list[str] | None = None) -> int:
     args = sys.argv[1:] if argv is None else argv
-    tools = {"dbc": dbc.main, "golden": golden.main}
+    tools = {
+        "dbc": dbc.main,
+        "golden": golden.main,
+        "eds": lambda a: eds.main(["eds", *a]),
+        "od-header": lambda a: eds.main(["od-header", *a]),
+    }
     if not args or args[0] not in tools:
-        print("usage: python -m alacs_can {dbc,golden} [options]  (--help for each)",
+        print("usage: python -m alacs_can {dbc,golden,eds,od-header} [options]  (--help for each)",
               file=sys.stderr)
         return 2
     return tools[args[0]](args[1:])

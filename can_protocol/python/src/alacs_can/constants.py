@@ -263,6 +263,16 @@ def emcy_reason(fault: Fault) -> EmcyReason:
     return EmcyReason(fault.bit_length())
 
 
+CAN_FAULTS: Final = Fault.CAN_BUS_OFF | Fault.CAN_TX_OVERFLOW
+
+
+def error_register(faults: Fault | int) -> int:
+    """CiA 301 error register (object 0x1001, EMCY byte 2) for the active ``faults``:
+    bit 0 generic (any fault), bit 4 communication (a CAN fault)."""
+    faults = int(faults)
+    return (0x01 if faults else 0) | (0x10 if faults & int(CAN_FAULTS) else 0)
+
+
 class NmtCommand(IntEnum):
     START = 1
     STOP = 2
@@ -299,3 +309,23 @@ class SdoServerCommand(IntEnum):
     DOWNLOAD_RESPONSE = 0x60
     ABORT = 0x80
 
+
+
+class SdoAbort(IntEnum):
+    """SDO abort codes (CiA 301) the sensor's SDO server sends in ``SdoTxData``."""
+
+    UNKNOWN_COMMAND = 0x05040001
+    """Command specifier not valid, or a segmented/block transfer (only expedited)."""
+    UNSUPPORTED_ACCESS = 0x06010000
+    READ_ONLY = 0x06010002
+    """Attempt to write a read-only object."""
+    NO_OBJECT = 0x06020000
+    LENGTH_MISMATCH = 0x06070010
+    NO_SUBINDEX = 0x06090011
+    VALUE_RANGE = 0x06090030
+    """Value rejected (also: a setting the daemon's configuration check refuses)."""
+    VALUE_TOO_HIGH = 0x06090031
+    VALUE_TOO_LOW = 0x06090032
+    GENERAL = 0x08000000
+    DEVICE_STATE = 0x08000022
+    """Not now: e.g. a setting changed while a scan or homing is running."""

@@ -18,6 +18,7 @@ import can
 from cantools.database import Database
 
 from . import constants as c
+from . import sdo
 from .codec import (
     check_command,
     command_checksum,
@@ -28,6 +29,7 @@ from .codec import (
 )
 from .crc import CRC8_J1850_INIT, CRC8_J1850_POLY, CRC8_J1850_XOROUT, crc8_j1850
 from .dbc import load_database
+from .spec import OD_ENTRIES
 
 FORMAT_VERSION = 1
 
@@ -147,6 +149,10 @@ MESSAGE_CASES: list[tuple[str, str, dict[str, Any]]] = [
           EmcyFaultBits=int(c.Fault.CAMERA_TIMEOUT), EmcyReason="CAMERA_TIMEOUT")),
     ("emcy_cleared", c.MSG_EMCY,
      dict(EmcyErrorCode="NO_ERROR", EmcyErrorRegister=0, EmcyFaultBits=0, EmcyReason="NONE")),
+    *((f"emcy_{f.name.lower()}", c.MSG_EMCY,
+       dict(EmcyErrorCode=c.FAULT_EMCY_CODE[f].name, EmcyErrorRegister=c.error_register(f),
+            EmcyFaultBits=int(f), EmcyReason=c.emcy_reason(f).name))
+      for f in c.Fault if f != c.Fault.CAMERA_TIMEOUT),
     ("sdo_rx_upload_request", c.MSG_SDO_RX,
      dict(SdoRxCommand="UPLOAD_REQUEST", SdoRxIndex=0x1018, SdoRxSubIndex=1, SdoRxData=0)),
     ("sdo_tx_upload_4b", c.MSG_SDO_TX,
@@ -221,6 +227,47 @@ def _command_checks(db: Database) -> list[dict[str, Any]]:
     ]
 
 
+def _sdo_exchanges() -> list[dict[str, Any]]:
+    """SDO requests and the answers of a freshly booted sensor (every object at its default)."""
+    values = sdo.default_values()
+    cases: list[tuple[str, bytes]] = []
+    for e in OD_ENTRIES:
+        cases.append((f"upload_{e.index:04x}_{e.sub}", sdo.upload_request(e.index, e.sub)))
+    for e in OD_ENTRIES:
+        if e.access == "rw":
+            lo, hi = e.limits()
+            cases.append((f"download_{e.index:04x}_{e.sub}_default",
+                          sdo.download_request(e.index, e.sub, e.default, e.size)))
+            if hi < (1 << (8 * e.size)) - 1:
+                cases.append((f"download_{e.index:04x}_{e.sub}_too_high",
+                              sdo.download_request(e.index, e.sub, hi + 1, e.size)))
+            if lo > 0:
+                cases.append((f"download_{e.index:04x}_{e.sub}_too_low",
+                              sdo.download_request(e.index, e.sub, lo - 1, e.size)))
+    hb = (0x1017, 0)
+    cases += [
+        ("download_read_only_1000", sdo.download_request(0x1000, 0, 1, 4)),
+        ("download_const_1018_0", sdo.download_request(0x1018, 0, 4, 1)),
+        ("upload_no_object_6000", sdo.upload_request(0x6000, 0)),
+        ("upload_no_subindex_1018_9", sdo.upload_request(0x1018, 9)),
+        ("download_length_mismatch_1017", sdo.download_request(*hb, 100, 4)),
+        ("download_unsized_expedited_1017", bytes([0x22, 0x17, 0x10, 0, 100, 0, 0, 0])),
+        ("download_segmented_1017", bytes([0x21, 0x17, 0x10, 0, 2, 0, 0, 0])),
+        ("block_upload_1018", bytes([0xA0, 0x18, 0x10, 1, 0, 0, 0, 0])),
+        ("unknown_command_e0", bytes([0xE0, 0x00, 0x10, 0, 0, 0, 0, 0])),
+        ("client_abort", sdo.abort_frame(0x1017, 0, 0x05040000)),
+    ]
+    out = []
+    for name, request in cases:
+        response = sdo.reference_response(request, values)
+        out.append({
+            "name": name,
+            "request": request.hex().upper(),
+            "response": response.hex().upper() if response is not None else None,
+        })
+    return out
+
+
 def golden_vectors(db: Database | None = None) -> dict[str, Any]:
     """The golden-vector document (for the default node id unless ``db`` is given)."""
     db = db or load_database(c.DEFAULT_NODE_ID)
@@ -248,6 +295,7 @@ def golden_vectors(db: Database | None = None) -> dict[str, Any]:
         },
         "vectors": vectors,
         "command_checks": _command_checks(db),
+        "sdo_exchanges": _sdo_exchanges(),
     }
 
 

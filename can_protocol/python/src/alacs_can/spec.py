@@ -318,3 +318,150 @@ MESSAGES: Final[tuple[MessageSpec, ...]] = (
 """All messages, in frame-id order."""
 
 MESSAGES_BY_NAME: Final[dict[str, MessageSpec]] = {m.name: m for m in MESSAGES}
+
+
+# --- CANopen object dictionary (the SDO server's objects) ------------------------------
+#
+# alacsd serves these over expedited SDO (SDO_Rx/SDO_Tx). The EDS file
+# (can_protocol/alacs.eds) and the C table the daemon's SDO server is built from
+# (can_protocol/generated/alacs_od.h) are both generated from this list.
+
+OD_DEVICE_TYPE: Final = 0x00000000
+"""0x1000: no CiA device profile (the sensor is manufacturer-specific)."""
+OD_VENDOR_ID: Final = 0x00000000
+"""0x1018.1: no CiA-assigned vendor id yet; 0 says so."""
+OD_PRODUCT_CODE: Final = 0x414C4353
+"""0x1018.2: ASCII "ALCS"."""
+OD_REVISION: Final = c.PROTOCOL_VERSION << 16
+"""0x1018.3: major revision = protocol version (CiA 301: major changes break compatibility)."""
+
+_DATA_TYPES: Final = {"UNSIGNED8": (0x0005, 1), "UNSIGNED16": (0x0006, 2),
+                      "UNSIGNED32": (0x0007, 4)}
+
+
+@dataclass(frozen=True)
+class OdEntry:
+    """One object-dictionary variable (a VAR, or one sub-index of a RECORD)."""
+
+    index: int
+    sub: int
+    symbol: str
+    """C name: ALACS_OD_<symbol>_INDEX etc."""
+    name: str
+    """EDS ParameterName (what canopen's ``node.sdo[...]`` is keyed by)."""
+    data_type: str
+    access: str
+    """'ro', 'rw' or 'const' (EDS AccessType)."""
+    default: int
+    comment: str
+    low: int | None = None
+    high: int | None = None
+    unit: str = ""
+
+    @property
+    def size(self) -> int:
+        return _DATA_TYPES[self.data_type][1]
+
+    @property
+    def type_code(self) -> int:
+        return _DATA_TYPES[self.data_type][0]
+
+    def limits(self) -> tuple[int, int]:
+        full = (1 << (8 * self.size)) - 1
+        return (self.low if self.low is not None else 0,
+                self.high if self.high is not None else full)
+
+
+@dataclass(frozen=True)
+class OdObject:
+    """One object-dictionary index: a VAR (one entry, sub 0) or a RECORD."""
+
+    index: int
+    name: str
+    entries: tuple[OdEntry, ...]
+    record: bool = False
+    category: str = "optional"
+    """'mandatory', 'optional' or 'manufacturer' (EDS object lists)."""
+
+
+def _var(index: int, symbol: str, name: str, data_type: str, access: str, default: int,
+         comment: str, category: str = "optional", **kw: object) -> OdObject:
+    return OdObject(index, name, (OdEntry(index, 0, symbol, name, data_type, access, default,
+                                          comment, **kw),), category=category)  # type: ignore[arg-type]
+
+
+def _record(index: int, name: str, category: str,
+            subs: tuple[tuple[str, str, str, str, int, str, dict[str, object]], ...]) -> OdObject:
+    entries = [OdEntry(index, 0, f"{_sym(name)}_HIGHEST_SUB", "Highest sub-index supported",
+                       "UNSIGNED8", "const", len(subs), "Number of sub-indices that follow.")]
+    for n, (symbol, sub_name, data_type, access, default, comment, kw) in enumerate(subs, 1):
+        entries.append(OdEntry(index, n, symbol, sub_name, data_type, access, default, comment,
+                               **kw))  # type: ignore[arg-type]
+    return OdObject(index, name, tuple(entries), record=True, category=category)
+
+
+def _sym(name: str) -> str:
+    return "".join(ch if ch.isalnum() else "_" for ch in name.upper()).strip("_")
+
+
+OBJECTS: Final[tuple[OdObject, ...]] = (
+    _var(0x1000, "DEVICE_TYPE", "Device type", "UNSIGNED32", "ro", OD_DEVICE_TYPE,
+         "CiA 301 device type: 0, no standard device profile.", category="mandatory"),
+    _var(0x1001, "ERROR_REGISTER", "Error register", "UNSIGNED8", "ro", 0,
+         "CiA 301 error register: bit 0 any fault active, bit 4 a CAN fault (bus-off, "
+         "transmit overflow). Also sent in EMCY.EmcyErrorRegister.", category="mandatory"),
+    _var(0x1017, "PRODUCER_HEARTBEAT_TIME", "Producer heartbeat time", "UNSIGNED16", "rw",
+         c.DEFAULT_HEARTBEAT_MS,
+         "Heartbeat period in ms, 0 = off. The same setting as SET_CONFIG CfgHeartbeatMs.",
+         unit="ms"),
+    _record(0x1018, "Identity object", "mandatory", (
+        ("IDENTITY_VENDOR_ID", "Vendor-ID", "UNSIGNED32", "ro", OD_VENDOR_ID,
+         "CiA vendor id; 0: none assigned.", {}),
+        ("IDENTITY_PRODUCT_CODE", "Product code", "UNSIGNED32", "ro", OD_PRODUCT_CODE,
+         'ASCII "ALCS".', {}),
+        ("IDENTITY_REVISION", "Revision number", "UNSIGNED32", "ro", OD_REVISION,
+         "High 16 bits: protocol version; low 16 bits: 0.", {}),
+        ("IDENTITY_SERIAL", "Serial number", "UNSIGNED32", "ro", 0,
+         "Serial number (0 until the appliance provisions one).", {}),
+    )),
+    _record(0x2000, "Acquisition settings", "manufacturer", (
+        ("CFG_EXPOSURE_US", "Exposure time", "UNSIGNED16", "rw", 3000,
+         "Camera exposure time in us; SET_CONFIG CfgExposureUs.",
+         {"low": 1, "unit": "us"}),
+        ("CFG_BRCE_STEP", "bRCE step", "UNSIGNED8", "rw", 4,
+         "bRCE laser-line extraction step; SET_CONFIG CfgBrceStep.", {"low": 1, "high": 15}),
+        ("CFG_BRCE_THRESHOLD", "bRCE threshold", "UNSIGNED8", "rw", 40,
+         "bRCE laser-line intensity threshold (grey levels); SET_CONFIG CfgBrceThreshold.", {}),
+    )),
+    _record(0x2001, "Scan settings", "manufacturer", (
+        ("CFG_SCAN_STOPS", "Scan stops", "UNSIGNED8", "rw", 5,
+         "Slide stops (laser lines) per scan; SET_CONFIG CfgScanStops.",
+         {"low": 1, "high": 15}),
+        ("CFG_STOP_SPACING", "Stop spacing", "UNSIGNED16", "rw", 200,
+         "Slide distance between stops in 0.1 mm (SET_CONFIG CfgStopSpacingMm carries "
+         "0..25.5 mm; the daemon accepts 0.5..50 mm).", {"unit": "0.1 mm"}),
+    )),
+    _record(0x2100, "CAN diagnostics", "manufacturer", (
+        ("DIAG_RX_FRAMES", "Frames received", "UNSIGNED32", "ro", 0,
+         "Frames that passed the kernel filter (the sensor's id block and NMT).", {}),
+        ("DIAG_RX_UNKNOWN_ID", "Unknown ids", "UNSIGNED32", "ro", 0,
+         "Frames on an id of the sensor's block that it does not consume (ignored).", {}),
+        ("DIAG_RX_BAD_FRAMES", "Bad frames", "UNSIGNED32", "ro", 0,
+         "Commands NACKed for DLC, checksum, opcode, counter or value; bad NMT/SDO frames.",
+         {}),
+        ("DIAG_RX_ERROR_FRAMES", "Error frames", "UNSIGNED32", "ro", 0,
+         "Error frames reported by the CAN controller.", {}),
+        ("DIAG_BUS_OFF_COUNT", "Bus-off events", "UNSIGNED32", "ro", 0,
+         "Times the controller went bus-off.", {}),
+        ("DIAG_TX_RETRIES", "Transmit retries", "UNSIGNED32", "ro", 0,
+         "Writes refused by the kernel (ENOBUFS, interface down) and retried later.", {}),
+        ("DIAG_TX_DROPPED_STATUS", "Status frames dropped", "UNSIGNED32", "ro", 0,
+         "Periodic frames replaced by a newer one while the bus was unavailable.", {}),
+        ("DIAG_TX_DROPPED_RESULT", "Result frames dropped", "UNSIGNED32", "ro", 0,
+         "Acks/result frames dropped because the result queue was full (should stay 0).",
+         {}),
+    )),
+)
+"""The object dictionary, in index order."""
+
+OD_ENTRIES: Final[tuple[OdEntry, ...]] = tuple(e for o in OBJECTS for e in o.entries)
