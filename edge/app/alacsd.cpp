@@ -174,6 +174,8 @@ class Daemon {
   void enterFault(uint16_t bit, const Status& why);
   protocol::StatusReport statusReport();
   void startHoming();
+  // --sim --debug-dir: the laser line's edges and the exposures of the last scan, as JSON.
+  void writeLaserTimeline(const WorkerEvent& ev);
 
   Options opts_;
   DaemonConfig cfg_;
@@ -371,6 +373,27 @@ void Daemon::enterFault(uint16_t bit, const Status& why) {
   node_->emergency(0xFF00, faults_, reason);
 }
 
+void Daemon::writeLaserTimeline(const WorkerEvent& ev) {
+  const std::string path = opts_.debugDir + "/laser_timeline.json";
+  FILE* f = std::fopen((path + ".tmp").c_str(), "w");
+  if (f == nullptr) {
+    ALACS_LOG_WARN("debug", "cannot write %s", path.c_str());
+    return;
+  }
+  std::fprintf(f, "{\n  \"laser_max_on_ms\": %d,\n  \"edges\": [", cfg_.laserMaxOnMs);
+  const std::vector<ports::Edge> edges = simLaser_->edges();
+  for (size_t i = 0; i < edges.size(); ++i)
+    std::fprintf(f, "%s[%lld, %d]", i ? ", " : "", static_cast<long long>(edges[i].timeNs), edges[i].level ? 1 : 0);
+  std::fprintf(f, "],\n  \"exposures\": [");
+  for (size_t i = 0; i < ev.exposures.size(); ++i)
+    std::fprintf(f, "%s[%lld, %lld]", i ? ", " : "", static_cast<long long>(ev.exposures[i].startNs),
+                 static_cast<long long>(ev.exposures[i].endNs));
+  std::fprintf(f, "]\n}\n");
+  std::fclose(f);
+  std::rename((path + ".tmp").c_str(), path.c_str());
+  simLaser_->clearEdges();
+}
+
 void Daemon::startHoming() {
   state_ = protocol::State::kHoming;
   WorkerJob job;
@@ -515,6 +538,7 @@ void Daemon::onWorkerEvent(const WorkerEvent& ev, TimeNs now) {
     ALACS_LOG_WARN("scan", "target %u: %s", h.targetId, ev.status.toString().c_str());
   }
   h.objectCount = static_cast<uint8_t>(objects.size());
+  if (!opts_.debugDir.empty() && simLaser_) writeLaserTimeline(ev);
   // LOCALIZE is answered by its ACK and then this one result (docs/can-protocol.md).
   node_->publishResult(h, objects);
   activeCommand_.reset();

@@ -198,6 +198,7 @@ WorkerEvent ScanWorker::doLocalize(const WorkerJob& job) {
       return ev;
     }
     ev.lastExposureNs = frame->info.exposureStartNs + frame->info.exposureUs * kNsPerUs;
+    ev.exposures.push_back({frame->info.exposureStartNs, ev.lastExposureNs});
     Result<localize::LineObservation> obs = localizer.observe(frame->view, *plan, positionMm(), ws_);
     if (!obs) {
       ALACS_LOG_WARN("scan", "stop %zu: %s", i, obs.status().toString().c_str());

@@ -10,6 +10,7 @@
 #include <optional>
 #include <string>
 #include <thread>
+#include <vector>
 
 #include "app/laser_guard.h"
 #include "localize/localizer.h"
@@ -26,6 +27,12 @@ struct WorkerJob {
   TimeNs commandTimeNs = 0;
 };
 
+// One exposure as the camera reported it, for the laser timeline (docs/daemon.md).
+struct ExposureWindow {
+  TimeNs startNs = 0;
+  TimeNs endNs = 0;
+};
+
 struct WorkerEvent {
   WorkerJob job;
   Status status;
@@ -35,6 +42,7 @@ struct WorkerEvent {
   TimeNs lastExposureNs = 0;
   TimeNs doneNs = 0;
   TimeNs maxStepLatenessNs = 0;
+  std::vector<ExposureWindow> exposures;  // of this job, in order
 };
 
 struct WorkerDeps {

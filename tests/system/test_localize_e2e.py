@@ -4,6 +4,7 @@ with cantools against the committed DBC."""
 
 from __future__ import annotations
 
+import json
 import re
 
 import exchange
@@ -29,6 +30,18 @@ def test_localize_over_vcan(tmp_path, alacsd, seed):
     assert [str(a["AckResult"]) for a in acks] == ["ACK"], ex.acks
     assert acks[0]["AckCounter"] == 1
     assert ex.overlay_png.exists() and ex.overlay_png.stat().st_size > 1000
+    # The laser's timeline (recorded by alacsd --sim --debug-dir from the LASER line it
+    # drives): one on-interval per exposure, each around its exposure and no longer than
+    # the guard's maximum. The slack covers the GPIO write before and after the exposure.
+    timeline = json.loads((tmp_path / "laser_timeline.json").read_text())
+    edges, exposures = timeline["edges"], timeline["exposures"]
+    assert len(exposures) == 5
+    assert [lvl for _, lvl in edges] == [1, 0] * len(exposures), edges
+    slack_ns = 5_000_000
+    for (on, _), (off, _), (start, end) in zip(edges[0::2], edges[1::2], exposures):
+        assert start - slack_ns <= on <= start, (on, start)
+        assert end <= off <= end + slack_ns, (off, end)
+        assert off - on <= timeline["laser_max_on_ms"] * 1_000_000
     # The laser and the motor driver are off after the scan and after SIGTERM.
     assert gpio_sim.read_output("LASER") == 0
     assert gpio_sim.read_output("ENABLE") == 0
