@@ -333,6 +333,7 @@ Status Daemon::setUp() {
   deps.laser = laser_.get();
   deps.camera = faultyCamera_ ? static_cast<ports::FrameSource*>(faultyCamera_.get()) : camera_.get();
   deps.captureRetries = cfg_.frameRetries;
+  deps.realtimePriority = cfg_.realtimePriority;
   deps.capture.exposureUs = cfg_.exposureUs;
   deps.capture.timeoutMs = cfg_.frameTimeoutMs;
   deps.debugDir = opts_.debugDir;

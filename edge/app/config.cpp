@@ -112,6 +112,7 @@ Result<DaemonConfig> loadConfig(const std::string& path) {
   r.number("motion.homing_speed_mm_s", &c.motion.homingSpeedMmPerS, 1, 2000);
   r.integer64("motion.homing_timeout_ms", &c.motion.homingTimeoutMs, 100, 600000);
   r.integer64("motion.step_pulse_ns", &c.motion.stepPulseNs, 1000, 1000000);
+  r.integer("motion.realtime_priority", &c.realtimePriority, 0, 99);
   r.integer("scan.stops", &c.scan.stops, 1, 15);
   r.number("scan.stop_spacing_mm", &c.scan.stopSpacingMm, 0.5, 50);
   r.number("scan.roi_margin_mm", &c.scan.roiMarginMm, 0, 300);

@@ -24,6 +24,7 @@ struct DaemonConfig {
   motion::SlideLimits motion;
   localize::ScanParams scan;
   image::LleParams lle;
+  int realtimePriority = 0;             // SCHED_FIFO priority of the step-timing thread; 0: none
   int exposureUs = 3000;
   int laserMaxOnMs = 250;               // the laser is forced off (and a fault raised) beyond this
   int frameTimeoutMs = 1000;

@@ -1,6 +1,8 @@
 #include "app/scan_worker.h"
 
+#include <pthread.h>
 #include <sys/eventfd.h>
+#include <sys/prctl.h>
 #include <unistd.h>
 
 #include <cmath>
@@ -55,6 +57,17 @@ void ScanWorker::setExposureUs(int64_t us) {
 }
 
 void ScanWorker::run() {
+  // Step pulses are timed by this thread (tools/jitter measures it): real-time priority
+  // when the system allows it (on the board), else at least no timer slack, whose 50 us
+  // default is otherwise the median lateness of every edge.
+  sched_param sp{};
+  sp.sched_priority = deps_.realtimePriority;
+  if (deps_.realtimePriority <= 0 || pthread_setschedparam(pthread_self(), SCHED_FIFO, &sp) != 0) {
+    prctl(PR_SET_TIMERSLACK, 1UL, 0UL, 0UL, 0UL);
+    ALACS_LOG_INFO("motion", "step timing: normal scheduling, timer slack 1 ns");
+  } else {
+    ALACS_LOG_INFO("motion", "step timing: SCHED_FIFO priority %d", deps_.realtimePriority);
+  }
   while (true) {
     WorkerJob job;
     {

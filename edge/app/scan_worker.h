@@ -54,6 +54,7 @@ struct WorkerDeps {
   LaserGuard* laser = nullptr;
   ports::FrameSource* camera = nullptr;
   ports::CaptureRequest capture;
+  int realtimePriority = 0;            // SCHED_FIFO priority of the worker (0: normal scheduling)
   int captureRetries = 2;              // further attempts after a failed frame, then a fault
   std::string debugDir;                // overlay PNGs go here when not empty
 };
