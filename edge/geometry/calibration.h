@@ -10,6 +10,7 @@
 
 #include <Eigen/Core>
 #include <array>
+#include <cstdint>
 #include <string>
 
 #include "common/result.h"
@@ -41,10 +42,30 @@ struct LaserGeometry {
   double slideForPoint(const Eigen::Vector3d& point) const;
 };
 
+// The figures the calibration was accepted on (docs/calibration.md). All optional in the
+// file: a hand-made or simulator calibration has none. Zero means "not measured".
 struct CalibrationQuality {
-  double reprojectionRmsPx = 0.0;  // camera calibration
-  double planeRmsMm = 0.0;         // laser plane fit
-  bool fromTruth = false;          // written by the simulator from its own truth
+  // Camera (OpenCV calib3d on checkerboard/ChArUco views).
+  double reprojectionRmsPx = 0.0;
+  int cameraViews = 0;
+  double fxSigmaPx = 0.0;  // 1σ of the intrinsics from calib3d's covariance
+  double fySigmaPx = 0.0;
+  double cxSigmaPx = 0.0;
+  double cySigmaPx = 0.0;
+  // Laser plane and slide (RANSAC, then Levenberg–Marquardt on laser lines on a flat target).
+  double planeRmsMm = 0.0;     // RMS distance of the inlier target points from the laser plane
+  double laserRmsPx = 0.0;     // RMS image residual of the inlier laser pixels
+  double inlierShare = 0.0;    // share of laser pixels the fit kept
+  int targetPlacements = 0;    // distinct flat-target poses
+  int slidePositions = 0;      // distinct slide positions
+  double normalSigmaMrad = 0.0;
+  double offsetSigmaMm = 0.0;
+  double scaleSigma = 0.0;          // 1σ of slide_scale (dimensionless)
+  double depthSigmaMmAt1000 = 0.0;  // depth 1σ from the laser parameters' covariance
+  double depthSigmaMmAt1600 = 0.0;
+  enum class Gate : uint8_t { kNotRun, kPassed, kRefused };
+  Gate gate = Gate::kNotRun;  // the calibrate tool's quality gate; a refused file never loads
+  bool fromTruth = false;     // written by the simulator from its own truth
 };
 
 struct Calibration {
@@ -53,10 +74,17 @@ struct Calibration {
   CalibrationQuality quality;
 };
 
+inline constexpr const char* kCalibrationFormat = "alacs-calibration/1";
+
 // Reads and validates calibration.json. Every error names the offending field.
 Result<Calibration> loadCalibration(const std::string& path);
-// Writes calibration.json atomically (temp file + rename).
+// Writes calibration.json atomically (temp file in the same directory, fsync, rename):
+// a reader sees the old file or the whole new one. Refuses an invalid calibration.
 Status saveCalibration(const Calibration& cal, const std::string& path);
+// The JSON text saveCalibration writes.
+std::string calibrationJson(const Calibration& cal);
+// Writes `text` to `path` atomically, as saveCalibration does. Errors: kIo.
+Status writeFileAtomically(const std::string& path, const std::string& text);
 // Checks ranges and consistency; the error names the field.
 Status validateCalibration(const Calibration& cal);
 

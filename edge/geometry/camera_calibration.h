@@ -1,0 +1,65 @@
+// Camera intrinsics and distortion from views of a planar target (checkerboard or
+// ChArUco corners), and the pose of that target in a calibrated camera. OpenCV calib3d
+// does the work; this file converts its exceptions into Status and its covariance into
+// the quality figures the gate reads (docs/calibration.md).
+//
+// Detection (finding the corners in an image) is not here: the calibrate tool does it,
+// so that this library stays free of image decoding. Thread-safe (pure functions).
+#pragma once
+
+#include <Eigen/Core>
+#include <array>
+#include <vector>
+
+#include "common/result.h"
+#include "geometry/calibration.h"
+
+namespace alacs::geometry {
+
+// Corners of a planar target as found in one image. `objectMm` lie on the target's plane
+// (z = 0 in the target frame); `imagePx` are their pixels (centres at integers).
+struct TargetView {
+  std::vector<Eigen::Vector3d> objectMm;
+  std::vector<Eigen::Vector2d> imagePx;
+};
+
+// A target's pose in the camera frame: X_cam = rotation · X_target + translationMm.
+struct TargetPose {
+  Eigen::Matrix3d rotation = Eigen::Matrix3d::Identity();
+  Eigen::Vector3d translationMm = Eigen::Vector3d::Zero();
+  double rmsPx = 0.0;  // reprojection RMS of this view
+
+  // The target's plane in the camera frame: normal·X = offset.
+  Eigen::Vector3d planeNormal() const { return rotation.col(2); }
+  double planeOffsetMm() const { return rotation.col(2).dot(translationMm); }
+};
+
+struct CameraFitOptions {
+  bool fixK3 = true;             // k3 = 0: the lens needs no sixth-order term (ours does not)
+  bool fixTangential = false;
+  size_t minViews = 6;
+  size_t minCornersPerView = 12;
+};
+
+struct CameraFit {
+  CameraIntrinsics camera;
+  double rmsPx = 0.0;                      // over all corners of all views
+  std::array<double, 4> sigmaPx{};         // 1σ of fx, fy, cx, cy
+  std::array<double, 5> sigmaDistortion{};  // 1σ of k1, k2, p1, p2, k3
+  std::vector<TargetPose> poses;           // one per view, in input order
+};
+
+// cv::calibrateCamera over all views. Errors: kBadInput for too few views or corners,
+// mismatched sizes, or when calib3d fails.
+Result<CameraFit> calibrateCamera(const std::vector<TargetView>& views, int widthPx, int heightPx,
+                                  const CameraFitOptions& options = {});
+
+// Pose of a planar target seen by a calibrated camera (IPPE start, LM refinement).
+// Errors: kBadInput for fewer than 4 corners or a failed solve.
+Result<TargetPose> locateTarget(const CameraIntrinsics& camera, const TargetView& view);
+
+// The object corners of a checkerboard with `cols` × `rows` inner corners and square
+// `pitchMm`, in the row-major order cv::findChessboardCorners reports them.
+std::vector<Eigen::Vector3d> checkerboardCorners(int cols, int rows, double pitchMm);
+
+}  // namespace alacs::geometry
