@@ -355,3 +355,52 @@ def test_console_entry_point() -> None:
     assert proc.returncode == 0
     for word in ("localize", "status", "monitor", "dbc", "home", "stop", "version"):
         assert word in proc.stdout
+
+
+def test_scan_alias(sensor: FakeSensor, channel: str) -> None:
+    rc, out = run_cli(channel, "scan", "--mode", "continuous")
+    assert rc == EXIT_OK, out
+    assert sensor.commands()[-1]["CmdOpcode"] == "SCAN_ALL"
+
+
+def test_monitor_table_view(sensor: FakeSensor, channel: str) -> None:
+    sensor.status_every_s = 0.02
+    rc, out = run_cli(channel, "monitor", "--view", "table", "--count", "5", "--timeout", "5")
+    assert rc == EXIT_OK
+    last = out.split("alacs monitor:")[-1]
+    assert "5 frames, 1 rows" in last
+    (row,) = [line for line in last.splitlines() if "ALACS_Status" in line]
+    assert row.split()[0] == "490" and row.split()[2] == "5"
+    assert "State=IDLE" in row and "FaultCameraTimeout=1" in row
+    assert "FaultLimitHit" not in row  # zero fault bits are left out of the table
+
+
+def test_record_then_replay(sensor: FakeSensor, channel: str, tmp_path: Any) -> None:
+    """record writes candump -L text that cantools and replay read back; replay sends it
+    onto the bus again with the recorded frames' ids and bytes."""
+    log = tmp_path / "bus.log"
+    sensor.status_every_s = 0.01
+    rc, out = run_cli(channel, "record", str(log), "--count", "6")
+    assert rc == EXIT_OK and "recorded 6 frames" in out
+    lines = log.read_text().splitlines()
+    assert len(lines) == 6 and all(" 490#" in line for line in lines), lines
+    rc, out = main(["replay", str(log), "--print"], out=(buf := io.StringIO())), buf.getvalue()
+    assert rc == EXIT_OK
+    assert out.count("ALACS_Status") == 6 and "State=IDLE" in out
+    sensor.status_every_s = None
+    with can.Bus(interface="virtual", channel=channel) as listener:
+        rc, out = run_cli(channel, "replay", str(log), "--fast")
+        assert rc == EXIT_OK and "replayed 6 frames" in out
+        got = [listener.recv(timeout=1.0) for _ in range(6)]
+    assert all(m is not None and m.arbitration_id == 0x490 for m in got)
+    assert [bytes(m.data).hex().upper() for m in got] == [
+        line.split("#")[1].split()[0] for line in lines]
+
+
+def test_bus_arg_parsing() -> None:
+    from alacs_cli.main import _bus_arg
+    assert _bus_arg("port=29536") == ("port", 29536)
+    assert _bus_arg("host=10.0.0.5") == ("host", "10.0.0.5")
+    assert _bus_arg("fd=true") == ("fd", True)
+    with pytest.raises(Exception):
+        _bus_arg("nokey")

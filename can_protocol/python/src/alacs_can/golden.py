@@ -228,7 +228,8 @@ def _command_checks(db: Database) -> list[dict[str, Any]]:
 
 
 def _sdo_exchanges() -> list[dict[str, Any]]:
-    """SDO requests and the answers of a freshly booted sensor (every object at its default)."""
+    """SDO requests and the answers of a freshly booted sensor (every object at its default;
+    "" where the sensor sends nothing)."""
     values = sdo.default_values()
     cases: list[tuple[str, bytes]] = []
     for e in OD_ENTRIES:
@@ -263,7 +264,7 @@ def _sdo_exchanges() -> list[dict[str, Any]]:
         out.append({
             "name": name,
             "request": request.hex().upper(),
-            "response": response.hex().upper() if response is not None else None,
+            "response": response.hex().upper() if response is not None else "",
         })
     return out
 

@@ -1,5 +1,9 @@
 """``alacs``: talk to an ALACS sensor over CAN from a shell.
 
+Works on any python-can interface: ``--interface socketcan --channel can0``,
+``--interface udp_multicast --channel 239.74.163.2``, ``--interface socketcand
+--channel can0 --bus-arg host=10.0.0.5 --bus-arg port=29536``, ...
+
 Exit codes: 0 success; 1 NACK, or a result that is not VALID/PARTIAL; 2 usage error;
 3 timeout; 4 CAN interface error.
 """
@@ -10,9 +14,11 @@ import argparse
 import dataclasses
 import json
 import random
+import shutil
 import sys
 import time
 from collections.abc import Callable, Sequence
+from pathlib import Path
 from typing import Any, TextIO
 
 import can
@@ -23,8 +29,13 @@ import alacs_can
 from alacs_can import LocalizationResult, Opcode
 
 from .link import Decoded, Exchange, Rejected, SensorLink, Timeout
+from .monitor import MonitorTable
 
 EXIT_OK, EXIT_REJECTED, EXIT_USAGE, EXIT_TIMEOUT, EXIT_BUS = 0, 1, 2, 3, 4
+
+# Commands that only listen to the sensor: their bus gets a filter for its id block.
+SENSOR_ONLY_COMMANDS = frozenset({"localize", "scan-all", "scan", "home", "stop", "clear-fault",
+                                  "version", "config", "status"})
 
 NMT_COMMANDS = {
     "start": alacs_can.NmtCommand.START,
@@ -45,6 +56,18 @@ def _node_id(text: str) -> int:
         return int(alacs_can.check_node_id(value))
     except ValueError as exc:
         raise argparse.ArgumentTypeError(str(exc)) from None
+
+
+def _bus_arg(text: str) -> tuple[str, Any]:
+    key, sep, value = text.partition("=")
+    if not sep or not key:
+        raise argparse.ArgumentTypeError(f"expected KEY=VALUE, got {text!r}")
+    for convert in (int, float):
+        try:
+            return key, convert(value)
+        except ValueError:
+            pass
+    return key, {"true": True, "false": False}.get(value.lower(), value)
 
 
 def _fmt_value(value: Any) -> str:
@@ -115,6 +138,11 @@ class Cli:
         kwargs: dict[str, Any] = {"interface": self.args.interface, "channel": self.args.channel}
         if self.args.bitrate:
             kwargs["bitrate"] = self.args.bitrate
+        kwargs.update(dict(self.args.bus_arg or []))
+        if self.args.cmd in SENSOR_ONLY_COMMANDS:
+            # Only the sensor's id block (and NMT): in the kernel on socketcan, in
+            # python-can elsewhere, so a busy bus cannot crowd out its answers.
+            kwargs["can_filters"] = [{"can_id": self.node_id, "can_mask": 0x07F, "extended": False}]
         return can.Bus(**kwargs)
 
     def emit(self, text: str, data: dict[str, Any]) -> None:
@@ -201,18 +229,73 @@ class Cli:
         return EXIT_OK
 
     def cmd_monitor(self, link: SensorLink) -> int:
+        view = self.args.view
+        if view == "auto":
+            view = "table" if self.out.isatty() else "lines"
+        table = MonitorTable(self.db) if view == "table" else None
         seen = 0
         t0 = None
         deadline = None if self.args.timeout is None else time.monotonic() + self.args.timeout
+        next_draw = 0.0
         while self.args.count is None or seen < self.args.count:
             if deadline is not None and time.monotonic() >= deadline:
                 break
-            frame = link.bus.recv(timeout=0.2)
+            frame = link.bus.recv(timeout=0.1)
+            if table is not None and time.monotonic() >= next_draw:
+                next_draw = time.monotonic() + self.args.refresh
+                tty = self.out.isatty()
+                width = shutil.get_terminal_size().columns if tty else None
+                self.out.write(table.render(time.monotonic(), clear=tty, width=width))
+                self.out.flush()
             if frame is None or frame.is_error_frame:
                 continue
             t0 = frame.timestamp if t0 is None else t0
-            print(format_frame(self.db, frame, t0), file=self.out, flush=True)
+            if table is not None:
+                table.push(frame, time.monotonic())
+            else:
+                print(format_frame(self.db, frame, t0), file=self.out, flush=True)
             seen += 1
+        if table is not None:
+            self.out.write(table.render(time.monotonic(), clear=self.out.isatty()))
+        return EXIT_OK
+
+    def cmd_record(self, link: SensorLink) -> int:
+        """Write every frame to a log (format by suffix; .log is candump -L)."""
+        seen = 0
+        deadline = None if self.args.duration is None else time.monotonic() + self.args.duration
+        with can.Logger(str(self.args.file)) as logger:
+            while self.args.count is None or seen < self.args.count:
+                if deadline is not None and time.monotonic() >= deadline:
+                    break
+                frame = link.bus.recv(timeout=0.1)
+                if frame is None:
+                    continue
+                frame.channel = frame.channel or self.args.channel
+                logger(frame)
+                seen += 1
+        self.emit(f"recorded {seen} frames to {self.args.file}",
+                  {"type": "record", "frames": seen, "file": str(self.args.file)})
+        return EXIT_OK
+
+    def cmd_replay(self, link: SensorLink | None) -> int:
+        """Decode a log (--print) or send it onto the bus with its original timing."""
+        frames = list(can.LogReader(str(self.args.file)))
+        if link is None:
+            t0 = frames[0].timestamp if frames else 0.0
+            for frame in frames:
+                if not frame.is_error_frame:
+                    print(format_frame(self.db, frame, t0), file=self.out)
+            return EXIT_OK
+        sent = 0
+        for frame in can.MessageSync(frames, timestamps=not self.args.fast,
+                                     gap=0.0 if self.args.fast else 0.0001):
+            if frame.is_error_frame:
+                continue
+            frame.channel = None
+            link.bus.send(frame)
+            sent += 1
+        self.emit(f"replayed {sent} frames from {self.args.file}",
+                  {"type": "replay", "frames": sent, "file": str(self.args.file)})
         return EXIT_OK
 
     def cmd_nmt(self, link: SensorLink) -> int:
@@ -231,6 +314,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--interface", default="socketcan", help="python-can interface (socketcan)")
     p.add_argument("--channel", default="vcan0", help="python-can channel (vcan0)")
     p.add_argument("--bitrate", type=int, default=None, help="bitrate, for interfaces that set it")
+    p.add_argument("--bus-arg", type=_bus_arg, action="append", metavar="KEY=VALUE",
+                   help="extra python-can Bus argument, e.g. host=... port=... for socketcand "
+                        "(repeatable)")
     p.add_argument("--node-id", type=_node_id, default=alacs_can.DEFAULT_NODE_ID,
                    help="sensor node id 1..127 (default 0x10)")
     p.add_argument("--counter", type=lambda s: _int(s) & 0xF, default=None,
@@ -251,7 +337,7 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--target", type=_int, default=0, metavar="N", help="target id 0..255")
     sp.add_argument("--mode", choices=modes, default="stop-and-go")
     timeout(sp, 10.0)
-    sp = sub.add_parser("scan-all", help="scan the whole field of view")
+    sp = sub.add_parser("scan-all", aliases=["scan"], help="scan the whole field of view")
     sp.add_argument("--mode", choices=modes, default="stop-and-go")
     timeout(sp, 20.0)
     sp = sub.add_parser("home", help="home the laser slide (waits for DONE)")
@@ -269,9 +355,24 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--heartbeat-ms", type=int)
     timeout(sp, 2.0)
     timeout(sub.add_parser("status", help="wait for one ALACS_Status frame and print it"), 2.0)
-    sp = sub.add_parser("monitor", help="print every frame on the bus, decoded")
+    sp = sub.add_parser("monitor", help="live decoded view of the bus")
     sp.add_argument("--count", type=int, default=None, metavar="N", help="stop after N frames")
+    sp.add_argument("--view", choices=["auto", "table", "lines"], default="auto",
+                    help="table: one row per message, redrawn in place (default on a "
+                         "terminal); lines: one decoded line per frame")
+    sp.add_argument("--refresh", type=float, default=0.25, metavar="S",
+                    help="table redraw period (default 0.25 s)")
     timeout(sp, None)
+    sp = sub.add_parser("record", help="record the bus to a log (candump -L format for .log)")
+    sp.add_argument("file", type=Path, help="log file; the suffix picks the format "
+                                            "(.log candump, .asc, .blf, .csv, .trc)")
+    sp.add_argument("--count", type=int, default=None, metavar="N", help="stop after N frames")
+    sp.add_argument("--duration", type=float, default=None, metavar="S",
+                    help="stop after S seconds")
+    sp = sub.add_parser("replay", help="replay a recorded log onto the bus, or --print it")
+    sp.add_argument("file", type=Path, help="log file (candump -L .log, .asc, .blf, ...)")
+    sp.add_argument("--print", action="store_true", help="decode and print; do not send")
+    sp.add_argument("--fast", action="store_true", help="send back to back, not in real time")
     sp = sub.add_parser("nmt", help="send an NMT command")
     sp.add_argument("nmt_command", choices=sorted(NMT_COMMANDS))
     sp.add_argument("--all", action="store_true", help="address all nodes (node id 0)")
@@ -287,6 +388,12 @@ def main(argv: Sequence[str] | None = None, out: TextIO | None = None) -> int:
     if args.cmd == "dbc":
         out.write(alacs_can.dbc_text(args.dbc_node_id or args.node_id))
         return EXIT_OK
+    if args.cmd == "replay" and args.print:
+        try:
+            return Cli(args, out).cmd_replay(None)
+        except (OSError, ValueError) as exc:
+            print(f"alacs replay: {exc}", file=sys.stderr)
+            return EXIT_USAGE
     if args.cmd == "config" and all(
         getattr(args, f) is None for f in alacs_can.CONFIG_FIELDS
     ):
@@ -296,6 +403,7 @@ def main(argv: Sequence[str] | None = None, out: TextIO | None = None) -> int:
     handlers: dict[str, Callable[[SensorLink], int]] = {
         "localize": cli.cmd_localize,
         "scan-all": cli.cmd_scan_all,
+        "scan": cli.cmd_scan_all,
         "home": cli.cmd_home,
         "stop": cli.cmd_simple(Opcode.STOP),
         "clear-fault": cli.cmd_simple(Opcode.CLEAR_FAULT),
@@ -303,6 +411,8 @@ def main(argv: Sequence[str] | None = None, out: TextIO | None = None) -> int:
         "config": cli.cmd_config,
         "status": cli.cmd_status,
         "monitor": cli.cmd_monitor,
+        "record": cli.cmd_record,
+        "replay": cli.cmd_replay,
         "nmt": cli.cmd_nmt,
     }
     try:
@@ -328,7 +438,7 @@ def main(argv: Sequence[str] | None = None, out: TextIO | None = None) -> int:
         print(f"alacs {args.cmd}: CAN error: {exc}", file=sys.stderr)
         return EXIT_BUS
     except KeyboardInterrupt:
-        return EXIT_OK if args.cmd == "monitor" else 130
+        return EXIT_OK if args.cmd in ("monitor", "record") else 130
 
 
 if __name__ == "__main__":
