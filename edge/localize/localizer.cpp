@@ -1,16 +1,37 @@
 #include "localize/localizer.h"
 
+#include <Eigen/Dense>
 #include <Eigen/Geometry>
 #include <algorithm>
 #include <cmath>
 
 namespace alacs::localize {
 
+namespace {
+
+// P(|e| <= x) for a 3D error with isotropic Gaussian components whose total 1σ is
+// sigma3d (Maxwell distribution).
+double withinProbability(double x, double sigma3d) {
+  if (!(sigma3d > 0.0)) return 1.0;
+  const double a = sigma3d / std::sqrt(3.0);
+  const double u = x / a;
+  return std::clamp(std::erf(u / std::sqrt(2.0)) - std::sqrt(2.0 / M_PI) * u * std::exp(-0.5 * u * u), 0.0, 1.0);
+}
+
+constexpr double kToleranceMm = 20.0;  // the vacuum end effector's tolerance (paper)
+
+}  // namespace
+
 Status ScanParams::validate() const {
   if (stops < 1 || stops > 15) return {Error::kInvalidArgument, "scan.stops must be in 1..15"};
   if (!(stopSpacingMm >= 0.5 && stopSpacingMm <= 50.0)) return {Error::kInvalidArgument, "scan.stop_spacing_mm must be in 0.5..50"};
   if (!(roiMarginMm >= 0.0 && roiMarginMm <= 300.0)) return {Error::kInvalidArgument, "scan.roi_margin_mm must be in 0..300"};
   if (!(gateMm > 10.0 && gateMm < 500.0)) return {Error::kInvalidArgument, "scan.gate_mm must be in 10..500"};
+  if (!(paperW1 >= 0.0 && paperW2 >= 0.0 && paperW1 + paperW2 > 0.0))
+    return {Error::kInvalidArgument, "scan.paper_w1 and scan.paper_w2 must be non-negative, not both zero"};
+  if (!(priorRadiusMm >= 20.0 && priorRadiusMm <= 80.0)) return {Error::kInvalidArgument, "scan.prior_radius_mm must be in 20..80"};
+  if (!(priorRadiusSigmaMm > 0.5 && priorRadiusSigmaMm <= 100.0))
+    return {Error::kInvalidArgument, "scan.prior_radius_sigma_mm must be in 0.5..100"};
   return Status::ok();
 }
 
@@ -67,81 +88,138 @@ Result<LineObservation> Localizer::observe(const image::ImageView& frame, const 
   LineObservation obs;
   obs.slideMm = slideMm;
   obs.line = std::move(*line);
+  // Every row's own centroid, not the fitted curve: the curve smooths across the edges
+  // where a leaf cuts the line; the 3D gate and the robust fit sort the rows out.
   std::vector<geometry::PixelPoint> pixels;
   pixels.reserve(obs.line.rows.size());
-  for (const auto& r : obs.line.rows) pixels.push_back({r.column, static_cast<double>(r.row)});
+  for (const auto& r : obs.line.rows) pixels.push_back({static_cast<double>(r.column), static_cast<double>(r.row)});
   const std::vector<Eigen::Vector2d> xn = geometry::undistortPixels(cal_.camera, pixels);
-  for (const auto& x : xn) {
-    const geometry::TriangulatedPoint p = geometry::triangulate(cal_.laser, slideMm, x, range_);
-    if (p.valid && (p.pointMm - plan.roughMm).norm() <= scan_.gateMm) obs.pointsMm.push_back(p.pointMm);
+  for (size_t i = 0; i < xn.size(); ++i) {
+    const geometry::TriangulatedPoint p = geometry::triangulate(cal_.laser, slideMm, xn[i], range_);
+    if (p.valid && (p.pointMm - plan.roughMm).norm() <= scan_.gateMm) {
+      obs.pointsMm.push_back(p.pointMm);
+      obs.pixels.push_back(pixels[i]);
+    }
   }
   return obs;
 }
 
+std::vector<PaperCandidate> Localizer::paperCandidates(const ScanPlan& plan,
+                                                       const std::vector<LineObservation>& lines) const {
+  std::vector<PaperCandidate> out;
+  // The expected centre in the image: the detector's (here: the rough position's).
+  const geometry::PixelPoint expected = geometry::projectPoint(cal_.camera, plan.roughMm);
+  for (size_t i = 0; i < lines.size(); ++i) {
+    const LineObservation& l = lines[i];
+    if (l.pointsMm.empty() || l.pixels.size() != l.pointsMm.size()) continue;
+    // The line's middle: its median row (rows ascend in observe's output).
+    const size_t mid = l.pointsMm.size() / 2;
+    PaperCandidate c;
+    c.line = i;
+    c.pixelCount = static_cast<double>(l.pointsMm.size());
+    c.distancePx = std::hypot(l.pixels[mid].columnPx - expected.columnPx, l.pixels[mid].rowPx - expected.rowPx);
+    c.middleMm = l.pointsMm[mid];
+    out.push_back(c);
+  }
+  return out;
+}
+
+size_t Localizer::selectCandidate(const std::vector<PaperCandidate>& candidates, double w1, double w2) {
+  size_t best = 0;
+  double bestScore = -1e300;
+  for (size_t i = 0; i < candidates.size(); ++i) {
+    const double score = w1 * candidates[i].pixelCount - w2 * candidates[i].distancePx;
+    if (score > bestScore) {
+      bestScore = score;
+      best = i;
+    }
+  }
+  return best;
+}
+
+Result<AppleEstimate> Localizer::estimateSingleLine(const ScanPlan& plan, const std::vector<LineObservation>& lines) const {
+  const std::vector<PaperCandidate> candidates = paperCandidates(plan, lines);
+  if (candidates.empty()) return Status(Error::kNotFound, "no laser line hit the target");
+  const PaperCandidate& best = candidates[selectCandidate(candidates, scan_.paperW1, scan_.paperW2)];
+  AppleEstimate est;
+  // The paper triangulates the middle of the best line: a point of the surface, which
+  // stands for the approach point; the centre is one (prior) radius behind it.
+  const Eigen::Vector3d towardSensor = -best.middleMm.normalized();
+  est.approachMm = best.middleMm;
+  est.approachNormal = towardSensor;
+  est.centerMm = best.middleMm - scan_.priorRadiusMm * towardSensor;
+  est.diameterMm = 2.0 * scan_.priorRadiusMm;
+  // The middle of a line is off the approach point by up to half a stop spacing across
+  // and what that costs in depth; the radius is only the prior's.
+  est.sigmaMm = std::max(3.0, 0.5 * scan_.stopSpacingMm);
+  est.centerSigmaMm = std::hypot(est.sigmaMm, scan_.priorRadiusSigmaMm);
+  est.diameterSigmaMm = 2.0 * scan_.priorRadiusSigmaMm;
+  est.linesUsed = 1;
+  est.pointsUsed = static_cast<int>(best.pixelCount);
+  est.confidencePct = 100.0 * 0.5 * withinProbability(kToleranceMm, est.sigmaMm);
+  est.sphereFit = false;
+  return est;
+}
+
 Result<AppleEstimate> Localizer::estimate(const ScanPlan& plan, const std::vector<LineObservation>& lines) const {
   std::vector<Eigen::Vector3d> all;
-  int linesWithPoints = 0;
-  for (const auto& l : lines) {
-    all.insert(all.end(), l.pointsMm.begin(), l.pointsMm.end());
-    linesWithPoints += l.pointsMm.empty() ? 0 : 1;
+  std::vector<int> lineIds;
+  for (size_t i = 0; i < lines.size(); ++i) {
+    all.insert(all.end(), lines[i].pointsMm.begin(), lines[i].pointsMm.end());
+    lineIds.insert(lineIds.end(), lines[i].pointsMm.size(), static_cast<int>(i));
   }
   if (all.empty()) return Status(Error::kNotFound, "no laser line hit the target");
-  AppleEstimate est;
-  est.linesUsed = linesWithPoints;
   geometry::SphereFitParams sp;
-  Result<geometry::SphereFit> fit = geometry::fitSphere(all, sp);
+  sp.priorRadiusMm = scan_.priorRadiusMm;
+  sp.priorRadiusSigmaMm = scan_.priorRadiusSigmaMm;
+  Result<geometry::SphereFit> fit = geometry::fitSphere(all, lineIds, sp);
+  // Lines whose points reached the fit: one line alone leaves the sphere to the prior.
+  std::vector<int> inliersPerLine(lines.size(), 0);
   if (fit) {
-    est.sphereFit = true;
-    est.centerMm = fit->centerMm;
-    est.diameterMm = 2.0 * fit->radiusMm;
-    est.sigmaMm = fit->centerSigmaMm;
-    est.pointsUsed = static_cast<int>(fit->inliers);
-    const double inlierShare = static_cast<double>(fit->inliers) / static_cast<double>(all.size());
-    est.confidencePct = std::clamp(100.0 * inlierShare * std::exp(-fit->rmsMm / 3.0), 0.0, 100.0);
-    // Occlusion: rows expected from the fitted sphere's chord at each stop vs rows found.
-    double expectedRows = 0.0;
-    double foundRows = 0.0;
-    for (const auto& l : lines) {
-      const double delta = cal_.laser.planeNormal.dot(fit->centerMm) - cal_.laser.planeOffsetAt(l.slideMm);
-      if (std::abs(delta) >= fit->radiusMm) continue;
-      const double chord = 2.0 * std::sqrt(fit->radiusMm * fit->radiusMm - delta * delta);
-      expectedRows += chord * cal_.camera.fyPx / fit->centerMm.z();
-      foundRows += static_cast<double>(l.pointsMm.size());
-    }
-    est.occlusionPct = expectedRows > 0 ? std::clamp(100.0 * (1.0 - foundRows / expectedRows), 0.0, 100.0) : 0.0;
-  } else {
-    // The paper's single-line candidate: P = ω1·N − ω2·Δd, N the line's pixel count, Δd
-    // the distance (px) of its middle from the expected centre; its middle point, pushed
-    // one typical radius along the ray, stands for the centre.
-    const geometry::PixelPoint expected = geometry::projectPoint(cal_.camera, plan.roughMm);
-    const LineObservation* best = nullptr;
-    double bestScore = -1e18;
-    Eigen::Vector3d bestPoint = Eigen::Vector3d::Zero();
-    for (const auto& l : lines) {
-      if (l.pointsMm.empty()) continue;
-      const Eigen::Vector3d mid = l.pointsMm[l.pointsMm.size() / 2];
-      const geometry::PixelPoint px = geometry::projectPoint(cal_.camera, mid);
-      const double dd = std::hypot(px.columnPx - expected.columnPx, px.rowPx - expected.rowPx);
-      const double score = scan_.paperW1 * static_cast<double>(l.pointsMm.size()) - scan_.paperW2 * dd;
-      if (score > bestScore) {
-        bestScore = score;
-        best = &l;
-        bestPoint = mid;
-      }
-    }
-    if (best == nullptr) return Status(Error::kNotFound, "no laser line hit the target");
-    constexpr double kTypicalRadiusMm = 40.0;
-    est.centerMm = bestPoint + kTypicalRadiusMm * bestPoint.normalized();
-    est.diameterMm = 2.0 * kTypicalRadiusMm;
-    est.sigmaMm = 10.0;
-    est.pointsUsed = static_cast<int>(best->pointsMm.size());
-    est.confidencePct = 20.0;
-    est.occlusionPct = 0.0;
+    for (size_t i = 0; i < all.size(); ++i)
+      if (fit->inlier[i]) ++inliersPerLine[static_cast<size_t>(lineIds[i])];
   }
-  const double radius = 0.5 * est.diameterMm;
-  const Eigen::Vector3d towardSensor = -est.centerMm.normalized();
-  est.approachMm = est.centerMm + radius * towardSensor;
-  est.approachNormal = towardSensor;
+  const auto linesWithInliers = static_cast<int>(
+      std::count_if(inliersPerLine.begin(), inliersPerLine.end(), [](int n) { return n >= 8; }));
+  if (!fit || linesWithInliers < 2) return estimateSingleLine(plan, lines);
+
+  AppleEstimate est;
+  est.sphereFit = true;
+  est.linesUsed = linesWithInliers;
+  est.pointsUsed = static_cast<int>(fit->inliers);
+  est.centerMm = fit->centerMm;
+  est.diameterMm = 2.0 * fit->radiusMm;
+  est.rmsMm = fit->rmsMm;
+  const double radius = fit->radiusMm;
+  const double dist = est.centerMm.norm();
+  const Eigen::Vector3d u = est.centerMm / dist;  // from the sensor towards the centre
+  est.approachMm = est.centerMm - radius * u;
+  est.approachNormal = -u;
+  // Uncertainty: the approach point A = c − R·c/|c| through the fit's covariance.
+  Eigen::Matrix<double, 3, 4> j;
+  j.leftCols<3>() = Eigen::Matrix3d::Identity() - (radius / dist) * (Eigen::Matrix3d::Identity() - u * u.transpose());
+  j.col(3) = -u;
+  const Eigen::Matrix3d covA = j * fit->covariance * j.transpose();
+  est.sigmaMm = std::sqrt(std::max(0.0, covA.trace()));
+  est.centerSigmaMm = fit->centerSigmaMm;
+  est.diameterSigmaMm = 2.0 * fit->radiusSigmaMm;
+  // Occlusion: rows expected from the fitted sphere's chord at each stop vs rows that
+  // reached the fit.
+  double expectedRows = 0.0;
+  double foundRows = 0.0;
+  for (size_t i = 0; i < lines.size(); ++i) {
+    const double delta = cal_.laser.planeNormal.dot(fit->centerMm) - cal_.laser.planeOffsetAt(lines[i].slideMm);
+    if (std::abs(delta) >= radius) continue;
+    const double chord = 2.0 * std::sqrt(radius * radius - delta * delta);
+    expectedRows += chord * cal_.camera.fyPx / fit->centerMm.z();
+    foundRows += static_cast<double>(inliersPerLine[i]);
+  }
+  est.occlusionPct = expectedRows > 0 ? std::clamp(100.0 * (1.0 - foundRows / expectedRows), 0.0, 100.0) : 0.0;
+  // Confidence: the chance that the approach point is inside the end effector's
+  // tolerance, times the support (lines and the share of points the fit kept).
+  const double inlierShare = static_cast<double>(fit->inliers) / static_cast<double>(all.size());
+  const double support = std::min(1.0, linesWithInliers / 3.0) * std::min(1.0, inlierShare / 0.6);
+  est.confidencePct = std::clamp(100.0 * support * withinProbability(kToleranceMm, est.sigmaMm), 0.0, 100.0);
   return est;
 }
 

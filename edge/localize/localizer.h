@@ -1,10 +1,12 @@
 // Localization of one target apple from the laser lines of a scan. Pure logic: frames
-// and slide positions in, an estimate out; no device, thread or clock.
+// and slide positions in, an estimate out; no device, thread or clock (docs/geometry.md).
 //
 //   plan:      rough position (from the arm's RGB-D camera) -> slide stops + image ROI
-//   addFrame:  LLE on the ROI, triangulation of every row, gating around the target
-//   finish:    robust sphere fit to the points of every line (beyond the paper), with
-//              the paper's single-line candidate (P = w1·N − w2·Δd) as the fallback
+//   observe:   LLE on the ROI, triangulation of every row, gating around the target
+//   estimate:  robust sphere fit to the points of every line (beyond the paper): centre,
+//              diameter, approach point and normal, σ and confidence; when the lines
+//              cannot fix a sphere, the paper's single-line candidate
+//   estimateSingleLine: the paper's method alone (P = ω1·N − ω2·Δd), for comparison
 #pragma once
 
 #include <Eigen/Core>
@@ -24,8 +26,15 @@ struct ScanParams {
   double roiMarginMm = 35.0;     // added to the largest apple radius around the rough position
   double maxAppleRadiusMm = 50.0;
   double gateMm = 90.0;          // 3D points farther than this from the rough centre are not the target
-  double paperW1 = 1.0;          // ω1: weight of the line's pixel count
-  double paperW2 = 2.0;          // ω2: weight of its distance (px) from the expected centre
+  // The paper's candidate score P = ω1·N − ω2·Δd (N: the line's pixels on the target,
+  // Δd: px from the expected centre). Only ω2/ω1 matters; chosen by 5-fold
+  // cross-validation on the twin (docs/geometry.md, tools/geometry_eval).
+  double paperW1 = 1.0;
+  double paperW2 = 2.0;
+  // Sphere fit: a weak prior on the radius that only matters when the lines fix little
+  // (one or two lines on a small visible cap).
+  double priorRadiusMm = 37.5;
+  double priorRadiusSigmaMm = 7.0;
   Status validate() const;
 };
 
@@ -38,20 +47,32 @@ struct ScanPlan {
 struct LineObservation {
   double slideMm = 0.0;
   image::LaserLine line;
-  std::vector<Eigen::Vector3d> pointsMm;  // gated 3D points of this line
+  std::vector<Eigen::Vector3d> pointsMm;       // gated 3D points of this line
+  std::vector<geometry::PixelPoint> pixels;    // their pixels (same order)
 };
 
 struct AppleEstimate {
   Eigen::Vector3d centerMm = Eigen::Vector3d::Zero();
-  Eigen::Vector3d approachMm = Eigen::Vector3d::Zero();  // surface point nearest the sensor towards the centre
-  Eigen::Vector3d approachNormal = Eigen::Vector3d::Zero();  // outward unit normal there
+  Eigen::Vector3d approachMm = Eigen::Vector3d::Zero();  // surface point nearest the sensor on the line to the centre
+  Eigen::Vector3d approachNormal = Eigen::Vector3d::Zero();  // outward unit normal there (towards the sensor)
   double diameterMm = 0.0;
-  double sigmaMm = 0.0;
-  double confidencePct = 0.0;
-  double occlusionPct = 0.0;
+  double sigmaMm = 0.0;          // 1σ (3D) of the approach point
+  double centerSigmaMm = 0.0;    // 1σ (3D) of the centre
+  double diameterSigmaMm = 0.0;
+  double confidencePct = 0.0;    // see docs/geometry.md: support × chance of the 20 mm tolerance
+  double occlusionPct = 0.0;     // share of the expected line rows that did not reach the fit
+  double rmsMm = 0.0;            // fit residual
   int linesUsed = 0;
   int pointsUsed = 0;
-  bool sphereFit = false;  // false: the paper's single-line fallback
+  bool sphereFit = false;        // false: the paper's single-line estimate
+};
+
+// The paper's candidates: one per line with points on the target.
+struct PaperCandidate {
+  size_t line = 0;              // index into the observations
+  double pixelCount = 0.0;      // N
+  double distancePx = 0.0;      // Δd: the line's middle from the expected centre, px
+  Eigen::Vector3d middleMm = Eigen::Vector3d::Zero();  // the line's middle, triangulated
 };
 
 class Localizer {
@@ -69,6 +90,14 @@ class Localizer {
 
   // Fuses the observations. Errors: kNotFound when no line hit the target.
   Result<AppleEstimate> estimate(const ScanPlan& plan, const std::vector<LineObservation>& lines) const;
+
+  // The paper's single-line estimate: the best candidate's middle is the approach point;
+  // the centre lies one prior radius behind it. Errors: kNotFound.
+  Result<AppleEstimate> estimateSingleLine(const ScanPlan& plan, const std::vector<LineObservation>& lines) const;
+
+  // The candidates of the paper's selection, and the one P = w1·N − w2·Δd picks.
+  std::vector<PaperCandidate> paperCandidates(const ScanPlan& plan, const std::vector<LineObservation>& lines) const;
+  static size_t selectCandidate(const std::vector<PaperCandidate>& candidates, double w1, double w2);
 
  private:
   geometry::Calibration cal_;
