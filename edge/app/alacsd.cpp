@@ -478,9 +478,25 @@ void Daemon::onCommand(const protocol::Command& c, TimeNs now) {
       node_->ack(c, protocol::AckResult::kAck);
       return;
     }
-    case Opcode::kScanAll:
+    case Opcode::kScanAll: {
+      if (state_ == State::kFault || state_ == State::kStopped)
+        return node_->nack(c.opcode, c.counter, NackReason::kFaultActive);
+      if (worker_->busy() || state_ != State::kIdle) return node_->nack(c.opcode, c.counter, NackReason::kBusy);
+      if (!calibration_) return node_->nack(c.opcode, c.counter, NackReason::kNotCalibrated);
+      if (!worker_->homed()) return node_->nack(c.opcode, c.counter, NackReason::kNotHomed);
+      node_->ack(c, protocol::AckResult::kAck);
+      activeCommand_ = c;
+      state_ = State::kScanning;
+      WorkerJob job;
+      job.kind = WorkerJob::Kind::kScanAll;
+      const survey::SurveyParams sp;
+      job.survey.emplace(*calibration_, cfg_.lle, cfg_.scan, sp);
+      job.surveyStopsMm = survey::surveyStops(cfg_.motion.strokeMm, sp);
+      job.commandTimeNs = now;
+      worker_->submit(job);
+      return;
+    }
     case Opcode::kInvalid:
-      // Scan-all arrives with the autonomous mode (docs/can-protocol.md): refused until then.
       return node_->nack(c.opcode, c.counter, NackReason::kUnknownOpcode);
   }
 }
@@ -514,14 +530,13 @@ void Daemon::onWorkerEvent(const WorkerEvent& ev, TimeNs now) {
   h.measCounter = ++measCounter_;
   h.targetId = ev.job.localize.targetId;
   h.status = ev.resultStatus;
-  h.mode = 0;
+  h.mode = ev.job.kind == WorkerJob::Kind::kScanAll ? 1 : 0;
   h.cycleTimeMs = lastLatencyMs_;
   h.scanAgeMs = ev.lastExposureNs > 0 ? static_cast<uint32_t>((now - ev.lastExposureNs) / kNsPerMs) : 0;
   std::vector<protocol::ResultObject> objects;
-  if (ev.estimate) {
-    const auto& e = *ev.estimate;
+  for (const localize::AppleEstimate& e : ev.estimates) {
     protocol::ResultObject o;
-    o.index = 0;
+    o.index = static_cast<uint8_t>(objects.size());
     o.centerMm = e.centerMm;
     o.approachMm = e.approachMm;
     o.normal = e.approachNormal;
@@ -532,10 +547,11 @@ void Daemon::onWorkerEvent(const WorkerEvent& ev, TimeNs now) {
     o.linesUsed = e.linesUsed;
     o.pointsUsed = e.pointsUsed;
     objects.push_back(o);
-    ALACS_LOG_INFO("scan", "target %u: centre (%.1f, %.1f, %.1f) mm, d %.1f mm, sigma %.2f mm, %d lines, cycle %u ms",
-                   h.targetId, e.centerMm.x(), e.centerMm.y(), e.centerMm.z(), e.diameterMm, e.sigmaMm, e.linesUsed,
-                   lastLatencyMs_);
-  } else if (!ev.status) {
+    ALACS_LOG_INFO("scan", "%s %u: centre (%.1f, %.1f, %.1f) mm, d %.1f mm, sigma %.2f mm, %d lines, cycle %u ms",
+                   h.mode == 1 ? "object" : "target", h.mode == 1 ? o.index : h.targetId, e.centerMm.x(),
+                   e.centerMm.y(), e.centerMm.z(), e.diameterMm, e.sigmaMm, e.linesUsed, lastLatencyMs_);
+  }
+  if (!ev.status) {
     ALACS_LOG_WARN("scan", "target %u: %s", h.targetId, ev.status.toString().c_str());
   }
   h.objectCount = static_cast<uint8_t>(objects.size());

@@ -77,7 +77,9 @@ void ScanWorker::run() {
       job = jobs_.front();
       jobs_.pop_front();
     }
-    WorkerEvent ev = job.kind == WorkerJob::Kind::kHome ? doHome(job) : doLocalize(job);
+    WorkerEvent ev = job.kind == WorkerJob::Kind::kHome       ? doHome(job)
+                     : job.kind == WorkerJob::Kind::kScanAll ? doScanAll(job)
+                                                             : doLocalize(job);
     (void)deps_.laser->off();  // whatever happened, the laser ends the job off
     (void)deps_.enable->set(false);
     ev.doneNs = deps_.clock->now();
@@ -152,6 +154,80 @@ void writeOverlay(const std::string& dir, const ports::CapturedFrame& frame, con
 }
 }  // namespace
 
+Result<ports::CapturedFrame> ScanWorker::exposeStop(size_t stop, const ports::CaptureRequest& capture,
+                                                     WorkerEvent& ev) {
+  // Timeouts and corrupted frames are retried (laser on only for each attempt's
+  // exposure), then become a fault with the last reason.
+  Result<ports::CapturedFrame> frame = Status(Error::kInternal, "no capture attempted");
+  for (int attempt = 0; attempt <= deps_.captureRetries && !cancel_.load(); ++attempt) {
+    if (Status s = deps_.laser->on(); !s) {
+      ev.status = s;
+      ev.faultBit = protocol::kFaultLaserOvertime;
+      ev.resultStatus = protocol::ResultStatus::kFailed;
+      return s;
+    }
+    frame = deps_.camera->capture(capture, [this] { (void)deps_.laser->off(); });
+    (void)deps_.laser->off();
+    if (frame) break;
+    dropped_.fetch_add(1);
+    ALACS_LOG_WARN("camera", "stop %zu attempt %d: %s", stop, attempt + 1, frame.status().toString().c_str());
+  }
+  if (!frame && cancel_.load()) {
+    ev.status = Status(Error::kFault, "scan stopped by command");
+    ev.resultStatus = protocol::ResultStatus::kAborted;
+    return ev.status;
+  }
+  if (!frame) {
+    ev.status = frame.status();
+    ev.faultBit = frame.status().code() == Error::kTimeout ? protocol::kFaultCameraTimeout : protocol::kFaultCameraCorrupt;
+    ev.resultStatus = protocol::ResultStatus::kFailed;
+    return frame;
+  }
+  ev.lastExposureNs = frame->info.exposureStartNs + frame->info.exposureUs * kNsPerUs;
+  ev.exposures.push_back({frame->info.exposureStartNs, ev.lastExposureNs});
+  return frame;
+}
+
+WorkerEvent ScanWorker::doScanAll(const WorkerJob& job) {
+  WorkerEvent ev;
+  ev.job = job;
+  if (!homed_.load() || !job.survey) {
+    ev.status = Status(Error::kNotHomed, "slide not homed");
+    ev.resultStatus = protocol::ResultStatus::kFailed;
+    return ev;
+  }
+  const ports::CaptureRequest capture = [&] {
+    std::lock_guard<std::mutex> lock(mu_);
+    return deps_.capture;
+  }();
+  if (Status s = deps_.enable->set(true); !s) {
+    ev.status = s;
+    ev.faultBit = protocol::kFaultInternal;
+    return ev;
+  }
+  survey::Survey survey = *job.survey;
+  for (size_t i = 0; i < job.surveyStopsMm.size(); ++i) {
+    if (Status s = moveTo(job.surveyStopsMm[i], ev); !s) {
+      ev.status = s;
+      if (ev.resultStatus == protocol::ResultStatus::kValid) ev.resultStatus = protocol::ResultStatus::kFailed;
+      return ev;
+    }
+    Result<ports::CapturedFrame> frame = exposeStop(i, capture, ev);
+    if (!frame) return ev;
+    if (Status s = survey.addFrame(frame->view, positionMm(), ws_); !s)
+      ALACS_LOG_WARN("survey", "stop %zu: %s", i, s.toString().c_str());
+    if (cancel_.load()) {
+      ev.status = Status(Error::kFault, "scan stopped by command");
+      ev.resultStatus = protocol::ResultStatus::kAborted;
+      return ev;
+    }
+  }
+  ev.estimates = survey.finish();
+  ev.resultStatus = ev.estimates.empty() ? protocol::ResultStatus::kNoObject : protocol::ResultStatus::kValid;
+  ev.status = Status::ok();
+  return ev;
+}
+
 WorkerEvent ScanWorker::doLocalize(const WorkerJob& job) {
   WorkerEvent ev;
   ev.job = job;
@@ -183,35 +259,8 @@ WorkerEvent ScanWorker::doLocalize(const WorkerJob& job) {
       if (ev.resultStatus == protocol::ResultStatus::kValid) ev.resultStatus = protocol::ResultStatus::kFailed;
       return ev;
     }
-    // Timeouts and corrupted frames are retried (laser on only for each attempt's
-    // exposure), then become a fault with the last reason.
-    Result<ports::CapturedFrame> frame = Status(Error::kInternal, "no capture attempted");
-    for (int attempt = 0; attempt <= deps_.captureRetries && !cancel_.load(); ++attempt) {
-      if (Status s = deps_.laser->on(); !s) {
-        ev.status = s;
-        ev.faultBit = protocol::kFaultLaserOvertime;
-        ev.resultStatus = protocol::ResultStatus::kFailed;
-        return ev;
-      }
-      frame = deps_.camera->capture(capture, [this] { (void)deps_.laser->off(); });
-      (void)deps_.laser->off();
-      if (frame) break;
-      dropped_.fetch_add(1);
-      ALACS_LOG_WARN("camera", "stop %zu attempt %d: %s", i, attempt + 1, frame.status().toString().c_str());
-    }
-    if (!frame && cancel_.load()) {
-      ev.status = Status(Error::kFault, "scan stopped by command");
-      ev.resultStatus = protocol::ResultStatus::kAborted;
-      return ev;
-    }
-    if (!frame) {
-      ev.status = frame.status();
-      ev.faultBit = frame.status().code() == Error::kTimeout ? protocol::kFaultCameraTimeout : protocol::kFaultCameraCorrupt;
-      ev.resultStatus = protocol::ResultStatus::kFailed;
-      return ev;
-    }
-    ev.lastExposureNs = frame->info.exposureStartNs + frame->info.exposureUs * kNsPerUs;
-    ev.exposures.push_back({frame->info.exposureStartNs, ev.lastExposureNs});
+    Result<ports::CapturedFrame> frame = exposeStop(i, capture, ev);
+    if (!frame) return ev;
     Result<localize::LineObservation> obs = localizer.observe(frame->view, *plan, positionMm(), ws_);
     if (!obs) {
       ALACS_LOG_WARN("scan", "stop %zu: %s", i, obs.status().toString().c_str());
@@ -233,7 +282,7 @@ WorkerEvent ScanWorker::doLocalize(const WorkerJob& job) {
     ev.resultStatus = protocol::ResultStatus::kNoObject;
     return ev;
   }
-  ev.estimate = *est;
+  ev.estimates.push_back(*est);
   ev.resultStatus = est->sphereFit ? protocol::ResultStatus::kValid : protocol::ResultStatus::kPartial;
   ev.status = Status::ok();
   return ev;

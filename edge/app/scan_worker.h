@@ -14,6 +14,7 @@
 
 #include "app/laser_guard.h"
 #include "localize/localizer.h"
+#include "survey/survey.h"
 #include "motion/step_runner.h"
 #include "ports/frame_source.h"
 #include "protocol/codec.h"
@@ -21,9 +22,11 @@
 namespace alacs::app {
 
 struct WorkerJob {
-  enum class Kind { kHome, kLocalize } kind = Kind::kHome;
+  enum class Kind { kHome, kLocalize, kScanAll } kind = Kind::kHome;
   protocol::LocalizeCommand localize;
   localize::ScanPlan plan;  // made by the daemon when it accepted the command
+  std::optional<survey::Survey> survey;  // scan-all: the survey to fill, and its stops
+  std::vector<double> surveyStopsMm;
   TimeNs commandTimeNs = 0;
 };
 
@@ -38,7 +41,7 @@ struct WorkerEvent {
   Status status;
   uint16_t faultBit = 0;               // set when the failure is a device fault
   protocol::ResultStatus resultStatus = protocol::ResultStatus::kValid;
-  std::optional<localize::AppleEstimate> estimate;
+  std::vector<localize::AppleEstimate> estimates;  // localize: at most one; scan-all: all found
   TimeNs lastExposureNs = 0;
   TimeNs doneNs = 0;
   TimeNs maxStepLatenessNs = 0;
@@ -80,6 +83,9 @@ class ScanWorker {
   void run();
   WorkerEvent doHome(const WorkerJob& job);
   WorkerEvent doLocalize(const WorkerJob& job);
+  WorkerEvent doScanAll(const WorkerJob& job);
+  // Laser on, expose (with retries), laser off. On failure `ev` holds the fault.
+  Result<ports::CapturedFrame> exposeStop(size_t stop, const ports::CaptureRequest& capture, WorkerEvent& ev);
   Status moveTo(double mm, WorkerEvent& ev);
 
   WorkerDeps deps_;
