@@ -1,0 +1,192 @@
+// Fusion of the lines into an apple estimate, on synthetic 3D lines: the laser plane at
+// each stop cut with a known sphere, the camera-facing part kept, depth noise along the
+// ray, leaves in front. No rendering here (localize_sim_test.cpp does that end to end).
+#include <catch2/catch.hpp>
+
+#include <Eigen/Geometry>
+#include <algorithm>
+#include <random>
+
+#include "localize/localizer.h"
+#include "sim/scene.h"
+
+using namespace alacs;
+
+namespace {
+
+struct Leaf {
+  Eigen::Vector3d centerMm;
+  double radiusMm;  // a disc facing the camera
+};
+
+// The observation of one stop: points of the plane ∩ sphere circle that the camera sees,
+// one per image row, with noise along the viewing ray; rows hidden by a leaf become leaf
+// points instead.
+localize::LineObservation lineOf(const geometry::Calibration& cal, const Eigen::Vector3d& c, double r, double slideMm,
+                                 double noiseMm, const std::vector<Leaf>& leaves, std::mt19937& rng) {
+  localize::LineObservation obs;
+  obs.slideMm = slideMm;
+  const Eigen::Vector3d n = cal.laser.planeNormal;
+  const double delta = n.dot(c) - cal.laser.planeOffsetAt(slideMm);
+  if (std::abs(delta) >= r) return obs;
+  const Eigen::Vector3d c0 = c - delta * n;
+  const double rho = std::sqrt(r * r - delta * delta);
+  const Eigen::Vector3d e1 = n.unitOrthogonal();
+  const Eigen::Vector3d e2 = n.cross(e1);
+  std::normal_distribution<double> noise(0.0, noiseMm);
+  int lastRow = -1 << 30;
+  for (int i = 0; i < 20000; ++i) {
+    const double phi = 2.0 * M_PI * i / 20000.0;
+    Eigen::Vector3d p = c0 + rho * (std::cos(phi) * e1 + std::sin(phi) * e2);
+    if ((p - c).dot(-p) <= 0.0) continue;  // faces away from the camera
+    const geometry::PixelPoint px = geometry::projectPoint(cal.camera, p);
+    const int row = static_cast<int>(std::lround(px.rowPx));
+    if (row == lastRow) continue;
+    lastRow = row;
+    // A leaf disc in front hides the point; the laser then draws on the leaf.
+    for (const Leaf& leaf : leaves) {
+      const double t = leaf.centerMm.z() / p.z();
+      if ((t * p - leaf.centerMm).norm() < leaf.radiusMm) {
+        // The laser plane meets the leaf (z = leaf z) at the same row, roughly.
+        const Eigen::Vector3d dir = p.normalized();
+        p = p - (p.z() - leaf.centerMm.z()) / dir.z() * dir;
+        break;
+      }
+    }
+    p += noise(rng) * p.normalized();
+    obs.pointsMm.push_back(p);
+    obs.pixels.push_back(geometry::projectPoint(cal.camera, p));
+  }
+  // observe() reports rows ascending.
+  std::vector<size_t> order(obs.pointsMm.size());
+  for (size_t i = 0; i < order.size(); ++i) order[i] = i;
+  std::sort(order.begin(), order.end(), [&](size_t a, size_t b) { return obs.pixels[a].rowPx < obs.pixels[b].rowPx; });
+  localize::LineObservation sorted = obs;
+  for (size_t i = 0; i < order.size(); ++i) {
+    sorted.pointsMm[i] = obs.pointsMm[order[i]];
+    sorted.pixels[i] = obs.pixels[order[i]];
+  }
+  return sorted;
+}
+
+struct Case {
+  geometry::Calibration cal = sim::defaultScene().truth;
+  localize::ScanParams scan;
+  Eigen::Vector3d center{15.0, -10.0, 1300.0};
+  double radius = 38.0;
+};
+
+}  // namespace
+
+TEST_CASE("Sphere fusion of five lines: centre, diameter, approach point, honest σ", "[localize]") {
+  Case k;
+  std::mt19937 rng(21);
+  localize::Localizer loc(k.cal, image::LleParams{}, k.scan);
+  auto plan = loc.plan(k.center + Eigen::Vector3d(9, -7, 14), 200.0);
+  REQUIRE(plan.isOk());
+  std::vector<localize::LineObservation> lines;
+  for (double s : plan->stopsMm) lines.push_back(lineOf(k.cal, k.center, k.radius, s, 0.4, {}, rng));
+  auto est = loc.estimate(*plan, lines);
+  REQUIRE(est.isOk());
+  REQUIRE(est->sphereFit);
+  const Eigen::Vector3d approachTruth = k.center - k.radius * k.center.normalized();
+  const double centreErr = (est->centerMm - k.center).norm();
+  const double approachErr = (est->approachMm - approachTruth).norm();
+  INFO("centre " << centreErr << " approach " << approachErr << " d " << est->diameterMm << " σ " << est->sigmaMm
+                 << " σc " << est->centerSigmaMm << " conf " << est->confidencePct);
+  CHECK(centreErr < 1.0);
+  CHECK(approachErr < 0.5);
+  CHECK(std::abs(est->diameterMm - 2 * k.radius) < 1.5);
+  CHECK(est->linesUsed >= 4);
+  CHECK(est->sigmaMm > 0.0);
+  CHECK(est->sigmaMm < 1.0);
+  CHECK(approachErr < 4.0 * est->sigmaMm);
+  CHECK(est->centerSigmaMm > est->sigmaMm);  // the front of the fruit is better known than its centre
+  CHECK(est->confidencePct > 90.0);
+  CHECK(est->occlusionPct < 10.0);
+  // The approach normal points from the fruit towards the sensor.
+  CHECK(est->approachNormal.dot(-approachTruth.normalized()) > 0.999);
+}
+
+TEST_CASE("Leaves in front of the fruit: the robust fit keeps to the skin", "[localize]") {
+  Case k;
+  std::mt19937 rng(22);
+  localize::Localizer loc(k.cal, image::LleParams{}, k.scan);
+  auto plan = loc.plan(k.center + Eigen::Vector3d(-12, 10, -18), 200.0);
+  REQUIRE(plan.isOk());
+  // Two leaves 25–40 mm in front of the skin hide about half of the fruit.
+  const std::vector<Leaf> leaves{{k.center + Eigen::Vector3d(-20, -15, -k.radius - 25), 28.0},
+                                 {k.center + Eigen::Vector3d(25, 20, -k.radius - 40), 20.0}};
+  std::vector<localize::LineObservation> lines;
+  for (double s : plan->stopsMm) lines.push_back(lineOf(k.cal, k.center, k.radius, s, 0.4, leaves, rng));
+  auto est = loc.estimate(*plan, lines);
+  REQUIRE(est.isOk());
+  REQUIRE(est->sphereFit);
+  const Eigen::Vector3d approachTruth = k.center - k.radius * k.center.normalized();
+  INFO("centre " << (est->centerMm - k.center).norm() << " approach " << (est->approachMm - approachTruth).norm()
+                 << " d " << est->diameterMm << " occlusion " << est->occlusionPct << " conf " << est->confidencePct);
+  CHECK((est->centerMm - k.center).norm() < 3.0);
+  CHECK((est->approachMm - approachTruth).norm() < 1.5);
+  CHECK(std::abs(est->diameterMm - 2 * k.radius) < 4.0);
+  CHECK(est->occlusionPct > 15.0);
+}
+
+TEST_CASE("One line alone: the paper's single-line estimate", "[localize]") {
+  Case k;
+  std::mt19937 rng(23);
+  localize::Localizer loc(k.cal, image::LleParams{}, k.scan);
+  auto plan = loc.plan(k.center, 200.0);
+  REQUIRE(plan.isOk());
+  const double middle = plan->stopsMm[plan->stopsMm.size() / 2];
+  std::vector<localize::LineObservation> lines{lineOf(k.cal, k.center, k.radius, middle, 0.4, {}, rng)};
+  auto est = loc.estimate(*plan, lines);
+  REQUIRE(est.isOk());
+  CHECK_FALSE(est->sphereFit);
+  CHECK(est->linesUsed == 1);
+  const Eigen::Vector3d approachTruth = k.center - k.radius * k.center.normalized();
+  // The line through the middle of the fruit: its middle is near the approach point, but
+  // not on it (the median row is not the point nearest the sensor): millimetres off.
+  CHECK((est->approachMm - approachTruth).norm() < 10.0);
+  CHECK(est->sigmaMm >= 3.0);
+  CHECK(est->confidencePct < 60.0);
+  CHECK(loc.estimate(*plan, {}).status().code() == Error::kNotFound);
+}
+
+TEST_CASE("The paper's candidate score P = w1·N − w2·Δd", "[localize]") {
+  std::vector<localize::PaperCandidate> c(3);
+  c[0].pixelCount = 300;  // long line far from the expected centre
+  c[0].distancePx = 120;
+  c[1].pixelCount = 250;  // a bit shorter, close to it
+  c[1].distancePx = 10;
+  c[2].pixelCount = 40;   // a leaf fragment right on it
+  c[2].distancePx = 0;
+  CHECK(localize::Localizer::selectCandidate(c, 1.0, 0.0) == 0);   // pixel count only
+  CHECK(localize::Localizer::selectCandidate(c, 1.0, 1.0) == 1);
+  CHECK(localize::Localizer::selectCandidate(c, 0.0, 1.0) == 2);   // distance only
+  CHECK(localize::Localizer::selectCandidate(c, 1.0, 3.0) == 1);
+
+  // On real lines the candidates carry the line's middle and its pixel count.
+  Case k;
+  std::mt19937 rng(24);
+  localize::Localizer loc(k.cal, image::LleParams{}, k.scan);
+  auto plan = loc.plan(k.center, 200.0);
+  REQUIRE(plan.isOk());
+  std::vector<localize::LineObservation> lines;
+  for (double s : plan->stopsMm) lines.push_back(lineOf(k.cal, k.center, k.radius, s, 0.4, {}, rng));
+  const auto cands = loc.paperCandidates(*plan, lines);
+  REQUIRE(cands.size() >= 3);
+  const size_t best = localize::Localizer::selectCandidate(cands, k.scan.paperW1, k.scan.paperW2);
+  // The middle stop's line passes closest to the centre and is the longest.
+  CHECK(cands[best].line == plan->stopsMm.size() / 2);
+}
+
+TEST_CASE("Scan parameters are validated", "[localize]") {
+  localize::ScanParams p;
+  CHECK(p.validate().isOk());
+  p.paperW1 = 0.0;
+  p.paperW2 = 0.0;
+  CHECK(p.validate().reason().find("paper_w") != std::string::npos);
+  p = {};
+  p.priorRadiusMm = 5.0;
+  CHECK(p.validate().reason().find("prior_radius_mm") != std::string::npos);
+}
