@@ -169,6 +169,8 @@ class Daemon {
  private:
   Status setUp();
   void onCommand(const protocol::Command& c, TimeNs now);
+  protocol::NackReason applyConfig(const protocol::SetConfigCommand& s);
+  protocol::SetConfigCommand currentConfig() const;
   void onWorkerEvent(const WorkerEvent& ev, TimeNs now);
   void flushTx();
   void enterFault(uint16_t bit, const Status& why);
@@ -205,7 +207,6 @@ class Daemon {
   uint32_t lastLatencyMs_ = 0;
   uint32_t maxLatencyMs_ = 0;
   int eventFd_ = -1;
-  bool txBlocked_ = false;
 };
 
 Status Daemon::setUp() {
@@ -238,10 +239,11 @@ Status Daemon::setUp() {
     }
   }
 
-  // CAN: kernel filters for the ids we consume.
+  // CAN: kernel filters pass NMT and the node's own id block (every function code + N):
+  // frames for other nodes never wake the loop; unknown ids of our block are counted.
   const auto node = static_cast<uint8_t>(cfg_.nodeId);
-  Result<std::unique_ptr<drivers::SocketCan>> can = drivers::SocketCan::open(
-      cfg_.canInterface, {{0x000, 0x7FF}, {0x200U + node, 0x7FF}, {0x600U + node, 0x7FF}});
+  Result<std::unique_ptr<drivers::SocketCan>> can =
+      drivers::SocketCan::open(cfg_.canInterface, {{0x000, 0x7FF}, {node, 0x07F}});
   if (!can) return can.status();
   can_ = std::move(*can);
   protocol::NodeConfig nc;
@@ -249,6 +251,9 @@ Status Daemon::setUp() {
   nc.heartbeatPeriodNs = cfg_.heartbeatMs * kNsPerMs;
   nc.statusPeriodNs = cfg_.statusPeriodMs * kNsPerMs;
   node_ = std::make_unique<protocol::CanNode>(nc);
+  // SDO objects 0x1017/0x2000/0x2001 read and write the same settings as SET_CONFIG.
+  node_->setConfigAccess({[this] { return currentConfig(); },
+                          [this](const protocol::SetConfigCommand& s) { return applyConfig(s); }});
 
   // Lines: real GPIO when a chip is given; in --sim the simulated slide listens to the
   // same pulses (tee), and its switches close the loop.
@@ -368,10 +373,8 @@ void Daemon::enterFault(uint16_t bit, const Status& why) {
   (void)laser_->off();
   worker_->cancel();
   ALACS_LOG_ERROR("fault", "%s", why.toString().c_str());
-  uint8_t reason = 0;
-  for (uint8_t i = 0; i < 16; ++i)
-    if ((bit >> i) & 1U) reason = static_cast<uint8_t>(i + 1);
-  node_->emergency(0xFF00, faults_, reason);
+  // One EMCY per newly raised bit, with its CiA 301 code (protocol::CanNode::setFaults).
+  node_->setFaults(faults_);
 }
 
 void Daemon::writeLaserTimeline(const WorkerEvent& ev) {
@@ -403,6 +406,39 @@ void Daemon::startHoming() {
   worker_->submit(job);
 }
 
+// SET_CONFIG and the SDO server's writes (objects 0x1017, 0x2000, 0x2001): all valid
+// fields applied, or none.
+protocol::NackReason Daemon::applyConfig(const protocol::SetConfigCommand& s) {
+  if (worker_->busy()) return protocol::NackReason::kBusy;
+  DaemonConfig next = cfg_;
+  if (s.exposureUs) next.exposureUs = *s.exposureUs;
+  if (s.brceStep) next.lle.brceStep = *s.brceStep;
+  if (s.brceThreshold) next.lle.brceThreshold = *s.brceThreshold;
+  if (s.scanStops) next.scan.stops = *s.scanStops;
+  if (s.stopSpacingMm) next.scan.stopSpacingMm = *s.stopSpacingMm;
+  if (s.heartbeatMs) next.heartbeatMs = *s.heartbeatMs;
+  if (Status v = validateConfig(next); !v) {
+    ALACS_LOG_WARN("cmd", "set-config refused: %s", v.reason().c_str());
+    return protocol::NackReason::kBadValue;
+  }
+  cfg_ = next;
+  node_->setHeartbeatPeriod(cfg_.heartbeatMs * kNsPerMs);
+  worker_->setExposureUs(cfg_.exposureUs);
+  if (calibration_) worker_->setLocalizer(localize::Localizer(*calibration_, cfg_.lle, cfg_.scan));
+  return protocol::NackReason::kNone;
+}
+
+protocol::SetConfigCommand Daemon::currentConfig() const {
+  protocol::SetConfigCommand s;
+  s.exposureUs = static_cast<uint16_t>(cfg_.exposureUs);
+  s.brceStep = static_cast<uint8_t>(cfg_.lle.brceStep);
+  s.brceThreshold = static_cast<uint8_t>(cfg_.lle.brceThreshold);
+  s.scanStops = static_cast<uint8_t>(cfg_.scan.stops);
+  s.stopSpacingMm = cfg_.scan.stopSpacingMm;
+  s.heartbeatMs = static_cast<uint16_t>(cfg_.heartbeatMs);
+  return s;
+}
+
 void Daemon::onCommand(const protocol::Command& c, TimeNs now) {
   using protocol::NackReason;
   using protocol::Opcode;
@@ -425,6 +461,7 @@ void Daemon::onCommand(const protocol::Command& c, TimeNs now) {
         laser_->reset();
         state_ = State::kIdle;
       }
+      node_->clearCanFaults();
       node_->ack(c, protocol::AckResult::kAck);
       return;
     case Opcode::kHome:
@@ -458,23 +495,7 @@ void Daemon::onCommand(const protocol::Command& c, TimeNs now) {
       return;
     }
     case Opcode::kSetConfig: {
-      if (worker_->busy()) return node_->nack(c.opcode, c.counter, NackReason::kBusy);
-      DaemonConfig next = cfg_;
-      const auto& s = c.config;
-      if (s.exposureUs) next.exposureUs = *s.exposureUs;
-      if (s.brceStep) next.lle.brceStep = *s.brceStep;
-      if (s.brceThreshold) next.lle.brceThreshold = *s.brceThreshold;
-      if (s.scanStops) next.scan.stops = *s.scanStops;
-      if (s.stopSpacingMm) next.scan.stopSpacingMm = *s.stopSpacingMm;
-      if (s.heartbeatMs) next.heartbeatMs = *s.heartbeatMs;
-      if (Status v = validateConfig(next); !v) {
-        ALACS_LOG_WARN("cmd", "set-config refused: %s", v.reason().c_str());
-        return node_->nack(c.opcode, c.counter, NackReason::kBadValue);
-      }
-      cfg_ = next;
-      node_->setHeartbeatPeriod(cfg_.heartbeatMs * kNsPerMs);
-      worker_->setExposureUs(cfg_.exposureUs);
-      if (calibration_) worker_->setLocalizer(localize::Localizer(*calibration_, cfg_.lle, cfg_.scan));
+      if (const NackReason r = applyConfig(c.config); r != NackReason::kNone) return node_->nack(c.opcode, c.counter, r);
       node_->ack(c, protocol::AckResult::kAck);
       return;
     }
@@ -562,23 +583,23 @@ void Daemon::onWorkerEvent(const WorkerEvent& ev, TimeNs now) {
 }
 
 void Daemon::flushTx() {
-  // Bounded: at most the queue's length per call; a full socket queue (ENOBUFS) leaves
-  // the frame in place and the loop waits for EPOLLOUT or the next tick.
-  txBlocked_ = false;
-  for (size_t budget = node_->txPending(); budget > 0; --budget) {
+  // Bounded: at most the queue's length per call, never blocking. A refused write
+  // (ENOBUFS: the qdisc is full; or the interface is down) leaves the frame queued and
+  // the node paces the retries (1, 2, 4 .. 64 ms; nextDeadline() wakes the loop).
+  // EPOLLOUT is no help here: a CAN_RAW socket reports writable while the device queue
+  // is full, so waiting on it would spin.
+  const TimeNs now = clock_.now();
+  for (size_t budget = node_->txPending(); budget > 0 && node_->canTransmit(now); --budget) {
     const ports::CanFrame* f = node_->peekTx();
     if (f == nullptr) return;
     const Status s = can_->write(*f);
-    if (s.code() == Error::kBusy) {
-      txBlocked_ = true;
-      return;
-    }
     if (!s) {
-      ALACS_LOG_WARN("can", "%s", s.toString().c_str());
-      txBlocked_ = true;
+      if (s.code() != Error::kBusy && node_->counters().txRetries % 100 == 0) ALACS_LOG_WARN("can", "%s", s.toString().c_str());
+      node_->onTxRefused(now);
       return;
     }
     node_->popTx();
+    node_->onTxDone();
   }
 }
 
@@ -628,10 +649,13 @@ int Daemon::run() {
   ALACS_LOG_INFO("main", "alacsd %d.%d.%d up: node 0x%02x on %s%s", ALACS_VERSION_MAJOR, ALACS_VERSION_MINOR,
                  ALACS_VERSION_PATCH, cfg_.nodeId, cfg_.canInterface.c_str(), opts_.sim ? " (simulation)" : "");
   bool running = true;
-  bool epollOut = false;
   while (running) {
     epoll_event events[8];
-    const int n = epoll_wait(ep, events, 8, 100);
+    // Wake for the node's next deadline (heartbeat, status, a paced retry) to the ms, so
+    // the heartbeat keeps its period without waiting for the 10 ms tick.
+    const TimeNs untilNs = node_->nextDeadline() - clock_.now();
+    const int timeoutMs = untilNs <= 0 ? 0 : static_cast<int>(std::min<TimeNs>(100, (untilNs + kNsPerMs - 1) / kNsPerMs));
+    const int n = epoll_wait(ep, events, 8, timeoutMs);
     const TimeNs now = clock_.now();
     for (int i = 0; i < n; ++i) {
       const int fd = events[i].data.fd;
@@ -659,10 +683,13 @@ int Daemon::run() {
               break;
             }
             if (!*got) break;
-            if (f.error && (f.errorClass & 0x40U /* CAN_ERR_BUSOFF */)) {
-              enterFault(protocol::kFaultCanBusOff, Status(Error::kIo, "CAN bus-off"));
-            }
+            // Bus-off is the node's: it holds transmission until the controller restarts
+            // and latches CAN_BUS_OFF (EMCY 0x8140 once the bus is back); scans go on.
+            const bool wasBusOff = node_->busOff();
             if (std::optional<protocol::Command> c = node_->push(f, now)) onCommand(*c, now);
+            if (node_->busOff() != wasBusOff)
+              ALACS_LOG_WARN("can", "%s", node_->busOff() ? "bus-off: transmission held until the controller restarts"
+                                                          : "controller restarted after bus-off");
           }
         }
       }
@@ -672,15 +699,9 @@ int Daemon::run() {
       ALACS_LOG_INFO("can", "NMT reset: restarting the node");
       node_->start(now);
     }
+    node_->setFaults(faults_);
     node_->poll(now, [this] { return statusReport(); });
     flushTx();
-    if (txBlocked_ != epollOut) {
-      epoll_event e{};
-      e.events = EPOLLIN | (txBlocked_ ? EPOLLOUT : 0U);
-      e.data.fd = can_->fd();
-      epoll_ctl(ep, EPOLL_CTL_MOD, can_->fd(), &e);
-      epollOut = txBlocked_;
-    }
     if (watchdogUs > 0 && now - lastWatchdog > static_cast<TimeNs>(watchdogUs) * kNsPerUs / 2) {
       notify("WATCHDOG=1");
       lastWatchdog = now;

@@ -213,12 +213,34 @@ ports::CanFrame encodeHeartbeat(uint8_t nodeId, uint8_t nmtState) {
 ports::CanFrame encodeEmcy(uint8_t nodeId, uint16_t errorCode, uint16_t faults, uint8_t reason) {
   alacs_emcy_t m{};
   m.emcy_error_code = errorCode;
-  m.emcy_error_register = errorCode != 0 ? 0x01 : 0x00;
+  m.emcy_error_register = errorRegister(faults);
   m.emcy_fault_bits = faults;
   m.emcy_reason = reason;
   ports::CanFrame f = frameFor(ALACS_BASE_ID_EMCY, nodeId, 8);
   (void)alacs_emcy_pack(f.data.data(), &m, f.data.size());
   return f;
+}
+
+uint16_t emcyErrorCode(uint16_t bit) {
+  switch (bit) {
+    case kFaultHomingTimeout:
+    case kFaultLimitHit: return 0xFF00;  // device specific
+    case kFaultCameraTimeout:
+    case kFaultCameraCorrupt: return 0x5000;  // device hardware
+    case kFaultCanBusOff: return 0x8140;      // recovered from bus-off (sent once it has)
+    case kFaultCanTxOverflow: return 0x8110;  // CAN overrun (objects lost)
+    case kFaultConfigInvalid:
+    case kFaultNotCalibrated: return 0x6300;  // data set
+    case kFaultLaserOvertime: return 0x8000;  // monitoring
+    case kFaultInternal: return 0x6100;       // internal software
+    case kFaultStopRequested: return 0x1000;  // generic
+    default: return 0x1000;
+  }
+}
+
+uint8_t errorRegister(uint16_t faults) {
+  const uint16_t canFaults = kFaultCanBusOff | kFaultCanTxOverflow;
+  return static_cast<uint8_t>((faults != 0 ? 0x01U : 0U) | ((faults & canFaults) != 0 ? 0x10U : 0U));
 }
 
 }  // namespace alacs::protocol

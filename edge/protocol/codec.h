@@ -120,6 +120,12 @@ ports::CanFrame encodeResultHeader(uint8_t nodeId, const ResultHeader& h);
 // The four pages of one object: CENTER, APPROACH_POINT, QUALITY, APPROACH_NORMAL.
 void encodeResultObject(uint8_t nodeId, uint16_t measCounter, const ResultObject& o, ports::CanFrame out[4]);
 ports::CanFrame encodeHeartbeat(uint8_t nodeId, uint8_t nmtState);
+// EMCY: `reason` is the fault bit index + 1 (0: all cleared); the error register is
+// errorRegister(faults).
 ports::CanFrame encodeEmcy(uint8_t nodeId, uint16_t errorCode, uint16_t faults, uint8_t reason);
+// CiA 301 error code sent when fault `bit` (one FaultBit) is raised (docs/can-protocol.md).
+uint16_t emcyErrorCode(uint16_t bit);
+// CiA 301 error register (object 0x1001): bit 0 any fault, bit 4 a CAN fault.
+uint8_t errorRegister(uint16_t faults);
 
 }  // namespace alacs::protocol
