@@ -16,6 +16,7 @@ void CanNode::start(TimeNs now) {
   lastCounter_.reset();
   urgent_.push_back(encodeHeartbeat(config_.nodeId, static_cast<uint8_t>(NmtState::kBootUp)));
   nmt_ = config_.autoStart ? NmtState::kOperational : NmtState::kPreOperational;
+  lastHeartbeatNs_ = now;
   nextHeartbeat_ = now + config_.heartbeatPeriodNs;
   nextStatus_ = now;
   // After a reset the master has forgotten our faults: tell it again.
@@ -88,7 +89,7 @@ SdoAbort CanNode::writeConfig(const SetConfigCommand& c) {
   if (!configAccess_.apply) {
     // No application behind the node (tests, fuzzing): only the heartbeat is the node's.
     if (!c.heartbeatMs) return SdoAbort::kUnsupportedAccess;
-    config_.heartbeatPeriodNs = static_cast<TimeNs>(*c.heartbeatMs) * kNsPerMs;
+    setHeartbeatPeriod(static_cast<TimeNs>(*c.heartbeatMs) * kNsPerMs);
     return SdoAbort::kNone;
   }
   switch (configAccess_.apply(c)) {
@@ -225,6 +226,7 @@ void CanNode::poll(TimeNs now, const std::function<StatusReport()>& status) {
     counters_.txDroppedStatus += static_cast<uint32_t>(std::distance(stale, urgent_.end()));
     urgent_.erase(stale, urgent_.end());
     urgent_.push_back(encodeHeartbeat(config_.nodeId, static_cast<uint8_t>(nmt_)));
+    lastHeartbeatNs_ = nextHeartbeat_;
     // Keep the cadence: schedule from the due time, not from a late poll.
     nextHeartbeat_ += config_.heartbeatPeriodNs;
     if (nextHeartbeat_ <= now) nextHeartbeat_ = now + config_.heartbeatPeriodNs;

@@ -123,7 +123,11 @@ class CanNode {
   bool takeResetRequest();
   const NodeCounters& counters() const { return counters_; }
   uint8_t nodeId() const { return config_.nodeId; }
-  void setHeartbeatPeriod(TimeNs period) { config_.heartbeatPeriodNs = period; }
+  // A new period counts from the last heartbeat sent, so it shows at once (CiA 301 0x1017).
+  void setHeartbeatPeriod(TimeNs period) {
+    config_.heartbeatPeriodNs = period;
+    nextHeartbeat_ = lastHeartbeatNs_ + period;
+  }
   TimeNs heartbeatPeriod() const { return config_.heartbeatPeriodNs; }
 
  private:
@@ -138,6 +142,7 @@ class CanNode {
   std::optional<uint8_t> lastCounter_;
   TimeNs lastCounterTimeNs_ = 0;
   TimeNs nextHeartbeat_ = 0;
+  TimeNs lastHeartbeatNs_ = 0;
   TimeNs nextStatus_ = 0;
   bool resetRequested_ = false;
   NodeCounters counters_;
