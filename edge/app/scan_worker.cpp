@@ -5,7 +5,9 @@
 #include <sys/prctl.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <cmath>
+#include <cstdlib>
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 
@@ -123,9 +125,12 @@ Status ScanWorker::moveTo(double mm, WorkerEvent& ev) {
   Result<motion::TrapezoidMove> move = motion::planMove(deps_.limits, from, to);
   if (!move) return move.status();
   motion::StepRunner runner(deps_.limits, deps_.stepLines, *deps_.clock, *deps_.sleeper);
-  const motion::MoveReport r = runner.run(*move, to > from, cancel_);
+  runner.trackPosition(&positionSteps_);
+  return moveOutcome(runner.run(*move, to > from, cancel_), ev);
+}
+
+Status ScanWorker::moveOutcome(const motion::MoveReport& r, WorkerEvent& ev) {
   ev.maxStepLatenessNs = std::max(ev.maxStepLatenessNs, r.maxLatenessNs);
-  positionSteps_.store(from + (to > from ? r.stepsDone : -r.stepsDone));
   if (r.outcome == motion::MoveOutcome::kCompleted) return Status::ok();
   homed_.store(false);  // a move that did not complete leaves the position in doubt
   if (r.outcome == motion::MoveOutcome::kLimitHit) ev.faultBit = protocol::kFaultLimitHit;
@@ -135,9 +140,10 @@ Status ScanWorker::moveTo(double mm, WorkerEvent& ev) {
 }
 
 namespace {
-void writeOverlay(const std::string& dir, const ports::CapturedFrame& frame, const localize::ScanPlan& plan,
+void writeOverlay(const std::string& dir, const image::ImageView& frame, const localize::ScanPlan& plan,
                   const std::vector<localize::LineObservation>& lines) {
-  cv::Mat img(frame.view.height, frame.view.width, CV_8UC3, const_cast<uint8_t*>(frame.view.data), frame.view.strideBytes);
+  if (frame.data == nullptr) return;
+  cv::Mat img(frame.height, frame.width, CV_8UC3, const_cast<uint8_t*>(frame.data), frame.strideBytes);
   cv::Mat out = img.clone();
   static const cv::Scalar kColours[] = {{255, 255, 0}, {0, 255, 0}, {255, 0, 255}, {0, 255, 255}, {255, 128, 0}};
   size_t k = 0;
@@ -236,7 +242,7 @@ WorkerEvent ScanWorker::doLocalize(const WorkerJob& job) {
     ev.resultStatus = protocol::ResultStatus::kFailed;
     return ev;
   }
-  localize::Localizer localizer = [&] {
+  const localize::Localizer localizer = [&] {
     std::lock_guard<std::mutex> lock(mu_);
     return localizer_;
   }();
@@ -244,39 +250,25 @@ WorkerEvent ScanWorker::doLocalize(const WorkerJob& job) {
     std::lock_guard<std::mutex> lock(mu_);
     return deps_.capture;
   }();
-  const localize::ScanPlan* plan = &job.plan;
+  const localize::ScanPlan& plan = job.plan;
+  capture.window = plan.roi;  // only the target's region is read: let the camera deliver just that
   if (Status s = deps_.enable->set(true); !s) {
     ev.status = s;
     ev.faultBit = protocol::kFaultInternal;
     return ev;
   }
-  std::vector<localize::LineObservation> lines;
-  const bool wantOverlay = !deps_.debugDir.empty();
-  for (size_t i = 0; i < plan->stopsMm.size(); ++i) {
-    const double stop = plan->stopsMm[i];
-    if (Status s = moveTo(stop, ev); !s) {
-      ev.status = s;
-      if (ev.resultStatus == protocol::ResultStatus::kValid) ev.resultStatus = protocol::ResultStatus::kFailed;
-      return ev;
-    }
-    Result<ports::CapturedFrame> frame = exposeStop(i, capture, ev);
-    if (!frame) return ev;
-    Result<localize::LineObservation> obs = localizer.observe(frame->view, *plan, positionMm(), ws_);
-    if (!obs) {
-      ALACS_LOG_WARN("scan", "stop %zu: %s", i, obs.status().toString().c_str());
-      continue;
-    }
-    ALACS_LOG_DEBUG("scan", "stop %zu at %.2f mm: %zu rows, %zu points", i, positionMm(), obs->line.rows.size(),
-                    obs->pointsMm.size());
-    lines.push_back(std::move(*obs));
-    if (wantOverlay && i + 1 == plan->stopsMm.size()) writeOverlay(deps_.debugDir, *frame, *plan, lines);
-    if (cancel_.load()) {
-      ev.status = Status(Error::kFault, "scan stopped by command");
-      ev.resultStatus = protocol::ResultStatus::kAborted;
-      return ev;
-    }
+  pipeline_.begin(localizer, plan);
+  const Status scanned = job.localize.mode == protocol::ScanMode::kContinuous ? sweepStops(plan, capture, ev)
+                                                                             : stopAndGo(plan, capture, ev);
+  // Whatever happened, let the frames already handed over finish before reporting.
+  std::vector<localize::LineObservation> lines = pipeline_.finish();
+  if (!scanned) {
+    ev.status = scanned;
+    if (ev.resultStatus == protocol::ResultStatus::kValid) ev.resultStatus = protocol::ResultStatus::kFailed;
+    return ev;
   }
-  Result<localize::AppleEstimate> est = localizer.estimate(*plan, lines);
+  if (!deps_.debugDir.empty()) writeOverlay(deps_.debugDir, pipeline_.lastFrame(), plan, lines);
+  Result<localize::AppleEstimate> est = localizer.estimate(plan, lines);
   if (!est) {
     ev.status = Status::ok();  // the scan worked; there was no apple where we were told
     ev.resultStatus = protocol::ResultStatus::kNoObject;
@@ -286,6 +278,72 @@ WorkerEvent ScanWorker::doLocalize(const WorkerJob& job) {
   ev.resultStatus = est->sphereFit ? protocol::ResultStatus::kValid : protocol::ResultStatus::kPartial;
   ev.status = Status::ok();
   return ev;
+}
+
+Status ScanWorker::stopAndGo(const localize::ScanPlan& plan, const ports::CaptureRequest& capture, WorkerEvent& ev) {
+  for (size_t i = 0; i < plan.stopsMm.size(); ++i) {
+    if (Status s = moveTo(plan.stopsMm[i], ev); !s) return s;
+    Result<ports::CapturedFrame> frame = exposeStop(i, capture, ev);
+    if (!frame) return frame.status();
+    // The image work of this stop runs while the slide moves to the next one.
+    pipeline_.push(frame->view, positionMm());
+    if (cancel_.load()) {
+      ev.resultStatus = protocol::ResultStatus::kAborted;
+      return {Error::kFault, "scan stopped by command"};
+    }
+  }
+  return Status::ok();
+}
+
+Status ScanWorker::sweepStops(const localize::ScanPlan& plan, const ports::CaptureRequest& capture, WorkerEvent& ev) {
+  // One move through every stop; each frame is exposed as the slide passes its stop, and
+  // its position is the slide's (counted steps) at mid-exposure.
+  std::vector<double> stops = plan.stopsMm;
+  const double here = positionMm();
+  const double nearStart = std::abs(here - stops.front()) <= std::abs(here - stops.back()) ? stops.front() : stops.back();
+  if (nearStart == stops.back()) std::reverse(stops.begin(), stops.end());
+  const bool forward = stops.back() >= stops.front();
+  // Start from outside the span so that no stop lies behind the slide.
+  if ((forward && here > stops.front()) || (!forward && here < stops.front())) {
+    if (Status s = moveTo(stops.front(), ev); !s) return s;
+  }
+  // Run on past the last stop by half an exposure's travel, so that it is centred.
+  const double overrunMm = deps_.limits.maxSpeedMmPerS * static_cast<double>(capture.exposureUs) * 1e-6 + 0.5;
+  const double endMm = std::clamp(stops.back() + (forward ? overrunMm : -overrunMm), 0.0, deps_.limits.strokeMm);
+  const int64_t from = positionSteps_.load();
+  Result<motion::TrapezoidMove> move = motion::planMove(deps_.limits, from, deps_.limits.stepsFor(endMm));
+  if (!move) return move.status();
+  motion::StepRunner runner(deps_.limits, deps_.stepLines, *deps_.clock, *deps_.sleeper);
+  runner.trackPosition(&positionSteps_);
+  const TimeNs moveStart = deps_.clock->now() + deps_.limits.dirSetupNs;
+  motion::MoveReport report;
+  std::thread motion([&] { report = runner.run(*move, forward, cancel_); });
+  Status status = Status::ok();
+  const TimeNs halfExposure = capture.exposureUs * kNsPerUs / 2;
+  for (size_t i = 0; i < stops.size() && status.isOk(); ++i) {
+    const int64_t k = std::llabs(deps_.limits.stepsFor(stops[i]) - from);
+    deps_.sleeper->sleepUntil(moveStart + (k > 0 ? move->stepTimeNs(k) : 0) - halfExposure);
+    const double startMm = positionMm();
+    Result<ports::CapturedFrame> frame = exposeStop(i, capture, ev);
+    if (!frame) {
+      status = frame.status();
+      cancel_.store(true);  // stop the sweep: the scan has failed
+      break;
+    }
+    pipeline_.push(frame->view, 0.5 * (startMm + positionMm()));
+    if (cancel_.load()) {
+      ev.resultStatus = protocol::ResultStatus::kAborted;
+      status = Status(Error::kFault, "scan stopped by command");
+    }
+  }
+  motion.join();
+  if (!status) {
+    // The sweep was cut short on purpose: the failure above is the reason, not the stop.
+    ev.maxStepLatenessNs = std::max(ev.maxStepLatenessNs, report.maxLatenessNs);
+    homed_.store(homed_.load() && report.outcome == motion::MoveOutcome::kCompleted);
+    return status;
+  }
+  return moveOutcome(report, ev);
 }
 
 }  // namespace alacs::app

@@ -12,6 +12,7 @@
 #include <thread>
 #include <vector>
 
+#include "app/frame_pipeline.h"
 #include "app/laser_guard.h"
 #include "localize/localizer.h"
 #include "survey/survey.h"
@@ -87,6 +88,10 @@ class ScanWorker {
   // Laser on, expose (with retries), laser off. On failure `ev` holds the fault.
   Result<ports::CapturedFrame> exposeStop(size_t stop, const ports::CaptureRequest& capture, WorkerEvent& ev);
   Status moveTo(double mm, WorkerEvent& ev);
+  Status moveOutcome(const motion::MoveReport& r, WorkerEvent& ev);
+  // The two ways through a localize plan's stops; both hand frames to pipeline_.
+  Status stopAndGo(const localize::ScanPlan& plan, const ports::CaptureRequest& capture, WorkerEvent& ev);
+  Status sweepStops(const localize::ScanPlan& plan, const ports::CaptureRequest& capture, WorkerEvent& ev);
 
   WorkerDeps deps_;
   localize::Localizer localizer_;
@@ -102,7 +107,8 @@ class ScanWorker {
   std::atomic<bool> homed_{false};
   std::atomic<int64_t> positionSteps_{0};
   std::atomic<uint32_t> dropped_{0};
-  image::LleWorkspace ws_;
+  image::LleWorkspace ws_;  // scan-all's full-frame LLE
+  FramePipeline pipeline_;  // localize's per-frame image work, overlapped with motion
 };
 
 }  // namespace alacs::app

@@ -62,6 +62,7 @@ MoveReport StepRunner::runSteps(const TrapezoidMove& move, bool forward, const s
     sleeper_.sleepUntil(due + limits_.stepPulseNs);
     if (Status s = lines_.step->set(false); !s) return {MoveOutcome::kIoError, report.stepsDone, report.maxLatenessNs, s};
     ++report.stepsDone;
+    if (position_ != nullptr) position_->fetch_add(forward ? 1 : -1, std::memory_order_relaxed);
   }
   return report;
 }

@@ -47,6 +47,10 @@ class StepRunner {
   // or fails with kLimitHit status kTimeout after the homing timeout / travel budget.
   MoveReport home(const std::atomic<bool>& cancel);
 
+  // When set, each completed step adds ±1 to `*steps` (the slide position in steps), so
+  // another thread can read where the slide is during a move.
+  void trackPosition(std::atomic<int64_t>* steps) { position_ = steps; }
+
  private:
   MoveReport runSteps(const TrapezoidMove& move, bool forward, const std::atomic<bool>& cancel, bool homing,
                       TimeNs deadline);
@@ -54,6 +58,7 @@ class StepRunner {
   StepLines lines_;
   const Clock& clock_;
   Sleeper& sleeper_;
+  std::atomic<int64_t>* position_ = nullptr;
 };
 
 }  // namespace alacs::motion

@@ -15,6 +15,11 @@ namespace alacs::ports {
 struct CaptureRequest {
   int64_t exposureUs = 2000;
   int64_t timeoutMs = 1000;
+  // The part of the frame the caller will read (full-frame pixels); empty: all of it.
+  // Sources may deliver only this window valid (the view keeps full-frame geometry), as
+  // a sensor's windowed readout or a partial copy does; outside it the pixels are
+  // undefined.
+  image::Roi window;
 };
 
 struct FrameInfo {

@@ -82,6 +82,8 @@ def run_exchange(
     node_id: int = ac.DEFAULT_NODE_ID,
     say: Callable[[str], None] = lambda s: None,
     rough_error_mm: float = 15.0,
+    mode: str = "STOP_AND_GO",
+    extra_args: tuple[str, ...] = (),
 ) -> Exchange:
     iface = iface or os.environ.get("ALACS_CAN_IFACE", "vcan0")
     gpio_chip = gpio_chip if gpio_chip is not None else os.environ.get("ALACS_GPIO_CHIP", "")
@@ -107,6 +109,7 @@ def run_exchange(
            "--node-id", str(node_id), "--debug-dir", str(workdir)]
     if gpio_chip:
         cmd += ["--gpio-chip", gpio_chip]
+    cmd += list(extra_args)
     say("$ " + " ".join(cmd))
     bus = can.Bus(interface="socketcan", channel=iface, receive_own_messages=False)
     daemon = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
@@ -144,7 +147,7 @@ def run_exchange(
         if _wait(bus, homed, 30.0) is None:
             raise RuntimeError("alacsd did not report IDLE and homed within 30 s")
         say("sensor is IDLE and homed")
-        cmd_msg = ac.encode_command(node_db, "LOCALIZE", counter=1, LocalizeMode="STOP_AND_GO", TargetId=1,
+        cmd_msg = ac.encode_command(node_db, "LOCALIZE", counter=1, LocalizeMode=mode, TargetId=1,
                                     RoughX=round(rough[0]), RoughY=round(rough[1]), RoughZ=round(rough[2], -1))
         sent_at = time.monotonic()
         bus.send(cmd_msg)

@@ -1,0 +1,90 @@
+#include "app/frame_pipeline.h"
+
+#include <cstring>
+
+#include "common/log.h"
+
+namespace alacs::app {
+
+FramePipeline::FramePipeline() { thread_ = std::thread([this] { run(); }); }
+
+FramePipeline::~FramePipeline() {
+  {
+    std::lock_guard<std::mutex> lock(mu_);
+    quit_ = true;
+  }
+  cv_.notify_all();
+  thread_.join();
+}
+
+void FramePipeline::begin(const localize::Localizer& localizer, const localize::ScanPlan& plan) {
+  (void)finish();
+  std::lock_guard<std::mutex> lock(mu_);
+  localizer_.emplace(localizer);
+  plan_ = plan;
+  results_.clear();
+}
+
+void FramePipeline::push(const image::ImageView& frame, double slideMm) {
+  std::unique_lock<std::mutex> lock(mu_);
+  cv_.wait(lock, [&] { return !bufferBusy_[0] || !bufferBusy_[1]; });
+  const size_t b = bufferBusy_[0] ? 1 : 0;
+  const size_t bytes = frame.strideBytes * static_cast<size_t>(frame.height);
+  if (buffers_[b].size() != bytes) buffers_[b].assign(bytes, 0);  // once per frame size
+  shape_ = frame;
+  // Only the ROI rows and columns are read by the LLE: copy those.
+  const image::Roi& roi = plan_.roi;
+  for (int y = roi.y; y < roi.y + roi.height; ++y) {
+    const size_t off = static_cast<size_t>(y) * frame.strideBytes + static_cast<size_t>(roi.x) * 3U;
+    std::memcpy(buffers_[b].data() + off, frame.data + off, static_cast<size_t>(roi.width) * 3U);
+  }
+  bufferBusy_[b] = true;
+  lastBuffer_ = b;
+  queue_.push_back({b, slideMm});
+  ++inFlight_;
+  cv_.notify_all();
+}
+
+std::vector<localize::LineObservation> FramePipeline::finish() {
+  std::unique_lock<std::mutex> lock(mu_);
+  cv_.wait(lock, [&] { return inFlight_ == 0; });
+  return results_;
+}
+
+image::ImageView FramePipeline::lastFrame() const {
+  std::lock_guard<std::mutex> lock(mu_);
+  image::ImageView v = shape_;
+  v.data = buffers_[lastBuffer_].empty() ? nullptr : buffers_[lastBuffer_].data();
+  return v;
+}
+
+void FramePipeline::run() {
+  while (true) {
+    Task task;
+    image::ImageView view;
+    {
+      std::unique_lock<std::mutex> lock(mu_);
+      cv_.wait(lock, [&] { return quit_ || !queue_.empty(); });
+      if (quit_ && queue_.empty()) return;
+      task = queue_.front();
+      queue_.pop_front();
+      view = shape_;
+      view.data = buffers_[task.buffer].data();
+    }
+    // The localizer and plan only change in begin(), which first waits for this work.
+    Result<localize::LineObservation> obs = localizer_->observe(view, plan_, task.slideMm, ws_);
+    std::lock_guard<std::mutex> lock(mu_);
+    if (obs) {
+      ALACS_LOG_DEBUG("scan", "frame at %.2f mm: %zu rows, %zu points", task.slideMm, obs->line.rows.size(),
+                      obs->pointsMm.size());
+      results_.push_back(std::move(*obs));
+    } else {
+      ALACS_LOG_WARN("scan", "frame at %.2f mm: %s", task.slideMm, obs.status().toString().c_str());
+    }
+    bufferBusy_[task.buffer] = false;
+    --inFlight_;
+    cv_.notify_all();
+  }
+}
+
+}  // namespace alacs::app
