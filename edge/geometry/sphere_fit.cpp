@@ -66,6 +66,7 @@ Result<SphereFit> fit(const std::vector<Eigen::Vector3d>& pts, const std::vector
   Eigen::Vector3d c = Eigen::Vector3d::Zero();
   double radius = 0.0;
   double bestScore = -1.0;
+  double bestSupport = 0.0;
   std::vector<size_t> sample(4);
   for (int it = 0; it < p.ransacIterations; ++it) {
     if (spanLines) {
@@ -87,18 +88,29 @@ Result<SphereFit> fit(const std::vector<Eigen::Vector3d>& pts, const std::vector
     if (cc.norm() < pts[sample[0]].norm()) continue;
     // Score: inliers, each counting more the closer it is (MSAC), so that among spheres
     // with equal support the tighter one wins.
-    double score = 0.0;
+    double support = 0.0;
     for (const auto& q : pts) {
       const double r = std::abs((q - cc).norm() - rr);
-      if (r <= p.ransacBandMm) score += 1.0 - (r * r) / (p.ransacBandMm * p.ransacBandMm);
+      if (r <= p.ransacBandMm) support += 1.0 - (r * r) / (p.ransacBandMm * p.ransacBandMm);
+    }
+    double score = support;
+    if (p.priorRadiusMm > 0.0) {
+      // Twice the prior's σ: selection only needs to rule out spheres no fruit has.
+      const double z = (rr - p.priorRadiusMm) / (2.0 * p.priorRadiusSigmaMm);
+      score *= std::exp(-0.5 * z * z);
+    }
+    if (p.priorCenterSigmaMm > 0.0) {
+      const double d2 = (cc - p.priorCenterMm).squaredNorm();
+      score *= std::exp(-0.5 * d2 / (p.priorCenterSigmaMm * p.priorCenterSigmaMm));
     }
     if (score > bestScore) {
       bestScore = score;
+      bestSupport = support;
       c = cc;
       radius = rr;
     }
   }
-  if (bestScore < static_cast<double>(p.minPoints) / 2.0) {
+  if (bestSupport < static_cast<double>(p.minPoints) / 2.0) {
     std::vector<size_t> all(n);
     for (size_t i = 0; i < n; ++i) all[i] = i;
     if (!algebraicSphere(pts, all, mean, &c, &radius) || radius < p.minRadiusMm || radius > p.maxRadiusMm) {

@@ -21,6 +21,11 @@ struct SphereFitParams {
   double maxRadiusMm = 80.0;
   double priorRadiusMm = 0.0;        // > 0: a soft prior on the radius (fruit of this kind)
   double priorRadiusSigmaMm = 10.0;  // its 1σ; weak, it only matters when the cap is small
+  // > 0: RANSAC prefers spheres whose centre is near `priorCenterMm` (the rough position):
+  // support × exp(−d²/2σ²). A neighbour in the fruit's cluster can show more skin than
+  // an occluded target; the refinement itself is not pulled.
+  double priorCenterSigmaMm = 0.0;
+  Eigen::Vector3d priorCenterMm = Eigen::Vector3d::Zero();
   int ransacIterations = 400;
   int iterations = 30;
   size_t minPoints = 12;

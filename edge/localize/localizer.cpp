@@ -32,6 +32,7 @@ Status ScanParams::validate() const {
   if (!(priorRadiusMm >= 20.0 && priorRadiusMm <= 80.0)) return {Error::kInvalidArgument, "scan.prior_radius_mm must be in 20..80"};
   if (!(priorRadiusSigmaMm > 0.5 && priorRadiusSigmaMm <= 100.0))
     return {Error::kInvalidArgument, "scan.prior_radius_sigma_mm must be in 0.5..100"};
+  if (!(roughSigmaMm >= 0.0 && roughSigmaMm <= 500.0)) return {Error::kInvalidArgument, "scan.rough_sigma_mm must be in 0..500"};
   return Status::ok();
 }
 
@@ -172,6 +173,8 @@ Result<AppleEstimate> Localizer::estimate(const ScanPlan& plan, const std::vecto
   geometry::SphereFitParams sp;
   sp.priorRadiusMm = scan_.priorRadiusMm;
   sp.priorRadiusSigmaMm = scan_.priorRadiusSigmaMm;
+  sp.priorCenterMm = plan.roughMm;
+  sp.priorCenterSigmaMm = scan_.roughSigmaMm;
   Result<geometry::SphereFit> fit = geometry::fitSphere(all, lineIds, sp);
   // Lines whose points reached the fit: one line alone leaves the sphere to the prior.
   std::vector<int> inliersPerLine(lines.size(), 0);

@@ -31,10 +31,13 @@ struct ScanParams {
   // cross-validation on the twin (docs/geometry.md, tools/geometry_eval).
   double paperW1 = 1.0;
   double paperW2 = 2.0;
-  // Sphere fit: a weak prior on the radius that only matters when the lines fix little
-  // (one or two lines on a small visible cap).
-  double priorRadiusMm = 37.5;
-  double priorRadiusSigmaMm = 7.0;
+  // Sphere fit: a prior on the radius (dessert apples: 65–95 mm) that ranks RANSAC's
+  // candidates and, weakly, steadies the fit when the lines fix little (a small cap).
+  double priorRadiusMm = 40.0;
+  double priorRadiusSigmaMm = 6.0;
+  // How far the rough position may be from the true centre (1σ, 3D-ish): among spheres
+  // the lines support, the one near the rough position is the target, not its neighbour.
+  double roughSigmaMm = 25.0;
   Status validate() const;
 };
 

@@ -131,6 +131,39 @@ TEST_CASE("Leaves in front of the fruit: the robust fit keeps to the skin", "[lo
   CHECK(est->occlusionPct > 15.0);
 }
 
+TEST_CASE("A neighbour showing more skin than the occluded target is not taken for it", "[localize]") {
+  Case k;
+  std::mt19937 rng(25);
+  localize::Localizer loc(k.cal, image::LleParams{}, k.scan);
+  const Eigen::Vector3d neighbour = k.center + Eigen::Vector3d(0.0, 78.0, 10.0);  // the one below it, touching
+  // The rough position is 20 mm off, towards the neighbour.
+  auto plan = loc.plan(k.center + Eigen::Vector3d(6, 18, -8), 200.0);
+  REQUIRE(plan.isOk());
+  // A leaf hides half of the target; the neighbour is in full view.
+  const std::vector<Leaf> leaves{{k.center + Eigen::Vector3d(0, -12, -k.radius - 20), 27.0}};
+  std::vector<localize::LineObservation> lines;
+  size_t targetPoints = 0;
+  size_t neighbourPoints = 0;
+  for (double s : plan->stopsMm) {
+    localize::LineObservation l = lineOf(k.cal, k.center, k.radius, s, 0.4, leaves, rng);
+    const localize::LineObservation n = lineOf(k.cal, neighbour, k.radius, s, 0.4, {}, rng);
+    targetPoints += l.pointsMm.size();
+    for (size_t i = 0; i < n.pointsMm.size(); ++i) {
+      if ((n.pointsMm[i] - plan->roughMm).norm() > k.scan.gateMm) continue;  // observe()'s gate
+      l.pointsMm.push_back(n.pointsMm[i]);
+      l.pixels.push_back(n.pixels[i]);
+      ++neighbourPoints;
+    }
+    lines.push_back(l);
+  }
+  INFO("target points (skin and leaf) " << targetPoints << ", neighbour points in the gate " << neighbourPoints);
+  auto est = loc.estimate(*plan, lines);
+  REQUIRE(est.isOk());
+  REQUIRE(est->sphereFit);
+  INFO("centre error " << (est->centerMm - k.center).norm() << " est " << est->centerMm.transpose() << " d " << est->diameterMm << " target " << k.center.transpose() << " lines " << est->linesUsed << " pts " << est->pointsUsed);
+  CHECK((est->centerMm - k.center).norm() < 4.0);
+}
+
 TEST_CASE("One line alone: the paper's single-line estimate", "[localize]") {
   Case k;
   std::mt19937 rng(23);
