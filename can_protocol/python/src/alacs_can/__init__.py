@@ -75,6 +75,7 @@ from .constants import (
     emcy_reason,
     frame_id,
 )
+from . import sdo
 from .crc import crc8_j1850
 from .dbc import dbc_text, load_database
 from .results import LocalizationResult, Quality, ResultCollector, ResultObject
@@ -149,6 +150,7 @@ __all__ = [
     "ResultStatus",
     "ScanMode",
     "SdoClientCommand",
+    "sdo",
     "SdoAbort",
     "SdoServerCommand",
     "SENSOR_NODE",
