@@ -184,6 +184,7 @@ class Daemon {
   MonotonicClock clock_;
   MonotonicSleeper sleeper_;
   std::unique_ptr<drivers::SocketCan> can_;
+  std::unique_ptr<drivers::CyclicSender> heartbeat_;  // kernel-timed heartbeat (CAN_BCM)
   std::unique_ptr<protocol::CanNode> node_;
   std::unique_ptr<sim::SimSlide> simSlide_;
   std::unique_ptr<ports::FakeDigitalOut> simLaser_;
@@ -247,6 +248,13 @@ Status Daemon::setUp() {
   if (!can) return can.status();
   can_ = std::move(*can);
   protocol::NodeConfig nc;
+  // The heartbeat is timed by the kernel so that a busy CPU or a flood cannot delay it.
+  if (Result<std::unique_ptr<drivers::CyclicSender>> hb = drivers::CyclicSender::open(cfg_.canInterface)) {
+    heartbeat_ = std::move(*hb);
+    nc.heartbeatByPort = true;
+  } else {
+    ALACS_LOG_WARN("can", "%s: heartbeat sent by the event loop", hb.status().toString().c_str());
+  }
   nc.nodeId = node;
   nc.heartbeatPeriodNs = cfg_.heartbeatMs * kNsPerMs;
   nc.statusPeriodNs = cfg_.statusPeriodMs * kNsPerMs;
@@ -701,6 +709,10 @@ int Daemon::run() {
     }
     node_->setFaults(faults_);
     node_->poll(now, [this] { return statusReport(); });
+    if (heartbeat_) {
+      if (Status s = heartbeat_->keep(node_->heartbeatFrame(), node_->heartbeatPeriod(), now); !s)
+        ALACS_LOG_WARN("can", "heartbeat: %s", s.toString().c_str());
+    }
     flushTx();
     if (watchdogUs > 0 && now - lastWatchdog > static_cast<TimeNs>(watchdogUs) * kNsPerUs / 2) {
       notify("WATCHDOG=1");

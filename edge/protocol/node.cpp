@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <limits>
 
 extern "C" {
 #include "alacs_protocol.h"
@@ -218,7 +219,7 @@ void CanNode::poll(TimeNs now, const std::function<StatusReport()>& status) {
   }
   if (counters_.txDroppedResult > 0) raiseCanFault(kFaultCanTxOverflow);
   if (canFaults_ & ~reportedFaults_) setFaults(appFaults_);
-  if (config_.heartbeatPeriodNs > 0 && now >= nextHeartbeat_) {
+  if (config_.heartbeatPeriodNs > 0 && !config_.heartbeatByPort && now >= nextHeartbeat_) {
     // A heartbeat still waiting (bus unavailable) is stale: the new one replaces it.
     const uint32_t hbId = alacs_frame_id(ALACS_BASE_ID_HEARTBEAT, config_.nodeId);
     const auto stale = std::remove_if(urgent_.begin(), urgent_.end(),
@@ -231,23 +232,28 @@ void CanNode::poll(TimeNs now, const std::function<StatusReport()>& status) {
     nextHeartbeat_ += config_.heartbeatPeriodNs;
     if (nextHeartbeat_ <= now) nextHeartbeat_ = now + config_.heartbeatPeriodNs;
   }
-  if (nmt_ == NmtState::kOperational && config_.statusPeriodNs > 0 && now >= nextStatus_) {
-    if (status_.size() >= config_.statusQueueFrames) {
-      status_.pop_front();
-      ++counters_.txDroppedStatus;
+  if (config_.statusPeriodNs > 0 && now >= nextStatus_) {
+    // Like a TPDO, but also in PRE_OPERATIONAL (docs/can-protocol.md): a sensor waiting
+    // for NMT START still says why it cannot scan. Not in STOPPED.
+    if (nmt_ == NmtState::kOperational || nmt_ == NmtState::kPreOperational) {
+      if (status_.size() >= config_.statusQueueFrames) {
+        status_.pop_front();
+        ++counters_.txDroppedStatus;
+      }
+      StatusReport s = status();
+      s.faults = static_cast<uint16_t>(s.faults | canFaults_);
+      s.rxErrors = counters_.rxUnknownId + counters_.rxBadFrames + counters_.rxErrorFrames;
+      status_.push_back(encodeStatus(config_.nodeId, s));
     }
-    StatusReport s = status();
-    s.faults = static_cast<uint16_t>(s.faults | canFaults_);
-    s.rxErrors = counters_.rxUnknownId + counters_.rxBadFrames + counters_.rxErrorFrames;
-    status_.push_back(encodeStatus(config_.nodeId, s));
     nextStatus_ += config_.statusPeriodNs;
     if (nextStatus_ <= now) nextStatus_ = now + config_.statusPeriodNs;
   }
 }
 
 TimeNs CanNode::nextDeadline() const {
-  TimeNs t = nextStatus_;
-  if (config_.heartbeatPeriodNs > 0 && nextHeartbeat_ < t) t = nextHeartbeat_;
+  TimeNs t = std::numeric_limits<TimeNs>::max();
+  if (config_.statusPeriodNs > 0) t = nextStatus_;
+  if (config_.heartbeatPeriodNs > 0 && !config_.heartbeatByPort && nextHeartbeat_ < t) t = nextHeartbeat_;
   if (txPending() > 0) {
     const TimeNs retry = busOff_ ? busOffSinceNs_ + config_.busOffProbeNs : txHoldUntilNs_;
     t = std::min(t, retry);

@@ -44,6 +44,9 @@ struct NodeConfig {
   size_t resultQueueFrames = 1024;             // results and acks are never dropped below this
   size_t statusQueueFrames = 4;                // periodic frames: only the newest few are kept
   uint32_t serialNumber = 0;                   // object 0x1018.4
+  // The port sends the periodic heartbeat itself (kernel-timed, CAN_BCM): poll() then
+  // queues only the boot-up; the port sends heartbeatFrame() every heartbeatPeriod().
+  bool heartbeatByPort = false;
   // Transmit pacing: after a refused write, wait 1, 2, 4 .. txBackoffMaxNs before the
   // next attempt; refused for longer than txStallNs raises CAN_TX_OVERFLOW.
   TimeNs txBackoffMaxNs = 64 * kNsPerMs;
@@ -79,7 +82,9 @@ class CanNode {
   // a status frame is due (it may read hardware). The node adds its CAN faults and the
   // receive error count to the report.
   void poll(TimeNs now, const std::function<StatusReport()>& status);
-  // The next time poll() has something to do, or a held frame may be retried.
+  // The next time poll() has something to do, or a held frame may be retried
+  // (INT64_MAX: nothing scheduled). Never in the past after a poll(), so a loop that
+  // sleeps until it does not spin.
   TimeNs nextDeadline() const;
 
   // The application's fault word (protocol::FaultBit). Every newly raised bit queues one
@@ -129,6 +134,8 @@ class CanNode {
     nextHeartbeat_ = lastHeartbeatNs_ + period;
   }
   TimeNs heartbeatPeriod() const { return config_.heartbeatPeriodNs; }
+  // The heartbeat as it is now (NMT state), for a port that sends it (heartbeatByPort).
+  ports::CanFrame heartbeatFrame() const { return encodeHeartbeat(config_.nodeId, static_cast<uint8_t>(nmt_)); }
 
  private:
   void queueResult(const ports::CanFrame& f);

@@ -192,3 +192,39 @@ TEST_CASE("CAN node: the result queue keeps every frame up to its bound", "[prot
   node.poll(0, [] { return StatusReport{}; });
   CHECK((node.faults() & kFaultCanTxOverflow) != 0);
 }
+
+TEST_CASE("CAN node: with heartbeatByPort only the boot-up is queued; heartbeatFrame has the NMT state", "[protocol][node]") {
+  NodeConfig cfg;
+  cfg.heartbeatByPort = true;
+  cfg.autoStart = false;
+  CanNode node(cfg);
+  node.start(0);
+  int heartbeats = 0;
+  for (TimeNs t = 0; t <= 3000 * kNsPerMs; t += 10 * kNsPerMs) {
+    node.poll(t, [] { return StatusReport{}; });
+    for (const auto& f : drain(node, t))
+      if (f.id == 0x710) ++heartbeats;
+  }
+  CHECK(heartbeats == 1);  // the boot-up
+  CHECK(node.heartbeatFrame().id == 0x710);
+  CHECK(node.heartbeatFrame().dlc == 1);
+  CHECK(node.heartbeatFrame().data[0] == 127);
+  CHECK(node.nextDeadline() > 3000 * kNsPerMs);  // no heartbeat deadline, only status
+}
+
+TEST_CASE("CAN node: after a poll the next deadline is in the future in every NMT state", "[protocol][node]") {
+  for (uint8_t cs : {uint8_t{1}, uint8_t{2}, uint8_t{128}}) {
+    CanNode node(NodeConfig{});
+    node.start(0);
+    ports::CanFrame nmt;
+    nmt.dlc = 2;
+    nmt.data = {cs, 0x10, 0, 0, 0, 0, 0, 0};
+    node.push(nmt, 0);
+    for (TimeNs t = 0; t < 2000 * kNsPerMs; t += 37 * kNsPerMs) {
+      node.poll(t, [] { return StatusReport{}; });
+      drain(node, t);
+      INFO("NMT command " << int{cs} << " t " << t);
+      REQUIRE(node.nextDeadline() > t);
+    }
+  }
+}

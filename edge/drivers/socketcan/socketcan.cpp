@@ -1,6 +1,7 @@
 #include "drivers/socketcan/socketcan.h"
 
 #include <linux/can.h>
+#include <linux/can/bcm.h>
 #include <linux/can/error.h>
 #include <linux/can/raw.h>
 #include <net/if.h>
@@ -8,6 +9,7 @@
 #include <sys/socket.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <cerrno>
 #include <cstring>
 
@@ -72,6 +74,81 @@ Status SocketCan::write(const ports::CanFrame& frame) {
   if (n < 0 && (errno == ENOBUFS || errno == EAGAIN || errno == EWOULDBLOCK))
     return {Error::kBusy, "CAN transmit queue full"};
   return {Error::kIo, std::string("CAN write: ") + (n < 0 ? std::strerror(errno) : "short write")};
+}
+
+Result<std::unique_ptr<CyclicSender>> CyclicSender::open(const std::string& iface) {
+  if (iface.empty() || iface.size() >= IFNAMSIZ) return Status(Error::kInvalidArgument, "bad CAN interface name '" + iface + "'");
+  const int fd = ::socket(PF_CAN, SOCK_DGRAM | SOCK_NONBLOCK | SOCK_CLOEXEC, CAN_BCM);
+  if (fd < 0) return Status(Error::kUnsupported, std::string("socket(CAN_BCM): ") + std::strerror(errno));
+  auto self = std::unique_ptr<CyclicSender>(new CyclicSender(fd));
+  ifreq ifr{};
+  std::strncpy(ifr.ifr_name, iface.c_str(), IFNAMSIZ - 1);
+  if (::ioctl(fd, SIOCGIFINDEX, &ifr) < 0) return Status(Error::kNotFound, "no CAN interface '" + iface + "'");
+  sockaddr_can addr{};
+  addr.can_family = AF_CAN;
+  addr.can_ifindex = ifr.ifr_ifindex;
+  if (::connect(fd, reinterpret_cast<sockaddr*>(&addr), sizeof addr) < 0)
+    return Status(Error::kIo, "CAN_BCM connect to '" + iface + "': " + std::strerror(errno));
+  return self;
+}
+
+CyclicSender::~CyclicSender() { ::close(fd_); }
+
+Status CyclicSender::setup(const ports::CanFrame& frame, TimeNs periodNs, uint32_t flags, uint32_t count) {
+  // bcm_msg_head ends in a flexible array: build head + one frame in a byte buffer.
+  bcm_msg_head head{};
+  head.opcode = TX_SETUP;
+  head.flags = flags;
+  head.can_id = frame.id & CAN_SFF_MASK;
+  head.nframes = 1;
+  head.count = count;
+  // ival1 for `count` frames, then nothing (ival2 = 0): the guard.
+  head.ival1.tv_sec = static_cast<decltype(head.ival1.tv_sec)>(periodNs / kNsPerS);
+  head.ival1.tv_usec = static_cast<decltype(head.ival1.tv_usec)>((periodNs % kNsPerS) / kNsPerUs);
+  can_frame f{};
+  f.can_id = frame.id & CAN_SFF_MASK;
+  f.len = frame.dlc > 8 ? 8 : frame.dlc;
+  std::memcpy(f.data, frame.data.data(), 8);
+  alignas(8) unsigned char msg[sizeof(bcm_msg_head) + sizeof(can_frame)];
+  std::memcpy(msg, &head, sizeof head);
+  std::memcpy(msg + sizeof head, &f, sizeof f);
+  if (::write(fd_, msg, sizeof msg) != static_cast<ssize_t>(sizeof msg))
+    return {Error::kIo, std::string("CAN_BCM TX_SETUP: ") + std::strerror(errno)};
+  return Status::ok();
+}
+
+Status CyclicSender::keep(const ports::CanFrame& frame, TimeNs periodNs, TimeNs now) {
+  if (periodNs <= 0) {
+    if (!running_) return Status::ok();
+    running_ = false;
+    bcm_msg_head head{};
+    head.opcode = TX_DELETE;
+    head.can_id = frame_.id & CAN_SFF_MASK;
+    if (::write(fd_, &head, sizeof head) != static_cast<ssize_t>(sizeof head))
+      return {Error::kIo, std::string("CAN_BCM TX_DELETE: ") + std::strerror(errno)};
+    return Status::ok();
+  }
+  const auto guard = static_cast<uint32_t>(std::max<TimeNs>(2, kGuardNs / periodNs + 1));
+  const bool sameFrame = running_ && frame.id == frame_.id && frame.dlc == frame_.dlc && frame.data == frame_.data;
+  // A job whose guard may have run out (we were frozen) is restarted, as is a new period.
+  const bool expired = running_ && now - refreshedNs_ >= static_cast<TimeNs>(guard - 1) * periodNs;
+  Status s = Status::ok();
+  if (!running_ || periodNs != periodNs_ || frame.id != frame_.id || expired) {
+    s = setup(frame, periodNs, SETTIMER | STARTTIMER, guard);
+  } else if (!sameFrame) {
+    // New data (an NMT state change) from the next cycle on; the timer keeps its phase.
+    s = setup(frame, periodNs, SETTIMER, guard);
+  } else if (now - refreshedNs_ >= periodNs / 2) {
+    s = setup(frame, periodNs, SETTIMER, guard);  // refresh the guard, same phase
+  } else {
+    return Status::ok();
+  }
+  if (!s) return s;
+  running_ = true;
+  periodNs_ = periodNs;
+  refreshedNs_ = now;
+  frame_ = frame;
+  return Status::ok();
 }
 
 }  // namespace alacs::drivers

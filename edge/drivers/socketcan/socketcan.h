@@ -1,5 +1,8 @@
 // SocketCAN adapter: one non-blocking CAN_RAW socket with kernel filters for the ids
-// the sensor consumes and error frames enabled. The event loop polls fd().
+// the sensor consumes and error frames enabled (bus-off, restarted, controller and bus
+// errors reach the protocol node as error frames). The event loop polls fd(). Writes
+// never block: a full device queue (ENOBUFS) or a downed interface is kBusy/kIo and the
+// caller paces its retries (protocol::CanNode::onTxRefused).
 #pragma once
 
 #include <cstdint>
@@ -14,6 +17,35 @@ namespace alacs::drivers {
 struct CanFilter {
   uint32_t id = 0;
   uint32_t mask = 0x7FF;
+};
+
+// Kernel-timed cyclic transmission over CAN_BCM, for the CANopen heartbeat: the kernel
+// sends the frame every period with hrtimer precision, whatever the event loop is doing
+// (a flood, a busy CPU). Liveness is kept honest: the kernel sends at most the frames of
+// `guardNs` unless keep() is called again, so a frozen daemon goes silent on the bus
+// (a dead one at once: closing the socket deletes the job).
+class CyclicSender {
+ public:
+  // Errors: kNotFound (no such interface), kUnsupported (no CAN_BCM), kIo.
+  static Result<std::unique_ptr<CyclicSender>> open(const std::string& iface);
+  ~CyclicSender();
+  CyclicSender(const CyclicSender&) = delete;
+  CyclicSender& operator=(const CyclicSender&) = delete;
+
+  // Sends `frame` every `periodNs` (0: stop). A new period (or a first call) starts the
+  // cycle now with one frame; new data alone is sent from the next cycle on, keeping the
+  // phase. Call at least every guardNs / 2; cheap when nothing changed.
+  Status keep(const ports::CanFrame& frame, TimeNs periodNs, TimeNs now);
+  static constexpr TimeNs kGuardNs = 500 * kNsPerMs;
+
+ private:
+  explicit CyclicSender(int fd) : fd_(fd) {}
+  Status setup(const ports::CanFrame& frame, TimeNs periodNs, uint32_t flags, uint32_t count);
+  int fd_;
+  bool running_ = false;
+  TimeNs periodNs_ = 0;
+  TimeNs refreshedNs_ = 0;
+  ports::CanFrame frame_;
 };
 
 class SocketCan {
