@@ -1,22 +1,41 @@
 #include "image/lle.h"
 
-#include <Eigen/Dense>
-#include <algorithm>
-#include <cmath>
-#include <cstdlib>
 #include <string>
+
+#include "image/lle_focus.h"
+#include "image/lle_internal.h"
 
 namespace alacs::image {
 
+namespace {
+
+Status bad(Error e, const char* what) { return {e, what}; }
+
+}  // namespace
+
 Status LleParams::validate() const {
-  if (brceStep < 1 || brceStep > 64) return {Error::kInvalidArgument, "brceStep must be in 1..64"};
-  if (brceThreshold < 0 || brceThreshold > 254)
-    return {Error::kInvalidArgument, "brceThreshold must be in 0..254"};
-  if (noiseTheta < 0) return {Error::kInvalidArgument, "noiseTheta must be >= 0"};
-  if (noiseGamma < 1) return {Error::kInvalidArgument, "noiseGamma must be >= 1"};
-  if (polyOrder < 1 || polyOrder > 7) return {Error::kInvalidArgument, "polyOrder must be in 1..7"};
-  if (!(outlierPx > 0.0)) return {Error::kInvalidArgument, "outlierPx must be > 0"};
-  if (minRows < polyOrder + 1) return {Error::kInvalidArgument, "minRows must exceed polyOrder"};
+  if (method != LleMethod::kRobust && method != LleMethod::kPaper) return bad(Error::kInvalidArgument, "unknown LLE method");
+  if (brceStep < 1 || brceStep > 64) return bad(Error::kInvalidArgument, "brceStep must be in 1..64");
+  if (brceThreshold < 0 || brceThreshold > 254) return bad(Error::kInvalidArgument, "brceThreshold must be in 0..254");
+  if (brceForm != BrceForm::kMeaning && brceForm != BrceForm::kLiteral)
+    return bad(Error::kInvalidArgument, "unknown bRCE form");
+  if (noiseTheta < 0 || noiseTheta > 100000000) return bad(Error::kInvalidArgument, "noiseTheta must be in 0..1e8");
+  if (noiseGamma < 1 || noiseGamma > 4096) return bad(Error::kInvalidArgument, "noiseGamma must be in 1..4096");
+  if (polyOrder < 1 || polyOrder > 6) return bad(Error::kInvalidArgument, "polyOrder must be in 1..6");
+  if (!(outlierPx >= 0.1 && outlierPx <= 100.0)) return bad(Error::kInvalidArgument, "outlierPx must be in 0.1..100");
+  if (minRows < polyOrder + 1 || minRows > kLleMaxSidePx)
+    return bad(Error::kInvalidArgument, "minRows must be in polyOrder+1..16384");
+  if (maxPeaksPerRow < 1 || maxPeaksPerRow > 8) return bad(Error::kInvalidArgument, "maxPeaksPerRow must be in 1..8");
+  if (!(maxJumpPx >= 0.25 && maxJumpPx <= 64.0)) return bad(Error::kInvalidArgument, "maxJumpPx must be in 0.25..64");
+  if (maxGapRows < 0 || maxGapRows > 64) return bad(Error::kInvalidArgument, "maxGapRows must be in 0..64");
+  if (minSegmentRows < 1 || minSegmentRows > kLleMaxSidePx)
+    return bad(Error::kInvalidArgument, "minSegmentRows must be in 1..16384");
+  if (!(bridgePx >= 0.0 && bridgePx <= 256.0)) return bad(Error::kInvalidArgument, "bridgePx must be in 0..256");
+  if (!(bridgePxPerRow >= 0.0 && bridgePxPerRow <= 16.0))
+    return bad(Error::kInvalidArgument, "bridgePxPerRow must be in 0..16");
+  if (smoothRows < 0 || smoothRows > 32) return bad(Error::kInvalidArgument, "smoothRows must be in 0..32");
+  if (kernels != LleKernels::kAuto && kernels != LleKernels::kScalar)
+    return bad(Error::kInvalidArgument, "unknown kernel choice");
   return Status::ok();
 }
 
@@ -27,229 +46,91 @@ double LaserLine::columnAt(double row) const {
   return value;
 }
 
-void brceRow(const uint8_t* red, int pitch, int width, int step, int threshold, BrceForm form,
-             uint8_t* mask) {
-  std::fill(mask, mask + width, uint8_t{0});
-  for (int x = step; x < width - step; ++x) {
-    const int c = red[x * pitch];
-    const int l = red[(x - step) * pitch];
-    const int r = red[(x + step) * pitch];
-    bool hit = false;
-    if (form == BrceForm::kMeaning) {
-      hit = (c - l > threshold) && (c - r > threshold);
-    } else {
-      // Algorithm 1 verbatim on uint8: G1 = R[x-step] - R[x], G2 = R[x+step] - R[x], each
-      // wrapping modulo 256; values <= th are zeroed; the product > 0 marks a pixel.
-      const int g1 = static_cast<uint8_t>(l - c);
-      const int g2 = static_cast<uint8_t>(r - c);
-      hit = g1 > threshold && g2 > threshold;
-    }
-    mask[x] = hit ? 1 : 0;
-  }
+const RowSample* LaserLine::sampleAt(int row) const {
+  auto it = std::lower_bound(rows.begin(), rows.end(), row, [](const RowSample& s, int r) { return s.row < r; });
+  return it != rows.end() && it->row == row ? &*it : nullptr;
 }
 
-namespace {
-
-// The paper's Algorithm 2 over the ROI mask, in O(W·H): per band of h rows, column
-// counts and a prefix sum give every window's count; a column is cleared in that band
-// when any window covering it holds at most θ candidates.
-void removeNoise(std::vector<uint8_t>& mask, int width, int height, const LleParams& p,
-                 std::vector<int32_t>& scratch) {
-  const int w = width / 4;
-  const int h = height / 2;
-  if (w < 1 || h < 1) return;
-  const int windows = (width - w) / p.noiseGamma;  // u in Algorithm 2
-  const int bands = height / h;                    // v in Algorithm 2
-  scratch.assign(static_cast<size_t>(2 * (width + 1)), 0);
-  int32_t* prefix = scratch.data();
-  int32_t* clearDiff = scratch.data() + width + 1;
-  for (int band = 0; band < bands; ++band) {
-    const int y0 = band * h;
-    std::fill(prefix, prefix + width + 1, 0);
-    std::fill(clearDiff, clearDiff + width + 1, 0);
-    for (int y = y0; y < y0 + h; ++y) {
-      const uint8_t* m = mask.data() + static_cast<size_t>(y) * static_cast<size_t>(width);
-      for (int x = 0; x < width; ++x) prefix[x + 1] += m[x];
-    }
-    for (int x = 0; x < width; ++x) prefix[x + 1] += prefix[x];
-    for (int i = 0; i < windows; ++i) {
-      const int x0 = i * p.noiseGamma;
-      if (prefix[x0 + w] - prefix[x0] <= p.noiseTheta) {
-        clearDiff[x0] += 1;
-        clearDiff[x0 + w] -= 1;
-      }
-    }
-    int covering = 0;
-    for (int x = 0; x < width; ++x) {
-      covering += clearDiff[x];
-      if (covering > 0) {
-        for (int y = y0; y < y0 + h; ++y)
-          mask[static_cast<size_t>(y) * static_cast<size_t>(width) + static_cast<size_t>(x)] = 0;
-      }
-    }
-  }
+void LaserLine::clear() {
+  rows.clear();
+  segments.clear();
+  coeffs = {};
+  order = 0;
+  rowCenter = 0.0;
+  rowHalfSpan = 1.0;
+  valid = false;
+  inliers = 0;
+  rmsResidualPx = 0.0;
+  firstLineRow = 0;
+  lastLineRow = -1;
+  coverage = 0.0;
 }
 
-struct Peak {
-  double column = 0.0;
-  int64_t weight = 0;
-  int peakExcess = 0;
-};
+namespace detail {
 
-// Centre of one run [a, b] (ROI columns) of a row: centroid of the red excess over a
-// background interpolated linearly between the two bRCE neighbours of the run.
-Peak centroidOfRun(const uint8_t* red, int pitch, int width, int a, int b, int step) {
-  const int xl = std::max(0, a - step);
-  const int xr = std::min(width - 1, b + step);
-  const int span = xr - xl;
-  Peak peak;
-  if (span <= 0) return peak;
-  const int rl = red[xl * pitch];
-  const int rr = red[xr * pitch];
-  int64_t sumW = 0;
-  int64_t sumXW = 0;
-  int maxExcess = 0;
-  for (int x = xl + 1; x < xr; ++x) {
-    // excess * span, kept in integers: R(x)*span - (rl*(xr-x) + rr*(x-xl))
-    const int64_t wq = static_cast<int64_t>(red[x * pitch]) * span -
-                       (static_cast<int64_t>(rl) * (xr - x) + static_cast<int64_t>(rr) * (x - xl));
-    if (wq <= 0) continue;
-    sumW += wq;
-    sumXW += wq * x;
-    maxExcess = std::max(maxExcess, static_cast<int>(wq / span));
-  }
-  if (sumW == 0) return peak;
-  peak.column = static_cast<double>(sumXW) / static_cast<double>(sumW);
-  peak.weight = sumW / span;
-  peak.peakExcess = maxExcess;
-  return peak;
+Status validateFrame(const ImageView& f, const char* name) {
+  if (f.data == nullptr || f.width <= 0 || f.height <= 0)
+    return {Error::kBadInput, std::string(name) + " is empty"};
+  if (f.width > kLleMaxSidePx || f.height > kLleMaxSidePx)
+    return {Error::kBadInput, std::string(name) + " is " + std::to_string(f.width) + "x" + std::to_string(f.height) +
+                                  ", larger than " + std::to_string(kLleMaxSidePx) + " px a side"};
+  if (f.format != PixelFormat::kRgb888 && f.format != PixelFormat::kBgr888)
+    return {Error::kBadInput, std::string(name) + ": unknown pixel format (RGB888 or BGR888 only)"};
+  if (f.strideBytes < static_cast<size_t>(f.width) * 3U)
+    return {Error::kBadInput, std::string(name) + ": stride " + std::to_string(f.strideBytes) + " is below width*3 = " +
+                                  std::to_string(f.width * 3)};
+  return Status::ok();
 }
 
-void fitCurve(LaserLine& line, const LleParams& p) {
-  const size_t n = line.rows.size();
-  if (n < static_cast<size_t>(p.minRows)) return;
-  const int first = line.rows.front().row;
-  const int last = line.rows.back().row;
-  line.rowCenter = 0.5 * (first + last);
-  line.rowHalfSpan = std::max(1.0, 0.5 * (last - first));
-  const int order = p.polyOrder;
-  for (auto& r : line.rows) r.inlier = true;
-  Eigen::VectorXd coeffs;
-  for (int iteration = 0; iteration < 6; ++iteration) {
-    int count = 0;
-    for (const auto& r : line.rows) count += r.inlier ? 1 : 0;
-    if (count < p.minRows) return;
-    Eigen::MatrixXd a(count, order + 1);
-    Eigen::VectorXd b(count);
-    int i = 0;
-    for (const auto& r : line.rows) {
-      if (!r.inlier) continue;
-      const double t = (r.row - line.rowCenter) / line.rowHalfSpan;
-      double tk = 1.0;
-      for (int k = 0; k <= order; ++k) {
-        a(i, k) = tk;
-        tk *= t;
-      }
-      b(i) = static_cast<double>(r.column);
-      ++i;
-    }
-    coeffs = a.colPivHouseholderQr().solve(b);
-    line.order = order;
-    for (int k = 0; k <= order; ++k) line.coeffs[static_cast<size_t>(k)] = coeffs(k);
-    // Robust scale of the residuals of all rows, then re-select inliers.
-    std::vector<double> absRes;
-    absRes.reserve(n);
-    for (const auto& r : line.rows) absRes.push_back(std::abs(static_cast<double>(r.column) - line.columnAt(r.row)));
-    std::vector<double> sorted = absRes;
-    std::nth_element(sorted.begin(), sorted.begin() + static_cast<long>(n / 2), sorted.end());
-    const double mad = 1.4826 * sorted[n / 2];
-    const double limit = std::max(p.outlierPx, 3.0 * mad);
-    bool changed = false;
-    for (size_t j = 0; j < n; ++j) {
-      const bool in = absRes[j] <= limit;
-      changed = changed || in != line.rows[j].inlier;
-      line.rows[j].inlier = in;
-    }
-    if (!changed) break;
-  }
-  double sumSq = 0.0;
-  int inliers = 0;
-  for (const auto& r : line.rows) {
-    if (!r.inlier) continue;
-    const double d = static_cast<double>(r.column) - line.columnAt(r.row);
-    sumSq += d * d;
-    ++inliers;
-  }
-  line.inliers = inliers;
-  line.valid = inliers >= p.minRows;
-  line.rmsResidualPx = inliers > 0 ? std::sqrt(sumSq / inliers) : 0.0;
-}
-
-}  // namespace
-
-Result<LaserLine> extractLine(const ImageView& frame, const Roi& roi, const LleParams& params,
-                              LleWorkspace& ws) {
+Status validateInputs(const ImageView& frame, const Roi& roi, const LleParams& params, const ImageView* laserOff) {
   if (Status s = params.validate(); !s) return s;
-  if (frame.data == nullptr || frame.width <= 0 || frame.height <= 0)
-    return {Error::kBadInput, "empty frame"};
-  if (frame.strideBytes < static_cast<size_t>(frame.width) * 3U)
-    return {Error::kBadInput, "stride smaller than width*3"};
+  if (Status s = validateFrame(frame, "frame"); !s) return s;
+  if (laserOff != nullptr) {
+    if (Status s = validateFrame(*laserOff, "laser-off frame"); !s) return s;
+    if (laserOff->width != frame.width || laserOff->height != frame.height || laserOff->format != frame.format)
+      return {Error::kBadInput, "laser-off frame differs from the frame in size or pixel format"};
+  }
   if (roi.empty()) return {Error::kBadInput, "empty ROI"};
-  if (roi.x < 0 || roi.y < 0 || roi.x + roi.width > frame.width || roi.y + roi.height > frame.height)
+  const int64_t x1 = static_cast<int64_t>(roi.x) + roi.width;
+  const int64_t y1 = static_cast<int64_t>(roi.y) + roi.height;
+  if (roi.x < 0 || roi.y < 0 || x1 > frame.width || y1 > frame.height)
     return {Error::kBadInput, "ROI " + std::to_string(roi.x) + "," + std::to_string(roi.y) + " " +
-                                  std::to_string(roi.width) + "x" + std::to_string(roi.height) +
-                                  " leaves the " + std::to_string(frame.width) + "x" +
-                                  std::to_string(frame.height) + " frame"};
+                                  std::to_string(roi.width) + "x" + std::to_string(roi.height) + " leaves the " +
+                                  std::to_string(frame.width) + "x" + std::to_string(frame.height) + " frame"};
+  return Status::ok();
+}
 
-  const int w = roi.width;
-  const int h = roi.height;
-  const int pitch = 3;
-  const int redOff = redOffset(frame.format);
-  ws.mask.resize(static_cast<size_t>(w) * static_cast<size_t>(h));
-  for (int y = 0; y < h; ++y) {
-    const uint8_t* red = frame.row(roi.y + y) + static_cast<size_t>(roi.x) * 3U + redOff;
-    brceRow(red, pitch, w, params.brceStep, params.brceThreshold, params.brceForm,
-            ws.mask.data() + static_cast<size_t>(y) * static_cast<size_t>(w));
-  }
-  removeNoise(ws.mask, w, h, params, ws.columnCount);
+void reserveOutput(const Roi& roi, const LleParams& p, LaserLine& out) {
+  out.clear();
+  out.rows.reserve(static_cast<size_t>(roi.height));
+  out.segments.reserve(static_cast<size_t>(roi.height * p.maxPeaksPerRow / p.minSegmentRows + 1));
+}
 
+}  // namespace detail
+
+Status extractLine(const ImageView& frame, const Roi& roi, const LleParams& params, LleWorkspace& ws,
+                   LaserLine& out, const ImageView* laserOff) {
+  out.clear();
+  if (Status s = detail::validateInputs(frame, roi, params, laserOff); !s) return s;
+  detail::reserveOutput(roi, params, out);
+  const detail::SimdKernels* kernels = params.kernels == LleKernels::kAuto ? detail::simdKernels() : nullptr;
+  detail::candidateMask(frame, laserOff, roi, params, kernels, ws);
+  if (params.method == LleMethod::kPaper)
+    detail::focusPaper<detail::FixedArith>(roi, params, ws, out);
+  else
+    detail::focusRobust<detail::FixedArith>(frame, laserOff, roi, params, ws, out);
+  return Status::ok();
+}
+
+Result<LaserLine> extractLine(const ImageView& frame, const Roi& roi, const LleParams& params, LleWorkspace& ws) {
   LaserLine line;
-  line.rows.reserve(static_cast<size_t>(h));
-  const int mergeGap = std::max(1, params.brceStep / 2);
-  for (int y = 0; y < h; ++y) {
-    const uint8_t* m = ws.mask.data() + static_cast<size_t>(y) * static_cast<size_t>(w);
-    const uint8_t* red = frame.row(roi.y + y) + static_cast<size_t>(roi.x) * 3U + redOff;
-    Peak best;
-    int x = 0;
-    while (x < w) {
-      if (m[x] == 0) {
-        ++x;
-        continue;
-      }
-      const int a = x;
-      int b = x;
-      // A run may have small holes (speckle): merge candidates closer than mergeGap.
-      while (x < w) {
-        if (m[x] != 0) {
-          b = x;
-        } else if (x - b > mergeGap) {
-          break;
-        }
-        ++x;
-      }
-      const Peak peak = centroidOfRun(red, pitch, w, a, b, params.brceStep);
-      if (peak.weight > best.weight) best = peak;
-    }
-    if (best.weight > 0) {
-      RowSample s;
-      s.row = roi.y + y;
-      s.column = static_cast<float>(best.column + roi.x);
-      s.confidence = static_cast<float>(std::min(255, best.peakExcess)) / 255.0F;
-      line.rows.push_back(s);
-    }
-  }
-  fitCurve(line, params);
+  if (Status s = extractLine(frame, roi, params, ws, line); !s) return s;
   return line;
+}
+
+const char* lleSimdName() {
+  const detail::SimdKernels* k = detail::simdKernels();
+  return k != nullptr ? k->name : "scalar";
 }
 
 }  // namespace alacs::image

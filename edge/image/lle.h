@@ -1,20 +1,31 @@
 // Laser Line Extraction (LLE): from one frame to the sub-pixel column of the laser line
-// in each row of a region of interest.
+// in each row of a region of interest. docs/lle.md has the why and the measurements.
 //
-// Stages (paper §3, with what we changed, see docs/lle.md):
+// Two methods share the first two stages:
 //   1. bRCE: a pixel is a laser candidate when its red value exceeds BOTH neighbours
 //      `step` columns away by more than `threshold`. (Algorithm 1 as printed subtracts
 //      the centre from its neighbours; on 8-bit data that wraps. We implement its
 //      meaning; `BrceForm::kLiteral` keeps the printed form for comparison.)
 //   2. Noise removal: the paper's sliding-window count (window W/4 × H/2, stride γ,
 //      threshold θ) clears windows with too few candidates.
-//   3. Line focusing: per row, each run of candidates is a peak; its centre is the
-//      intensity-weighted centroid of the red excess over the local background (the
-//      paper averages the candidate columns: integer-biased).
-//   4. Curve fitting: column = p(row), 4th order, with iterative outlier rejection.
+// kPaper then does what the paper prints:
+//   3. line focusing: the mean of the candidate columns of each row;
+//   4. a least-squares 4th-order polynomial column = p(row).
+// kRobust (the default) instead:
+//   3. takes each run of candidates as a peak and computes the intensity-weighted centroid
+//      of the red excess over the local background (sub-pixel);
+//   4. links the peaks of successive rows into segments by continuity, keeps the strongest
+//      segment and the segments that continue it across gaps as "the line", and fits the
+//      polynomial robustly (rows beyond max(outlierPx, 3·1.4826·MAD) are rejected);
+//   5. reports per row a confidence and a status, and the line's segments and coverage.
 //
-// All per-pixel work is integer. Buffers live in an `LleWorkspace` so that, after the
-// first frame of a given ROI size, extraction allocates nothing.
+// Arithmetic: stages 1–4 are integer/fixed point (Q formats in lle_fixed.h and
+// docs/lle.md), bit-exact between the scalar path and the SIMD path (OpenCV universal
+// intrinsics: NEON on Arm, SSE2/AVX2 on x86). `extractLineReference` is the same algorithm
+// in double precision, the reference the fixed-point result is tested against.
+//
+// Buffers live in an `LleWorkspace`; with the `LaserLine&` overload, extraction allocates
+// nothing once the workspace and the output have seen a ROI of that size.
 #pragma once
 
 #include <array>
@@ -31,45 +42,107 @@ enum class BrceForm : uint8_t {
   kLiteral,  // the printed Algorithm 1 on uint8 (wrapping) arithmetic, for comparison
 };
 
+enum class LleMethod : uint8_t {
+  kRobust,  // sub-pixel centroids, continuity, robust fit (default)
+  kPaper,   // the paper's four steps as printed (with bRCE's meaning unless kLiteral)
+};
+
+enum class LleKernels : uint8_t {
+  kAuto,    // the SIMD kernels when the build has them (bit-exact with kScalar)
+  kScalar,  // the scalar reference kernels
+};
+
+// Largest frame side accepted; larger frames are refused (kBadInput) rather than risk
+// overflowing the per-column counters.
+constexpr int kLleMaxSidePx = 16384;
+
 struct LleParams {
-  int brceStep = 4;          // columns between a pixel and each neighbour it is compared with
-  int brceThreshold = 40;    // red-level margin over both neighbours
+  LleMethod method = LleMethod::kRobust;
+  int brceStep = 4;          // columns between a pixel and each neighbour it is compared with (1..64)
+  int brceThreshold = 40;    // red-level margin over both neighbours (0..254)
   BrceForm brceForm = BrceForm::kMeaning;
-  int noiseTheta = 8;        // θ: a window with at most this many candidates is cleared
-  int noiseGamma = 3;        // γ: horizontal stride of the sliding window, px
-  int polyOrder = 4;         // order of the fitted curve column = p(row)
-  double outlierPx = 2.0;    // residual beyond which a row is rejected from the fit
-  int minRows = 8;           // fewer accepted rows than this: no line
+  int noiseTheta = 8;        // θ: a window with at most this many candidates is cleared (0..1e8)
+  int noiseGamma = 3;        // γ: horizontal stride of the sliding window, px (1..4096)
+  int polyOrder = 4;         // order of the fitted curve column = p(row) (1..6)
+  double outlierPx = 2.0;    // kRobust: residual beyond which a row is rejected from the fit (0.1..100)
+  int minRows = 8;           // fewer line rows than this: no line (polyOrder+1..16384)
+  // kRobust only:
+  int maxPeaksPerRow = 4;    // strongest runs of a row considered by the continuity step (1..8)
+  double maxJumpPx = 2.0;    // a peak continues a segment when within this of its prediction (0.25..64)
+  int maxGapRows = 3;        // rows a segment may skip and still continue (0..64)
+  int minSegmentRows = 6;    // shorter segments are noise (1..16384)
+  double bridgePx = 3.0;     // two segments are one line when their ends, extrapolated to the
+  double bridgePxPerRow = 0.08;  // middle of the gap between them, agree within bridgePx + this·gap
+  bool keepOtherSegments = true;  // also report segments that are not the line (other surfaces)
+  int smoothRows = 6;        // a row's column: local quadratic through the centroids within ±this many rows (0: none) (0..32)
+  LleKernels kernels = LleKernels::kAuto;
 
   Status validate() const;
 };
 
-// One row of the extracted line, in full-frame pixels.
+enum class RowStatus : uint8_t {
+  kLine,     // on the line and accepted by its curve fit
+  kOutlier,  // on the line's segments but rejected by the robust fit: INVALID, do not use
+  kSegment,  // a laser segment that is not the line (another surface); valid, not fitted
+};
+
+// One row of the extracted line, in full-frame pixels (pixel centres at integers).
 struct RowSample {
   int row = 0;
-  float column = 0.0F;      // sub-pixel centroid (pixel centres at integers)
-  float confidence = 0.0F;  // 0..1: peak red excess / 255
-  bool inlier = false;      // accepted by the curve fit
+  float column = 0.0F;      // sub-pixel column; exactly columnQ8 / 256
+  float confidence = 0.0F;  // 0..1, see docs/lle.md; 0 for invalid rows
+  bool inlier = false;      // status == kLine (accepted by the curve fit)
+  RowStatus status = RowStatus::kLine;
+  bool saturated = false;   // the peak's red core was clipped at 255
+  int32_t segment = -1;     // index into LaserLine::segments, -1: none
+  int32_t columnQ8 = 0;     // the fixed-point result, Q24.8 (1/256 px)
+  int32_t centroidQ8 = 0;   // this row's own centroid before smoothing along the line, Q24.8
+
+  bool valid() const { return status != RowStatus::kOutlier; }
+};
+
+// A run of rows linked by continuity.
+struct LineSegment {
+  int firstRow = 0;
+  int lastRow = 0;
+  int rows = 0;          // rows with a sample of this segment
+  bool onLine = false;   // part of the line (kLine/kOutlier rows) rather than another surface
 };
 
 struct LaserLine {
-  std::vector<RowSample> rows;   // rows where a peak was found, ascending
+  std::vector<RowSample> rows;        // at most one per image row, ascending
+  std::vector<LineSegment> segments;  // in order of first row
   // column = Σ coeffs[k] * t^k with t = (row - rowCenter) / rowHalfSpan
   std::array<double, 8> coeffs{};
   int order = 0;
   double rowCenter = 0.0;
   double rowHalfSpan = 1.0;
   bool valid = false;            // a curve was fitted
-  int inliers = 0;
-  double rmsResidualPx = 0.0;
+  int inliers = 0;               // rows with status kLine
+  double rmsResidualPx = 0.0;    // of the kLine rows about the curve
+  // Coverage of the line: its first and last kLine rows, and the share of the rows in
+  // between that have a kLine sample (1 = unbroken; 1 - coverage = occluded or rejected).
+  int firstLineRow = 0;
+  int lastLineRow = -1;
+  double coverage = 0.0;
 
   double columnAt(double row) const;
+  // The sample of `row`, or nullptr when the row has none (no line there: invalid).
+  const RowSample* sampleAt(int row) const;
+  void clear();
 };
 
-// Reusable buffers. Not thread-safe: one per worker.
+// Reusable buffers (internal layout). Not thread-safe: one per worker. Copyable.
 struct LleWorkspace {
-  std::vector<uint8_t> mask;         // candidate mask of the ROI, row-major
-  std::vector<int32_t> columnCount;  // per column candidate counts of a row band
+  std::vector<uint8_t> red;          // one padded red row
+  std::vector<uint8_t> validLanes;   // 0xFF where bRCE may fire
+  std::vector<uint16_t> counts;      // per column candidate counts of the current band
+  std::vector<int32_t> prefix;       // prefix sums / clear coverage of a band
+  std::vector<uint64_t> bits;        // candidate mask of the ROI, one bit per pixel
+  std::vector<uint64_t> clearBits;   // columns cleared by noise removal in a band
+  std::vector<uint8_t> scratch;      // peaks, segments, fit buffers (typed views)
+  int roiWidth = -1;
+  int brceStep = -1;
 };
 
 // bRCE on one row of red values with pixel pitch `pitch` (3 for RGB888): writes
@@ -77,9 +150,26 @@ struct LleWorkspace {
 void brceRow(const uint8_t* red, int pitch, int width, int step, int threshold, BrceForm form,
              uint8_t* mask);
 
-// Runs the four stages on `roi` of `frame`. Errors: kInvalidArgument for bad params,
-// kBadInput for an empty frame or a ROI that leaves the frame.
+// Runs LLE on `roi` of `frame` into `out` (cleared first). With `laserOff` (a frame of the
+// same size and format taken with the laser off), its red is subtracted first, removing
+// ambient light. Errors: kInvalidArgument for bad params; kBadInput for an empty or
+// oversized frame, an unknown pixel format, a stride below width·3, a laser-off frame of
+// another size or format, an empty ROI or one that leaves the frame. Allocates nothing
+// once `ws` and `out` have seen a ROI this size. Thread-safe for distinct ws/out.
+Status extractLine(const ImageView& frame, const Roi& roi, const LleParams& params, LleWorkspace& ws,
+                   LaserLine& out, const ImageView* laserOff = nullptr);
+
+// The same, returning a fresh LaserLine (allocates the result).
 Result<LaserLine> extractLine(const ImageView& frame, const Roi& roi, const LleParams& params,
                               LleWorkspace& ws);
+
+// The floating-point reference: the same algorithm with centroids, predictions and the
+// curve fit in double precision (Eigen QR), scalar kernels. For tests and tools; slow,
+// allocates. Same errors as extractLine.
+Status extractLineReference(const ImageView& frame, const Roi& roi, const LleParams& params,
+                            LaserLine& out, const ImageView* laserOff = nullptr);
+
+// Which kernels `LleKernels::kAuto` runs in this process: "scalar", "sse2", "avx2", "neon".
+const char* lleSimdName();
 
 }  // namespace alacs::image

@@ -1,0 +1,729 @@
+// LLE stages 3-5 (line focusing, continuity, curve fit, output), written once over an
+// arithmetic: FixedArith (columns in Q24.8 int32, the product) or FloatArith (double, the
+// reference). Decisions (which run, which segment, which row is an outlier) are made by
+// the same code in both, on columns that differ only by the fixed-point rounding.
+// Internal to alacs_image; included by lle.cpp and lle_reference.cpp.
+#pragma once
+
+#include <algorithm>
+#include <cmath>
+#include <cstdlib>
+#include <cstring>
+#include <type_traits>
+
+#include "image/lle_fit.h"
+#include "image/lle_internal.h"
+
+namespace alacs::image::detail {
+
+// Scale of the MAD to a 3σ rejection limit: 3 · 1.4826 ≈ 18218 / 4096, in both arithmetics.
+constexpr int64_t kMadToLimitQ12 = 18218;
+
+inline int64_t roundDiv(int64_t a, int64_t b) {  // b > 0
+  return a >= 0 ? (a + b / 2) / b : -((-a + b / 2) / b);
+}
+
+// Carves typed arrays out of one byte buffer that only ever grows.
+class Arena {
+ public:
+  explicit Arena(std::vector<uint8_t>& buf) : buf_(buf) {}
+  template <class T>
+  void reserve(size_t n) {
+    need_ += n * sizeof(T) + 16;
+  }
+  void commit() {
+    if (buf_.size() < need_) buf_.resize(need_);
+    at_ = 0;
+  }
+  template <class T>
+  T* take(size_t n) {
+    static_assert(std::is_trivially_copyable_v<T>);
+    at_ = (at_ + 15) & ~size_t{15};
+    T* p = reinterpret_cast<T*>(buf_.data() + at_);  // NOLINT: storage for trivially copyable T
+    at_ += n * sizeof(T);
+    return p;
+  }
+
+ private:
+  std::vector<uint8_t>& buf_;
+  size_t need_ = 0;
+  size_t at_ = 0;
+};
+
+// Sums of one run's red excess over the local background: the background is the straight
+// line between the red values `step` columns beyond each end of the run (the pixels bRCE
+// compared against). Every term is an integer: excess·span = R(x)·span − (rl·(xr−x) + rr·(x−xl)).
+struct RunSums {
+  int64_t sumW = 0;   // Σ excess·span over pixels with positive excess
+  int64_t sumXW = 0;  // Σ x · excess·span
+  int32_t area = 0;   // Σ excess (DN·px), the peak's strength
+  int32_t excess = 0; // largest excess (DN)
+  bool saturated = false;
+};
+
+inline int redAt(const uint8_t* on, const uint8_t* off, int redOffset, int x) {
+  const size_t i = 3U * static_cast<size_t>(x) + static_cast<size_t>(redOffset);
+  return off == nullptr ? on[i] : static_cast<int>(on[i]) - static_cast<int>(off[i]);
+}
+
+inline RunSums runSums(const uint8_t* on, const uint8_t* off, int redOffset, int w, int a, int b, int step) {
+  RunSums s;
+  const int xl = std::max(0, a - step);
+  const int xr = std::min(w - 1, b + step);
+  const int span = xr - xl;
+  if (span <= 1) return s;
+  const int64_t rl = redAt(on, off, redOffset, xl);
+  const int64_t rr = redAt(on, off, redOffset, xr);
+  int64_t maxW = 0;
+  for (int x = xl + 1; x < xr; ++x) {
+    const int64_t wq = redAt(on, off, redOffset, x) * static_cast<int64_t>(span) - (rl * (xr - x) + rr * (x - xl));
+    if (wq <= 0) continue;
+    s.sumW += wq;
+    s.sumXW += wq * x;
+    maxW = std::max(maxW, wq);
+  }
+  for (int x = a; x <= b; ++x) s.saturated = s.saturated || on[3U * static_cast<size_t>(x) + static_cast<size_t>(redOffset)] == 255;
+  s.area = static_cast<int32_t>(s.sumW / span);
+  s.excess = static_cast<int32_t>(maxW / span);
+  return s;
+}
+
+struct FixedArith {
+  static constexpr bool kFixed = true;
+  using Col = int32_t;  // Q24.8
+  static Col fromPx(double px) { return static_cast<Col>(std::lround(px * 256.0)); }
+  static Col fromInt(int px) { return static_cast<Col>(px * 256); }
+  static double toPx(Col c) { return static_cast<double>(c) / 256.0; }
+  static int32_t toQ8(Col c) { return c; }
+  static Col ratio(int64_t num, int64_t den) { return static_cast<Col>(roundDiv(num * 256, den)); }
+  static Col absDiff(Col a, Col b) { return a > b ? a - b : b - a; }
+  // lastCol + (lastCol - prevCol) · gap / dr
+  static Col extrapolate(Col last, Col prev, int gap, int dr) {
+    return static_cast<Col>(last + roundDiv(static_cast<int64_t>(last - prev) * gap, dr));
+  }
+  static Col madLimit(Col mad) { return static_cast<Col>((static_cast<int64_t>(mad) * kMadToLimitQ12 + 2048) >> 12); }
+  // 256 at zero residual down to 128 at the limit and beyond.
+  static int fitTerm(Col res, Col limit) {
+    return 256 - static_cast<int>(std::min<int64_t>(128, static_cast<int64_t>(res) * 128 / std::max<Col>(1, limit)));
+  }
+  // Least-squares line through (r[i], c[i]), evaluated at m: the closed form over integers.
+  static Col lineAt(const int* r, const Col* c, int n, int m) {
+    Int128 sr = 0, sc = 0, srr = 0, src = 0;
+    for (int i = 0; i < n; ++i) {
+      sr += r[i];
+      sc += c[i];
+      srr += static_cast<Int128>(r[i]) * r[i];
+      src += static_cast<Int128>(r[i]) * c[i];
+    }
+    const Int128 d = n * srr - sr * sr;
+    if (d == 0) return static_cast<Col>(roundDiv(static_cast<int64_t>(sc), n));
+    const Int128 num = sc * d + (n * src - sr * sc) * (static_cast<Int128>(n) * m - sr);
+    const Int128 den = static_cast<Int128>(n) * d;
+    const Int128 q = num >= 0 ? (num + den / 2) / den : -((-num + den / 2) / den);
+    return static_cast<Col>(q);
+  }
+
+  // The least-squares quadratic through (u[i], c[i]) evaluated at u = 0 (Cramer's rule
+  // over exact integer sums); linear, then the mean, when the points cannot support it.
+  static Col quadAtZero(const int* u, const Col* c, int n) {
+    Int128 s0 = 0, s1 = 0, s2 = 0, s3 = 0, s4 = 0, t0 = 0, t1 = 0, t2 = 0;
+    for (int i = 0; i < n; ++i) {
+      const Int128 x = u[i];
+      s0 += 1;
+      s1 += x;
+      s2 += x * x;
+      s3 += x * x * x;
+      s4 += x * x * x * x;
+      t0 += c[i];
+      t1 += x * c[i];
+      t2 += x * x * c[i];
+    }
+    auto div = [](Int128 a, Int128 b) {
+      if (b < 0) {
+        a = -a;
+        b = -b;
+      }
+      return static_cast<Col>(a >= 0 ? (a + b / 2) / b : -((-a + b / 2) / b));
+    };
+    const Int128 det = s0 * (s2 * s4 - s3 * s3) - s1 * (s1 * s4 - s3 * s2) + s2 * (s1 * s3 - s2 * s2);
+    if (n >= 3 && det != 0) {
+      const Int128 det0 = t0 * (s2 * s4 - s3 * s3) - s1 * (t1 * s4 - s3 * t2) + s2 * (t1 * s3 - s2 * t2);
+      return div(det0, det);
+    }
+    const Int128 d2 = s0 * s2 - s1 * s1;
+    if (n >= 2 && d2 != 0) return div(t0 * s2 - s1 * t1, d2);
+    return div(t0, s0);
+  }
+
+  struct Fit {
+    FitQ q;
+    int64_t* scratch = nullptr;  // 3n
+    bool fit(const int32_t* rows, const Col* cols, const uint8_t* use, int n, int order, int first, int last) {
+      return fitPolyQ(rows, cols, use, n, order, first, last, scratch, q);
+    }
+    Col eval(int row) const { return q.evalQ8(row); }
+    void describe(LaserLine& line) const {
+      line.order = q.order;
+      double c[kMaxFitOrder + 1];
+      q.monomial(c);
+      for (int k = 0; k <= kMaxFitOrder; ++k) line.coeffs[static_cast<size_t>(k)] = k <= q.order ? c[k] : 0.0;
+      line.rowCenter = 0.5 * (q.first + q.last);
+      line.rowHalfSpan = q.last > q.first ? 0.5 * (q.last - q.first) : 1.0;
+    }
+  };
+};
+
+struct FloatArith {
+  static constexpr bool kFixed = false;
+  using Col = double;
+  static Col fromPx(double px) { return px; }
+  static Col fromInt(int px) { return px; }
+  static double toPx(Col c) { return c; }
+  static int32_t toQ8(Col c) { return static_cast<int32_t>(std::lround(c * 256.0)); }
+  static Col ratio(int64_t num, int64_t den) { return static_cast<double>(num) / static_cast<double>(den); }
+  static Col absDiff(Col a, Col b) { return std::abs(a - b); }
+  static Col extrapolate(Col last, Col prev, int gap, int dr) { return last + (last - prev) * gap / dr; }
+  static Col madLimit(Col mad) { return mad * static_cast<double>(kMadToLimitQ12) / 4096.0; }
+  static int fitTerm(Col res, Col limit) {
+    return 256 - static_cast<int>(std::min(128.0, res * 128.0 / std::max(1.0 / 256.0, limit)));
+  }
+  static Col lineAt(const int* r, const Col* c, int n, int m) {
+    double sr = 0, sc = 0, srr = 0, src = 0;
+    for (int i = 0; i < n; ++i) {
+      sr += r[i];
+      sc += c[i];
+      srr += static_cast<double>(r[i]) * r[i];
+      src += r[i] * c[i];
+    }
+    const double d = n * srr - sr * sr;
+    if (d == 0.0) return sc / n;
+    return (sc * d + (n * src - sr * sc) * (static_cast<double>(n) * m - sr)) / (n * d);
+  }
+
+  static Col quadAtZero(const int* u, const Col* c, int n) {
+    double s0 = 0, s1 = 0, s2 = 0, s3 = 0, s4 = 0, t0 = 0, t1 = 0, t2 = 0;
+    for (int i = 0; i < n; ++i) {
+      const double x = u[i];
+      s0 += 1;
+      s1 += x;
+      s2 += x * x;
+      s3 += x * x * x;
+      s4 += x * x * x * x;
+      t0 += c[i];
+      t1 += x * c[i];
+      t2 += x * x * c[i];
+    }
+    const double det = s0 * (s2 * s4 - s3 * s3) - s1 * (s1 * s4 - s3 * s2) + s2 * (s1 * s3 - s2 * s2);
+    if (n >= 3 && det != 0.0)
+      return (t0 * (s2 * s4 - s3 * s3) - s1 * (t1 * s4 - s3 * t2) + s2 * (t1 * s3 - s2 * t2)) / det;
+    const double d2 = s0 * s2 - s1 * s1;
+    if (n >= 2 && d2 != 0.0) return (t0 * s2 - s1 * t1) / d2;
+    return t0 / s0;
+  }
+
+  // Declared here, defined in lle_reference.cpp (Eigen QR on the monomials of t).
+  struct Fit {
+    int order = -1;
+    int first = 0;
+    int last = 0;
+    double coeffs[kMaxFitOrder + 1] = {};
+    bool fit(const int32_t* rows, const Col* cols, const uint8_t* use, int n, int maxOrder, int first, int last);
+    Col eval(int row) const;
+    void describe(LaserLine& line) const;
+  };
+};
+
+// Stages 3-5 of kRobust over the candidate mask in ws.bits.
+template <class A>
+void focusRobust(const ImageView& frame, const ImageView* laserOff, const Roi& roi, const LleParams& p,
+                 LleWorkspace& ws, LaserLine& out);
+// The paper's stages 3-4 over the candidate mask in ws.bits.
+template <class A>
+void focusPaper(const Roi& roi, const LleParams& p, LleWorkspace& ws, LaserLine& out);
+
+// ---------------------------------------------------------------------------------------
+
+namespace focus {
+
+// The next set bit at or after `from` in a row of `nbits` bits, or nbits.
+inline int nextSet(const uint64_t* words, int nbits, int from) {
+  if (from >= nbits) return nbits;
+  int k = from / 64;
+  uint64_t word = words[k] & (~uint64_t{0} << (from % 64));
+  const int nwords = (nbits + 63) / 64;
+  while (word == 0) {
+    if (++k >= nwords) return nbits;
+    word = words[k];
+  }
+  return std::min(nbits, k * 64 + __builtin_ctzll(word));
+}
+
+// The next clear bit at or after `from`, or nbits.
+inline int nextClear(const uint64_t* words, int nbits, int from) {
+  if (from >= nbits) return nbits;
+  int k = from / 64;
+  uint64_t word = ~words[k] & (~uint64_t{0} << (from % 64));
+  const int nwords = (nbits + 63) / 64;
+  while (word == 0) {
+    if (++k >= nwords) return nbits;
+    word = ~words[k];
+  }
+  return std::min(nbits, k * 64 + __builtin_ctzll(word));
+}
+
+template <class Col>
+struct Peak {
+  Col col;          // ROI columns
+  int32_t area;
+  int32_t excess;
+  int32_t chain;
+  int32_t next;     // next peak of the same chain (row order), -1
+  uint8_t saturated;
+};
+
+template <class Col>
+struct Chain {
+  int32_t first;
+  int32_t last;
+  int32_t prevRow;
+  int32_t count;
+  int64_t area;
+  Col lastCol;
+  Col prevCol;
+  int32_t head;     // first peak
+  int32_t tail;     // last peak
+  int32_t segment;  // index in LaserLine::segments, -1: too short
+  uint8_t onLine;
+};
+
+}  // namespace focus
+
+template <class A>
+void focusRobust(const ImageView& frame, const ImageView* laserOff, const Roi& roi, const LleParams& p,
+                 LleWorkspace& ws, LaserLine& out) {
+  using Col = typename A::Col;
+  using Peak = focus::Peak<Col>;
+  using Chain = focus::Chain<Col>;
+  const int w = roi.width;
+  const int h = roi.height;
+  const int words = paddedWidth(w) / 64;
+  const int kMax = p.maxPeaksPerRow;
+  const auto uh = static_cast<size_t>(h);
+  const size_t slots = uh * static_cast<size_t>(kMax);
+
+  Arena arena(ws.scratch);
+  arena.reserve<Peak>(slots);
+  arena.reserve<int32_t>(uh);      // peaks per row
+  arena.reserve<Chain>(slots);
+  arena.reserve<int32_t>(slots);   // active chains
+  arena.reserve<int32_t>(uh);      // owner peak of each row on the line
+  arena.reserve<int32_t>(slots);   // segments by strength
+  arena.reserve<int32_t>(uh);      // fit rows
+  arena.reserve<Col>(uh);          // fit columns
+  arena.reserve<uint8_t>(uh);      // fit use
+  arena.reserve<uint8_t>(uh);      // fit use, previous iteration
+  arena.reserve<Col>(uh);          // residuals
+  arena.reserve<Col>(uh);          // residuals for the median
+  arena.reserve<int64_t>(3 * uh);  // fixed-point fit scratch
+  arena.reserve<int>(64);
+  arena.reserve<Col>(64);
+  arena.reserve<Col>(uh);          // output centroids
+  arena.reserve<int32_t>(uh);      // output smoothing keys
+  arena.commit();
+  Peak* peaks = arena.take<Peak>(slots);
+  int32_t* nPeaks = arena.take<int32_t>(uh);
+  Chain* chains = arena.take<Chain>(slots);
+  int32_t* active = arena.take<int32_t>(slots);
+  int32_t* owner = arena.take<int32_t>(uh);
+  int32_t* order = arena.take<int32_t>(slots);
+  int32_t* fitRows = arena.take<int32_t>(uh);
+  Col* fitCols = arena.take<Col>(uh);
+  uint8_t* use = arena.take<uint8_t>(uh);
+  uint8_t* usePrev = arena.take<uint8_t>(uh);
+  Col* residual = arena.take<Col>(uh);
+  Col* sorted = arena.take<Col>(uh);
+  int64_t* fitScratch = arena.take<int64_t>(3 * uh);
+  int* endRows = arena.take<int>(64);
+  Col* endCols = arena.take<Col>(64);
+  Col* outCol = arena.take<Col>(uh);
+  int32_t* outKey = arena.take<int32_t>(uh);
+
+  const int redOff = redOffset(frame.format);
+  const int step = p.brceStep;
+  const int mergeGap = std::max(1, step / 2);
+
+  // Stage 3: per row, every run of candidates is a peak (holes of up to mergeGap pixels,
+  // speckle, are bridged); its centre is the centroid of the red excess. The strongest
+  // kMax peaks of the row go on, ordered by area (ties: leftmost first).
+  for (int y = 0; y < h; ++y) {
+    const uint64_t* bits = ws.bits.data() + static_cast<size_t>(y) * static_cast<size_t>(words);
+    const uint8_t* on = frame.row(roi.y + y) + static_cast<size_t>(roi.x) * 3U;
+    const uint8_t* off = laserOff != nullptr ? laserOff->row(roi.y + y) + static_cast<size_t>(roi.x) * 3U : nullptr;
+    Peak* row = peaks + static_cast<size_t>(y) * static_cast<size_t>(kMax);
+    int n = 0;
+    int x = focus::nextSet(bits, w, 0);
+    while (x < w) {
+      const int a = x;
+      int b = focus::nextClear(bits, w, a) - 1;
+      for (;;) {
+        const int nx = focus::nextSet(bits, w, b + 1);
+        if (nx >= w || nx - b - 1 > mergeGap) {
+          x = nx;
+          break;
+        }
+        b = focus::nextClear(bits, w, nx) - 1;
+      }
+      const RunSums s = runSums(on, off, redOff, w, a, b, step);
+      if (s.area <= 0) continue;
+      if (n == kMax && s.area <= row[n - 1].area) continue;
+      int i = n < kMax ? n++ : n - 1;
+      while (i > 0 && row[i - 1].area < s.area) {
+        row[i] = row[i - 1];
+        --i;
+      }
+      row[i] = Peak{A::ratio(s.sumXW, s.sumW), s.area, s.excess, -1, -1, static_cast<uint8_t>(s.saturated ? 1 : 0)};
+    }
+    nPeaks[y] = n;
+  }
+
+  // Stage 4a: link peaks of successive rows into chains. A peak continues the active chain
+  // whose prediction (its last two rows extrapolated) is nearest, when within maxJump
+  // (growing by half of it per skipped row); stronger peaks choose first.
+  const Col jump = A::fromPx(p.maxJumpPx);
+  int nChains = 0;
+  int nActive = 0;
+  for (int y = 0; y < h; ++y) {
+    int keep = 0;
+    for (int i = 0; i < nActive; ++i)
+      if (y - chains[active[i]].last <= p.maxGapRows + 1) active[keep++] = active[i];
+    nActive = keep;
+    const int activeBefore = nActive;
+    for (int j = 0; j < nPeaks[y]; ++j) {
+      const int pi = y * kMax + j;
+      Peak& pk = peaks[pi];
+      int best = -1;
+      Col bestD{};
+      for (int i = 0; i < activeBefore; ++i) {
+        const Chain& c = chains[active[i]];
+        if (c.last >= y) continue;  // already continued in this row
+        const int gap = y - c.last;
+        const Col pred = c.count >= 2 ? A::extrapolate(c.lastCol, c.prevCol, gap, c.last - c.prevRow) : c.lastCol;
+        const Col d = A::absDiff(pk.col, pred);
+        const Col tol = jump + jump * (gap - 1) / 2;
+        if (d <= tol && (best < 0 || d < bestD)) {
+          best = active[i];
+          bestD = d;
+        }
+      }
+      if (best < 0) {
+        best = nChains++;
+        chains[best] = Chain{y, y, -1, 0, 0, pk.col, pk.col, pi, pi, -1, 0};
+        active[nActive++] = best;
+      } else {
+        Chain& c = chains[best];
+        peaks[c.tail].next = pi;
+        c.tail = pi;
+        c.prevRow = c.last;
+        c.prevCol = c.lastCol;
+        c.last = y;
+        c.lastCol = pk.col;
+      }
+      Chain& c = chains[best];
+      c.count += 1;
+      c.area += pk.area;
+      pk.chain = best;
+    }
+  }
+
+  // Segments: chains of at least minSegmentRows rows, strongest first.
+  int nSeg = 0;
+  for (int c = 0; c < nChains; ++c)
+    if (chains[c].count >= p.minSegmentRows) order[nSeg++] = c;
+  std::sort(order, order + nSeg, [&](int32_t a, int32_t b) {
+    return chains[a].area != chains[b].area ? chains[a].area > chains[b].area : a < b;
+  });
+
+  // Stage 4b: the line = the strongest segment plus every segment that continues it: no
+  // more than a few rows shared with it, and across each gap to it both ends, extrapolated
+  // as straight lines to the middle of the gap, agree within bridgePx + bridgePxPerRow·gap.
+  std::fill(owner, owner + h, -1);
+  auto rowOf = [&](int pi) { return pi / kMax; };
+  auto endFit = [&](int head, bool fromTop, int m) {
+    // Up to 8 peaks of a chain from one end.
+    int n = 0;
+    if (fromTop) {
+      for (int pi = head; pi >= 0 && n < 8; pi = peaks[pi].next) {
+        endRows[n] = rowOf(pi);
+        endCols[n++] = peaks[pi].col;
+      }
+    } else {
+      // Walk the whole chain keeping the last 8 (chains are singly linked).
+      int cnt = 0;
+      for (int pi = head; pi >= 0; pi = peaks[pi].next) {
+        endRows[cnt % 8] = rowOf(pi);
+        endCols[cnt % 8] = peaks[pi].col;
+        ++cnt;
+      }
+      n = std::min(cnt, 8);
+    }
+    return A::lineAt(endRows, endCols, n, m);
+  };
+  auto lineEndFit = [&](int from, int dir, int m) {
+    // Up to 8 line rows from `from` going in `dir`, within 64 rows.
+    int n = 0;
+    for (int y = from; y >= 0 && y < h && n < 8 && std::abs(y - from) <= 64; y += dir) {
+      if (owner[y] < 0) continue;
+      endRows[n] = y;
+      endCols[n++] = peaks[owner[y]].col;
+    }
+    return A::lineAt(endRows, endCols, n, m);
+  };
+  const Col bridge = A::fromPx(p.bridgePx);
+  const Col bridgePerRow = A::fromPx(p.bridgePxPerRow);
+  for (int s = 0; s < nSeg; ++s) {
+    Chain& c = chains[order[s]];
+    if (s > 0) {
+      int shared = 0;
+      for (int pi = c.head; pi >= 0; pi = peaks[pi].next) shared += owner[rowOf(pi)] >= 0 ? 1 : 0;
+      if (shared > std::max(2, c.count / 10)) continue;
+      int above = -1;
+      for (int y = c.first - 1; y >= 0; --y)
+        if (owner[y] >= 0) {
+          above = y;
+          break;
+        }
+      int below = -1;
+      for (int y = c.last + 1; y < h; ++y)
+        if (owner[y] >= 0) {
+          below = y;
+          break;
+        }
+      bool agrees = above >= 0 || below >= 0;
+      if (above >= 0) {
+        const int gap = c.first - above;
+        const int m = (above + c.first) / 2;
+        const Col d = A::absDiff(lineEndFit(above, -1, m), endFit(c.head, true, m));
+        agrees = agrees && d <= bridge + bridgePerRow * gap;
+      }
+      if (below >= 0) {
+        const int gap = below - c.last;
+        const int m = (below + c.last) / 2;
+        const Col d = A::absDiff(lineEndFit(below, +1, m), endFit(c.head, false, m));
+        agrees = agrees && d <= bridge + bridgePerRow * gap;
+      }
+      if (!agrees) continue;
+    }
+    c.onLine = 1;
+    for (int pi = c.head; pi >= 0; pi = peaks[pi].next)
+      if (owner[rowOf(pi)] < 0) owner[rowOf(pi)] = pi;
+  }
+
+  // Stage 4c: robust curve fit over the line's rows (full-frame coordinates).
+  int n = 0;
+  for (int y = 0; y < h; ++y) {
+    if (owner[y] < 0) continue;
+    fitRows[n] = roi.y + y;
+    fitCols[n] = peaks[owner[y]].col + A::fromInt(roi.x);
+    use[n] = 1;
+    ++n;
+  }
+  typename A::Fit fit;
+  if constexpr (A::kFixed) fit.scratch = fitScratch;
+  const Col outlier = A::fromPx(p.outlierPx);
+  Col limit = outlier;
+  bool fitted = false;
+  if (n >= p.minRows) {
+    const int fitOrder = std::max(0, std::min(p.polyOrder, n / 2 - 1));
+    const int first = fitRows[0];
+    const int last = fitRows[n - 1];
+    for (int iteration = 0; iteration < 8; ++iteration) {
+      int inl = 0;
+      for (int i = 0; i < n; ++i) inl += use[i];
+      if (inl < p.minRows || !fit.fit(fitRows, fitCols, use, n, fitOrder, first, last)) {
+        fitted = false;
+        break;
+      }
+      fitted = true;
+      for (int i = 0; i < n; ++i) {
+        residual[i] = A::absDiff(fitCols[i], fit.eval(fitRows[i]));
+        sorted[i] = residual[i];
+      }
+      std::nth_element(sorted, sorted + n / 2, sorted + n);
+      limit = std::max(outlier, A::madLimit(sorted[n / 2]));
+      bool changed = false;
+      for (int i = 0; i < n; ++i) {
+        usePrev[i] = use[i];
+        use[i] = residual[i] <= limit ? 1 : 0;
+        changed = changed || use[i] != usePrev[i];
+      }
+      if (!changed) break;
+    }
+    if (fitted) {
+      // Report against the fit the final inlier set produced (the loop refits until stable;
+      // after 8 rounds without convergence the last fit's inliers stand).
+      for (int i = 0; i < n; ++i) use[i] = residual[i] <= limit ? 1 : 0;
+    }
+  }
+
+  // Stage 5: one sample per row: the line's, else (keepOtherSegments) the strongest
+  // other segment's.
+  int nOut = 0;
+  for (int c = 0; c < nChains; ++c)
+    if (chains[c].count >= p.minSegmentRows) chains[c].segment = nOut++;
+  for (int c = 0; c < nChains; ++c)
+    if (chains[c].segment >= 0)
+      out.segments.push_back(LineSegment{roi.y + chains[c].first, roi.y + chains[c].last, 0, chains[c].onLine != 0});
+  double sumSq = 0.0;
+  int fi = 0;
+  for (int y = 0; y < h; ++y) {
+    const Peak* pk = nullptr;
+    RowStatus status = RowStatus::kSegment;
+    int fitTerm = 128;
+    if (owner[y] >= 0) {
+      pk = &peaks[owner[y]];
+      if (fitted && use[fi] != 0) {
+        status = RowStatus::kLine;
+        fitTerm = A::fitTerm(residual[fi], limit);
+        const double d = A::toPx(residual[fi]);
+        sumSq += d * d;
+      } else {
+        status = fitted ? RowStatus::kOutlier : RowStatus::kSegment;
+      }
+      ++fi;
+    } else if (p.keepOtherSegments) {
+      int64_t bestArea = -1;
+      for (int j = 0; j < nPeaks[y]; ++j) {
+        const Peak& q = peaks[y * kMax + j];
+        if (chains[q.chain].segment < 0 || chains[q.chain].area <= bestArea) continue;
+        bestArea = chains[q.chain].area;
+        pk = &q;
+      }
+    }
+    if (pk == nullptr) continue;
+    RowSample sm;
+    sm.row = roi.y + y;
+    const Col col = pk->col + A::fromInt(roi.x);
+    sm.centroidQ8 = A::toQ8(col);
+    sm.columnQ8 = sm.centroidQ8;
+    sm.column = static_cast<float>(A::toPx(col));
+    sm.status = status;
+    sm.inlier = status == RowStatus::kLine;
+    sm.saturated = pk->saturated != 0;
+    sm.segment = chains[pk->chain].segment;
+    if (status != RowStatus::kOutlier) {
+      int conf = std::min(256, pk->excess * 256 / 96) * fitTerm / 256;
+      if (sm.saturated) conf = conf * 3 / 4;
+      sm.confidence = static_cast<float>(conf) / 256.0F;
+    }
+    if (sm.segment >= 0) out.segments[static_cast<size_t>(sm.segment)].rows += 1;
+    outCol[out.rows.size()] = col;
+    outKey[out.rows.size()] = status == RowStatus::kLine ? -2 : status == RowStatus::kOutlier ? -3 : sm.segment;
+    out.rows.push_back(sm);
+    if (status == RowStatus::kLine) {
+      if (out.inliers == 0) out.firstLineRow = sm.row;
+      out.lastLineRow = sm.row;
+      out.inliers += 1;
+    }
+  }
+  // Stage 5b: along the line, each row's column is the local quadratic fit through the
+  // centroids within ±smoothRows rows of the same line or segment (speckle averages out
+  // over rows; the quadratic term keeps the curvature unbiased).
+  if (p.smoothRows > 0) {
+    const int nRows = static_cast<int>(out.rows.size());
+    for (int k = 0; k < nRows; ++k) {
+      if (outKey[k] == -3) continue;
+      const int r0 = out.rows[static_cast<size_t>(k)].row;
+      int lo = k;
+      while (lo > 0 && r0 - out.rows[static_cast<size_t>(lo - 1)].row <= p.smoothRows) --lo;
+      int m = 0;
+      for (int j = lo; j < nRows && out.rows[static_cast<size_t>(j)].row - r0 <= p.smoothRows; ++j) {
+        if (outKey[j] != outKey[k]) continue;
+        endRows[m] = out.rows[static_cast<size_t>(j)].row - r0;
+        endCols[m] = outCol[j];
+        if (++m == 64) break;
+      }
+      const Col smooth = A::quadAtZero(endRows, endCols, m);
+      RowSample& sm = out.rows[static_cast<size_t>(k)];
+      sm.columnQ8 = A::toQ8(smooth);
+      sm.column = static_cast<float>(A::toPx(smooth));
+    }
+  }
+  if (fitted) {
+    fit.describe(out);
+    out.valid = true;
+    out.rmsResidualPx = out.inliers > 0 ? std::sqrt(sumSq / out.inliers) : 0.0;
+  }
+  if (out.inliers > 0) out.coverage = static_cast<double>(out.inliers) / (out.lastLineRow - out.firstLineRow + 1);
+}
+
+template <class A>
+void focusPaper(const Roi& roi, const LleParams& p, LleWorkspace& ws, LaserLine& out) {
+  using Col = typename A::Col;
+  const int w = roi.width;
+  const int h = roi.height;
+  const int words = paddedWidth(w) / 64;
+  const auto uh = static_cast<size_t>(h);
+  Arena arena(ws.scratch);
+  arena.reserve<int32_t>(uh);
+  arena.reserve<Col>(uh);
+  arena.reserve<uint8_t>(uh);
+  arena.reserve<int32_t>(uh);
+  arena.reserve<int64_t>(3 * uh);
+  arena.commit();
+  int32_t* fitRows = arena.take<int32_t>(uh);
+  Col* fitCols = arena.take<Col>(uh);
+  uint8_t* use = arena.take<uint8_t>(uh);
+  int32_t* counts = arena.take<int32_t>(uh);
+  int64_t* fitScratch = arena.take<int64_t>(3 * uh);
+  // Line focusing as printed: the mean of the candidate columns of each row.
+  int n = 0;
+  for (int y = 0; y < h; ++y) {
+    const uint64_t* bits = ws.bits.data() + static_cast<size_t>(y) * static_cast<size_t>(words);
+    int64_t sumX = 0;
+    int count = 0;
+    for (int x = focus::nextSet(bits, w, 0); x < w; x = focus::nextSet(bits, w, x + 1)) {
+      sumX += x;
+      ++count;
+    }
+    if (count == 0) continue;
+    fitRows[n] = roi.y + y;
+    fitCols[n] = A::ratio(sumX, count) + A::fromInt(roi.x);
+    use[n] = 1;
+    counts[n] = count;
+    ++n;
+  }
+  // Curve fitting as printed: least squares, every focused row counts.
+  typename A::Fit fit;
+  if constexpr (A::kFixed) fit.scratch = fitScratch;
+  const bool fitted = n >= p.minRows && fit.fit(fitRows, fitCols, use, n, std::min(p.polyOrder, n - 1),
+                                               fitRows[0], fitRows[n - 1]);
+  double sumSq = 0.0;
+  for (int i = 0; i < n; ++i) {
+    RowSample sm;
+    sm.row = fitRows[i];
+    sm.columnQ8 = A::toQ8(fitCols[i]);
+    sm.centroidQ8 = sm.columnQ8;
+    sm.column = static_cast<float>(A::toPx(fitCols[i]));
+    sm.status = RowStatus::kLine;
+    sm.inlier = true;
+    sm.confidence = static_cast<float>(std::min(counts[i], 4)) / 4.0F;
+    out.rows.push_back(sm);
+    if (fitted) {
+      const double d = A::toPx(A::absDiff(fitCols[i], fit.eval(fitRows[i])));
+      sumSq += d * d;
+    }
+  }
+  out.inliers = n;
+  if (n > 0) {
+    out.firstLineRow = fitRows[0];
+    out.lastLineRow = fitRows[n - 1];
+    out.coverage = static_cast<double>(n) / (out.lastLineRow - out.firstLineRow + 1);
+  }
+  if (fitted) {
+    fit.describe(out);
+    out.valid = true;
+    out.rmsResidualPx = std::sqrt(sumSq / n);
+  }
+}
+
+}  // namespace alacs::image::detail

@@ -1,0 +1,65 @@
+// LLE internals shared by the driver (lle.cpp), the kernels and the tests. Not part of
+// the component's interface: callers use image/lle.h.
+//
+// Fixed-point formats (Qm.n: n fraction bits):
+//   red value, red excess          Q8.0  uint8 / int32 (exact)
+//   excess weight (excess·span)    int32, sums int64 (exact)
+//   column, residual, tolerance    Q24.8 int32 (1/256 px); sums int64
+//   fit: t = (row - centre)/half   Q2.30 int64
+//   fit: α, β (recurrence)         Q34.30 int64
+//   fit: orthogonal coefficients   Q48.16 int64; accumulations in __int128
+//   confidence                     Q0.8 (0..256)
+#pragma once
+
+#include <cstddef>
+#include <cstdint>
+
+#include "image/lle.h"
+
+namespace alacs::image::detail {
+
+// Zero bytes before and after the red row: bRCE reads up to `step` (≤ 64) beyond each end,
+// and a vector load from the last position reads up to 64 more.
+constexpr int kRedPad = 128;
+
+// ROI width rounded up to whole 64-bit mask words (and so to whole SIMD vectors).
+constexpr int paddedWidth(int w) { return (w + 63) & ~63; }
+
+// Red plane of one ROI row: red[x] = R(x), or max(0, R(x) - Roff(x)) with a laser-off row;
+// `on`/`off` point at the ROI's first pixel (3 bytes per pixel), x in [0, w).
+void redRowScalar(const uint8_t* on, const uint8_t* off, int redOffset, int w, uint8_t* red);
+
+// bRCE over x in [0, wv) of a padded red row (the scalar reference): a candidate is
+// x in [step, w - step) with the form's condition. Adds 1 to counts[x] per candidate and
+// writes the candidate bits, bit (x % 64) of bits[x / 64].
+void brceRowScalar(const uint8_t* red, int w, int wv, int step, int threshold, BrceForm form,
+                   uint16_t* counts, uint64_t* bits);
+
+// The SIMD kernels, with the contract of the scalar ones; bit-exact with them. brceRow
+// takes `validLanes` (0xFF for x in [step, w - step), 0 elsewhere, wv bytes) instead of w.
+struct SimdKernels {
+  const char* name;
+  void (*redRow)(const uint8_t* on, const uint8_t* off, int redOffset, int w, uint8_t* red);
+  void (*brceRow)(const uint8_t* red, const uint8_t* validLanes, int wv, int step, int threshold,
+                  BrceForm form, uint16_t* counts, uint64_t* bits);
+};
+
+// The best SIMD kernels this build and CPU can run, or nullptr (no SIMD in this build).
+const SimdKernels* simdKernels();
+// The baseline SIMD kernels (SSE2 / NEON), or nullptr; for tests that compare every path.
+const SimdKernels* simdKernelsBaseline();
+// The AVX2 kernels when built and supported by the CPU, else nullptr.
+const SimdKernels* simdKernelsAvx2();
+
+// Stages 1-2 over the ROI: red extraction (minus the laser-off frame), bRCE, noise
+// removal. Leaves the candidate mask in ws.bits (wv/64 words per ROI row). Inputs are
+// validated by the caller. `kernels` nullptr: the scalar reference.
+void candidateMask(const ImageView& frame, const ImageView* laserOff, const Roi& roi, const LleParams& p,
+                   const SimdKernels* kernels, LleWorkspace& ws);
+
+// Checks params, frame(s) and ROI; the errors of extractLine.
+Status validateInputs(const ImageView& frame, const Roi& roi, const LleParams& params, const ImageView* laserOff);
+// Clears `out` and reserves what one extraction over `roi` can need.
+void reserveOutput(const Roi& roi, const LleParams& p, LaserLine& out);
+
+}  // namespace alacs::image::detail

@@ -1,0 +1,154 @@
+// LLE stages 1 and 2: the candidate mask (bRCE) and the paper's noise removal. The row
+// kernels here are the scalar reference; lle_simd.inl holds the vector ones.
+#include <algorithm>
+#include <cstring>
+
+#include "image/lle_internal.h"
+
+namespace alacs::image {
+
+void brceRow(const uint8_t* red, int pitch, int width, int step, int threshold, BrceForm form,
+             uint8_t* mask) {
+  std::fill(mask, mask + width, uint8_t{0});
+  for (int x = step; x < width - step; ++x) {
+    const int c = red[x * pitch];
+    const int l = red[(x - step) * pitch];
+    const int r = red[(x + step) * pitch];
+    bool hit = false;
+    if (form == BrceForm::kMeaning) {
+      hit = (c - l > threshold) && (c - r > threshold);
+    } else {
+      // Algorithm 1 verbatim on uint8: G1 = R[x-step] - R[x], G2 = R[x+step] - R[x], each
+      // wrapping modulo 256; values <= th are zeroed; the product > 0 marks a pixel.
+      const int g1 = static_cast<uint8_t>(l - c);
+      const int g2 = static_cast<uint8_t>(r - c);
+      hit = g1 > threshold && g2 > threshold;
+    }
+    mask[x] = hit ? 1 : 0;
+  }
+}
+
+namespace detail {
+
+void redRowScalar(const uint8_t* on, const uint8_t* off, int redOffset, int w, uint8_t* red) {
+  const auto ro = static_cast<size_t>(redOffset);
+  for (int x = 0; x < w; ++x) {
+    const size_t i = 3U * static_cast<size_t>(x) + ro;
+    const int v = off == nullptr ? on[i] : std::max(0, on[i] - off[i]);
+    red[x] = static_cast<uint8_t>(v);
+  }
+}
+
+void brceRowScalar(const uint8_t* red, int w, int wv, int step, int threshold, BrceForm form,
+                   uint16_t* counts, uint64_t* bits) {
+  std::fill(bits, bits + wv / 64, uint64_t{0});
+  for (int x = step; x < w - step; ++x) {
+    const int c = red[x];
+    const int l = red[x - step];
+    const int r = red[x + step];
+    bool hit = false;
+    if (form == BrceForm::kMeaning) {
+      hit = (c - l > threshold) && (c - r > threshold);
+    } else {
+      hit = static_cast<uint8_t>(l - c) > threshold && static_cast<uint8_t>(r - c) > threshold;
+    }
+    if (hit) {
+      counts[x] = static_cast<uint16_t>(counts[x] + 1);
+      bits[x / 64] |= uint64_t{1} << (x % 64);
+    }
+  }
+}
+
+namespace {
+
+// The paper's Algorithm 2 for one band of rows [y0, y0 + bandRows), in O(W + rows·W/64):
+// a prefix sum of the band's column counts gives every window's count; a column is cleared
+// when any window covering it holds at most θ candidates.
+void clearBand(const LleParams& p, int w, int wv, int y0, int bandRows, LleWorkspace& ws) {
+  const int winW = w / 4;
+  const int windows = (w - winW) / p.noiseGamma;  // u in Algorithm 2
+  int32_t* prefix = ws.prefix.data();              // w + 1 prefix sums, then w + 1 coverage diffs
+  int32_t* cover = prefix + (w + 1);
+  prefix[0] = 0;
+  for (int x = 0; x < w; ++x) prefix[x + 1] = prefix[x] + ws.counts[static_cast<size_t>(x)];
+  std::fill(cover, cover + w + 1, 0);
+  bool any = false;
+  for (int i = 0; i < windows; ++i) {
+    const int x0 = i * p.noiseGamma;
+    if (prefix[x0 + winW] - prefix[x0] <= p.noiseTheta) {
+      cover[x0] += 1;
+      cover[x0 + winW] -= 1;
+      any = true;
+    }
+  }
+  if (!any) return;
+  const int words = wv / 64;
+  uint64_t* clear = ws.clearBits.data();
+  std::fill(clear, clear + words, uint64_t{0});
+  int covering = 0;
+  for (int x = 0; x < w; ++x) {
+    covering += cover[x];
+    if (covering > 0) clear[x / 64] |= uint64_t{1} << (x % 64);
+  }
+  for (int y = y0; y < y0 + bandRows; ++y) {
+    uint64_t* row = ws.bits.data() + static_cast<size_t>(y) * static_cast<size_t>(words);
+    for (int k = 0; k < words; ++k) row[k] &= ~clear[k];
+  }
+}
+
+}  // namespace
+
+void candidateMask(const ImageView& frame, const ImageView* laserOff, const Roi& roi, const LleParams& p,
+                   const SimdKernels* kernels, LleWorkspace& ws) {
+  const int w = roi.width;
+  const int h = roi.height;
+  const int wv = paddedWidth(w);
+  const int words = wv / 64;
+  const int step = p.brceStep;
+  // Sizes only grow: a smaller ROI reuses the buffers without allocating.
+  const size_t redSize = static_cast<size_t>(wv + 2 * kRedPad);
+  if (ws.red.size() < redSize) ws.red.resize(redSize);
+  if (ws.validLanes.size() < static_cast<size_t>(wv)) ws.validLanes.resize(static_cast<size_t>(wv));
+  if (ws.counts.size() < static_cast<size_t>(wv)) ws.counts.resize(static_cast<size_t>(wv));
+  if (ws.prefix.size() < static_cast<size_t>(2 * (w + 1))) ws.prefix.resize(static_cast<size_t>(2 * (w + 1)));
+  const size_t bitWords = static_cast<size_t>(words) * static_cast<size_t>(h);
+  if (ws.bits.size() < bitWords) ws.bits.resize(bitWords);
+  if (ws.clearBits.size() < static_cast<size_t>(words)) ws.clearBits.resize(static_cast<size_t>(words));
+
+  uint8_t* red = ws.red.data() + kRedPad;
+  // The padding must read as zero; what a previous, wider ROI left there would not.
+  std::memset(ws.red.data(), 0, static_cast<size_t>(kRedPad));
+  std::memset(red + w, 0, redSize - static_cast<size_t>(kRedPad + w));
+  if (ws.roiWidth != w || ws.brceStep != step) {
+    std::fill(ws.validLanes.begin(), ws.validLanes.end(), uint8_t{0});
+    for (int x = step; x < w - step; ++x) ws.validLanes[static_cast<size_t>(x)] = 0xFF;
+    ws.roiWidth = w;
+    ws.brceStep = step;
+  }
+
+  // Bands of Algorithm 2: v = H / h bands of h = H/2 rows; a last odd row is in none.
+  const int bandRows = h / 2;
+  const bool denoise = bandRows >= 1 && w / 4 >= 1;
+  const int bands = denoise ? h / bandRows : 0;
+  const int redOff = redOffset(frame.format);
+  std::fill(ws.counts.begin(), ws.counts.begin() + wv, uint16_t{0});
+  for (int y = 0; y < h; ++y) {
+    const uint8_t* on = frame.row(roi.y + y) + static_cast<size_t>(roi.x) * 3U;
+    const uint8_t* off = laserOff != nullptr ? laserOff->row(roi.y + y) + static_cast<size_t>(roi.x) * 3U : nullptr;
+    uint64_t* bits = ws.bits.data() + static_cast<size_t>(y) * static_cast<size_t>(words);
+    if (kernels != nullptr) {
+      kernels->redRow(on, off, redOff, w, red);
+      kernels->brceRow(red, ws.validLanes.data(), wv, step, p.brceThreshold, p.brceForm, ws.counts.data(), bits);
+    } else {
+      redRowScalar(on, off, redOff, w, red);
+      brceRowScalar(red, w, wv, step, p.brceThreshold, p.brceForm, ws.counts.data(), bits);
+    }
+    if (denoise && (y + 1) % bandRows == 0 && (y + 1) / bandRows <= bands) {
+      clearBand(p, w, wv, y + 1 - bandRows, bandRows, ws);
+      std::fill(ws.counts.begin(), ws.counts.begin() + wv, uint16_t{0});
+    }
+  }
+}
+
+}  // namespace detail
+}  // namespace alacs::image

@@ -1,0 +1,466 @@
+// alacs_lle_eval: LLE accuracy on the twin's benchmark cases, with the paper's metric
+// (mean row-wise displacement from the truth over central segments of 10-80 % of the
+// line), per light and occlusion, our method beside the paper's. Also checks, on every
+// case, that the SIMD path is bit-exact with the scalar one and that the fixed-point
+// result agrees with the floating-point reference within 1/64 px.
+//
+// The cases are the twin's orchard cases (edge/sim/orchard.h): case i has the light
+// lab, overcast, direct or sun (i mod 4), a leaf hiding 15-50 % of the target on every
+// other pair, and a distance stratified over 0.8-1.6 m. The ROI and the slide stops are
+// the localizer's plan for the case's rough (RGB-D) position; the frame is stop i mod 5
+// (the nearest stop with a visible line when that one has none). Only the ROI is
+// rendered (the twin renders a region exactly as the crop of a full frame).
+//
+//   alacs_lle_eval [--cases N] [--first K] [--jobs J] [--laser-off] [--csv FILE] [--dump DIR]
+#include <opencv2/imgcodecs.hpp>
+
+#include <algorithm>
+#include <atomic>
+#include <cmath>
+#include <cstdio>
+#include <cstdlib>
+#include <cstring>
+#include <fstream>
+#include <map>
+#include <mutex>
+#include <string>
+#include <thread>
+#include <vector>
+
+#include "image/lle.h"
+#include "localize/localizer.h"
+#include "sim/orchard.h"
+#include "sim/renderer.h"
+#include "sim/truth.h"
+
+using namespace alacs;
+
+namespace {
+
+constexpr int kSegments[] = {10, 20, 30, 40, 50, 60, 70, 80};
+constexpr int kNumSeg = 8;
+
+struct Score {
+  double segMean[kNumSeg] = {};  // mean |error| per central segment (NaN: no rows)
+  int segRows[kNumSeg] = {};
+  double maxRowErr = 0.0;        // within the 80 % segment
+  int visible80 = 0, found80 = 0, visible = 0, found = 0;
+};
+
+struct CaseResult {
+  int id = 0;
+  bool ok = false;                 // false: the case could not be made (reason in `note`)
+  std::string note;
+  sim::LightingKind light = sim::LightingKind::kLab;
+  bool occluded = false;
+  double distanceMm = 0.0;
+  Score ours, paper;
+  double fixedVsFloatPx = 0.0;     // max |Δcolumn| over common valid rows
+  double fixedVsFloatPolyPx = 0.0; // max |Δcurve| over the line's rows
+  int rowSetMismatch = 0;          // rows whose presence or status differs
+  bool simdExact = true;
+  int extraRows = 0;               // valid rows of ours where the truth has no visible row
+  double coverage = 0.0;
+};
+
+// Visible truth rows by row index; rows crossed twice by the arc are ambiguous: dropped.
+std::map<int, double> truthByRow(const std::vector<sim::RowTruth>& t) {
+  std::map<int, double> m;
+  std::map<int, int> n;
+  for (const auto& r : t) {
+    n[r.row] += 1;
+    if (r.visibleLit()) m[r.row] = r.column;
+  }
+  for (const auto& [row, k] : n)
+    if (k > 1) m.erase(row);
+  return m;
+}
+
+template <class ColumnOf>
+Score score(const std::map<int, double>& visible, const std::vector<sim::RowTruth>& full, ColumnOf columnOf) {
+  Score s;
+  if (full.empty()) return s;
+  int r0 = full.front().row, r1 = full.front().row;
+  for (const auto& t : full) {
+    r0 = std::min(r0, t.row);
+    r1 = std::max(r1, t.row);
+  }
+  const double rc = 0.5 * (r0 + r1);
+  const double half = 0.5 * (r1 - r0);
+  double sum[kNumSeg] = {};
+  for (const auto& [row, col] : visible) {
+    double c = 0.0;
+    const bool got = columnOf(row, c);
+    const double rel = std::abs(row - rc) / std::max(1.0, half);  // 0 at the centre, 1 at the ends
+    s.visible += 1;
+    s.found += got ? 1 : 0;
+    if (rel <= 0.8) {
+      s.visible80 += 1;
+      s.found80 += got ? 1 : 0;
+    }
+    if (!got) continue;
+    const double e = std::abs(c - col);
+    for (int k = 0; k < kNumSeg; ++k) {
+      if (rel <= kSegments[k] / 100.0) {
+        sum[k] += e;
+        s.segRows[k] += 1;
+      }
+    }
+    if (rel <= 0.8) s.maxRowErr = std::max(s.maxRowErr, e);
+  }
+  for (int k = 0; k < kNumSeg; ++k) s.segMean[k] = s.segRows[k] > 0 ? sum[k] / s.segRows[k] : std::nan("");
+  return s;
+}
+
+bool sameLine(const image::LaserLine& a, const image::LaserLine& b) {
+  if (a.rows.size() != b.rows.size() || a.segments.size() != b.segments.size() || a.valid != b.valid ||
+      a.order != b.order || a.inliers != b.inliers || a.coeffs != b.coeffs)
+    return false;
+  for (size_t i = 0; i < a.rows.size(); ++i) {
+    const auto& x = a.rows[i];
+    const auto& y = b.rows[i];
+    if (x.row != y.row || x.columnQ8 != y.columnQ8 || x.status != y.status || x.confidence != y.confidence ||
+        x.segment != y.segment || x.saturated != y.saturated)
+      return false;
+  }
+  return true;
+}
+
+constexpr sim::LightingKind kLights[] = {sim::LightingKind::kLab, sim::LightingKind::kOvercast,
+                                         sim::LightingKind::kDirect, sim::LightingKind::kFullSun};
+
+image::LleParams gParams;  // --set overrides
+
+bool setParam(image::LleParams& p, const std::string& kv) {
+  const size_t eq = kv.find('=');
+  if (eq == std::string::npos) return false;
+  const std::string k = kv.substr(0, eq);
+  const double v = std::atof(kv.c_str() + eq + 1);
+  const int iv = static_cast<int>(v);
+  if (k == "step") p.brceStep = iv;
+  else if (k == "th") p.brceThreshold = iv;
+  else if (k == "theta") p.noiseTheta = iv;
+  else if (k == "gamma") p.noiseGamma = iv;
+  else if (k == "order") p.polyOrder = iv;
+  else if (k == "outlier") p.outlierPx = v;
+  else if (k == "minrows") p.minRows = iv;
+  else if (k == "peaks") p.maxPeaksPerRow = iv;
+  else if (k == "jump") p.maxJumpPx = v;
+  else if (k == "gap") p.maxGapRows = iv;
+  else if (k == "minseg") p.minSegmentRows = iv;
+  else if (k == "bridge") p.bridgePx = v;
+  else if (k == "bridgerow") p.bridgePxPerRow = v;
+  else if (k == "smooth") p.smoothRows = iv;
+  else return false;
+  return true;
+}
+
+CaseResult runCase(int i, bool laserOff, const std::string& dumpDir, const std::shared_ptr<const sim::RayTable>& rays) {
+  CaseResult res;
+  res.id = i;
+  sim::CaseSpec spec;
+  spec.lighting = kLights[i % 4];
+  spec.occluded = (i / 4) % 2 == 1;
+  // Stratified over 0.8..1.6 m by a golden-ratio sequence.
+  spec.distanceMm = 800.0 + 800.0 * std::fmod(0.5 + i * 0.6180339887498949, 1.0);
+  res.light = spec.lighting;
+  res.occluded = spec.occluded;
+  res.distanceMm = spec.distanceMm;
+  Result<sim::OrchardCase> oc = sim::makeOrchardCase(spec, static_cast<uint64_t>(i) + 1);
+  if (!oc) {
+    res.note = oc.status().toString();
+    return res;
+  }
+  const sim::SimScene& scene = oc->scene;
+  const sim::SimApple& target = *scene.apple(oc->targetId);
+  const localize::Localizer loc(scene.truth, image::LleParams{}, localize::ScanParams{});
+  Result<localize::ScanPlan> plan = loc.plan(oc->roughMm, 200.0);
+  if (!plan) {
+    res.note = plan.status().toString();
+    return res;
+  }
+  // Stop i mod 5, else the nearest stop whose line has enough visible rows.
+  const int nStops = static_cast<int>(plan->stopsMm.size());
+  double slide = 0.0;
+  std::vector<sim::RowTruth> truth;
+  bool found = false;
+  for (int k = 0; k < nStops && !found; ++k) {
+    const int s0 = (i % 5) % nStops;
+    const int stop = (s0 + ((k % 2) ? (k + 1) / 2 : nStops - k / 2)) % nStops;
+    slide = plan->stopsMm[static_cast<size_t>(k == 0 ? s0 : stop)];
+    truth = sim::laserLineTruthAll(scene, target, slide);
+    int visible = 0;
+    for (const auto& t : truth) visible += t.visibleLit() ? 1 : 0;
+    found = visible >= 20;
+  }
+  if (!found) {
+    res.note = "no stop shows 20 visible rows of the line";
+    return res;
+  }
+  const image::Roi roi = plan->roi;
+  sim::Renderer renderer(scene, rays);
+  sim::FrameRequest req;
+  req.slideStartMm = req.slideEndMm = slide;
+  req.frameIndex = static_cast<uint64_t>(2 * i);
+  const cv::Rect rect(roi.x, roi.y, roi.width, roi.height);
+  cv::Mat crop, cropOff;
+  renderer.renderRegion(req, rect, crop);
+  const auto& cam = scene.truth.camera;
+  cv::Mat frameMat = cv::Mat::zeros(cam.heightPx, cam.widthPx, CV_8UC3);
+  cv::Mat offMat;
+  crop.copyTo(frameMat(rect));
+  const bool wantOff = laserOff || !dumpDir.empty();
+  if (wantOff) {
+    req.laserFraction = 0.0;
+    req.frameIndex += 1;
+    renderer.renderRegion(req, rect, cropOff);
+    offMat = cv::Mat::zeros(cam.heightPx, cam.widthPx, CV_8UC3);
+    cropOff.copyTo(offMat(rect));
+  }
+  const image::ImageView frame{frameMat.data, frameMat.cols, frameMat.rows, frameMat.step[0], image::PixelFormat::kBgr888};
+  const image::ImageView off =
+      wantOff ? image::ImageView{offMat.data, offMat.cols, offMat.rows, offMat.step[0], image::PixelFormat::kBgr888}
+              : image::ImageView{};
+  const image::ImageView* offPtr = laserOff ? &off : nullptr;
+
+  const image::LleParams p = gParams;
+  image::LleWorkspace ws;
+  image::LaserLine ours, scalar, ref, paper;
+  if (!image::extractLine(frame, roi, p, ws, ours, offPtr).isOk()) std::abort();
+  image::LleParams ps = p;
+  ps.kernels = image::LleKernels::kScalar;
+  if (!image::extractLine(frame, roi, ps, ws, scalar, offPtr).isOk()) std::abort();
+  res.simdExact = sameLine(ours, scalar);
+  if (!image::extractLineReference(frame, roi, p, ref, offPtr).isOk()) std::abort();
+  image::LleParams pp;  // the paper's method with its published parameters
+  pp.method = image::LleMethod::kPaper;
+  if (!image::extractLine(frame, roi, pp, ws, paper).isOk()) std::abort();
+
+  // Fixed point vs the floating-point reference.
+  for (const auto& a : ours.rows) {
+    const image::RowSample* b = ref.sampleAt(a.row);
+    if (b == nullptr || b->status != a.status) {
+      res.rowSetMismatch += 1;
+      continue;
+    }
+    res.fixedVsFloatPx = std::max(res.fixedVsFloatPx, std::abs(static_cast<double>(a.column) - static_cast<double>(b->column)));
+    if (a.status == image::RowStatus::kLine && ours.valid && ref.valid)
+      res.fixedVsFloatPolyPx = std::max(res.fixedVsFloatPolyPx, std::abs(ours.columnAt(a.row) - ref.columnAt(a.row)));
+  }
+  for (const auto& b : ref.rows)
+    if (ours.sampleAt(b.row) == nullptr) res.rowSetMismatch += 1;
+
+  const auto visible = truthByRow(truth);
+  res.ours = score(visible, truth, [&](int row, double& col) {
+    const image::RowSample* s = ours.sampleAt(row);
+    if (s == nullptr || !s->valid()) return false;
+    col = s->column;
+    return true;
+  });
+  res.paper = score(visible, truth, [&](int row, double& col) {
+    if (!paper.valid || paper.sampleAt(row) == nullptr) return false;
+    col = paper.columnAt(row);
+    return true;
+  });
+  for (const auto& s : ours.rows)
+    if (s.valid() && visible.find(s.row) == visible.end()) res.extraRows += 1;
+  res.coverage = ours.coverage;
+  res.ok = true;
+
+  if (!dumpDir.empty()) {
+    char name[64];
+    std::snprintf(name, sizeof name, "/case_%04d", i);
+    const std::string base = dumpDir + name;
+    cv::imwrite(base + "_on.png", crop);
+    cv::imwrite(base + "_off.png", cropOff);
+    std::ofstream js(base + ".json");
+    js.precision(10);
+    js << "{\"id\": " << i << ", \"light\": \"" << sim::lightingName(spec.lighting) << "\", \"occluded\": "
+       << (spec.occluded ? "true" : "false") << ", \"distance_mm\": " << spec.distanceMm << ", \"slide_mm\": " << slide
+       << ", \"roi\": [" << roi.x << ", " << roi.y << ", " << roi.width << ", " << roi.height
+       << "], \"note\": \"" << oc->description << "\", \"truth\": [";
+    bool first = true;
+    for (const auto& t : truth) {
+      js << (first ? "" : ", ") << "[" << t.row << ", " << t.column << ", " << static_cast<int>(t.flags) << "]";
+      first = false;
+    }
+    js << "]}\n";
+  }
+  return res;
+}
+
+struct Agg {
+  int n = 0;
+  double sum[kNumSeg] = {};
+  int cnt[kNumSeg] = {};
+  double worstCaseMean = 0.0;  // max over cases of the 80 % mean
+  double minCaseMean = 1e9;
+  double maxRow = 0.0;
+  long visible80 = 0, found80 = 0, visible = 0, found = 0;
+  void add(const Score& s) {
+    ++n;
+    for (int k = 0; k < kNumSeg; ++k)
+      if (!std::isnan(s.segMean[k])) {
+        sum[k] += s.segMean[k];
+        cnt[k] += 1;
+      }
+    if (!std::isnan(s.segMean[kNumSeg - 1])) {
+      worstCaseMean = std::max(worstCaseMean, s.segMean[kNumSeg - 1]);
+      minCaseMean = std::min(minCaseMean, s.segMean[kNumSeg - 1]);
+    }
+    maxRow = std::max(maxRow, s.maxRowErr);
+    visible80 += s.visible80;
+    found80 += s.found80;
+    visible += s.visible;
+    found += s.found;
+  }
+  void print(const char* method, const char* group) const {
+    std::printf("%-6s %-16s %4d", method, group, n);
+    for (int k = 0; k < kNumSeg; ++k) std::printf(" %6.3f", cnt[k] > 0 ? sum[k] / cnt[k] : std::nan(""));
+    std::printf("  %6.3f %6.3f  %6.1f%% %6.1f%%\n", worstCaseMean, maxRow,
+                visible80 > 0 ? 100.0 * static_cast<double>(found80) / static_cast<double>(visible80) : 0.0,
+                visible > 0 ? 100.0 * static_cast<double>(found) / static_cast<double>(visible) : 0.0);
+  }
+};
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  int cases = 300;
+  int first = 0;
+  int jobs = 1;
+  bool laserOff = false;
+  std::string csv;
+  std::string dump;
+  for (int i = 1; i < argc; ++i) {
+    const std::string a = argv[i];
+    auto next = [&]() -> std::string {
+      if (i + 1 >= argc) {
+        std::fprintf(stderr, "alacs_lle_eval: %s needs a value\n", a.c_str());
+        std::exit(2);
+      }
+      return argv[++i];
+    };
+    if (a == "--cases") cases = std::atoi(next().c_str());
+    else if (a == "--first") first = std::atoi(next().c_str());
+    else if (a == "--jobs") jobs = std::max(1, std::atoi(next().c_str()));
+    else if (a == "--laser-off") laserOff = true;
+    else if (a == "--csv") csv = next();
+    else if (a == "--dump") dump = next();
+    else if (a == "--set") {
+      if (!setParam(gParams, next())) {
+        std::fprintf(stderr, "alacs_lle_eval: bad --set %s\n", argv[i]);
+        return 2;
+      }
+    }
+    else {
+      std::fprintf(stderr,
+                   "usage: alacs_lle_eval [--cases N] [--first K] [--jobs J] [--laser-off] [--csv FILE] [--dump DIR]\n"
+                   "                      [--set step|th|theta|gamma|order|outlier|minrows|peaks|jump|gap|minseg|bridge|\n"
+                   "                             bridgerow|smooth=VALUE]...\n");
+      return 2;
+    }
+  }
+  if (Status st = gParams.validate(); !st) {
+    std::fprintf(stderr, "alacs_lle_eval: %s\n", st.toString().c_str());
+    return 2;
+  }
+  if (cases < 1) {
+    std::fprintf(stderr, "alacs_lle_eval: --cases must be >= 1\n");
+    return 2;
+  }
+  std::vector<CaseResult> results(static_cast<size_t>(cases));
+  std::atomic<int> nextCase{0};
+  std::atomic<int> done{0};
+  std::mutex printMu;
+  const auto rays = std::make_shared<const sim::RayTable>(sim::defaultScene().truth.camera);
+  auto worker = [&]() {
+    for (int k = nextCase++; k < cases; k = nextCase++) {
+      results[static_cast<size_t>(k)] = runCase(first + k, laserOff, dump, rays);
+      const int d = ++done;
+      if (d % 10 == 0 || d == cases) {
+        std::lock_guard<std::mutex> lock(printMu);
+        std::fprintf(stderr, "\r%d/%d cases", d, cases);
+      }
+    }
+  };
+  std::vector<std::thread> pool;
+  for (int j = 0; j < jobs; ++j) pool.emplace_back(worker);
+  for (auto& t : pool) t.join();
+  std::fprintf(stderr, "\n");
+
+  std::map<std::string, Agg> ours, paper;
+  double fvf = 0.0, fvfPoly = 0.0;
+  int mismatch = 0, simdBad = 0, extra = 0, nOcc = 0;
+  double minCoverageOcc = 1.0, meanCoverageOcc = 0.0;
+  double dmin = 1e9, dmax = 0;
+  int failed = 0;
+  for (const auto& r : results) {
+    if (!r.ok) {
+      ++failed;
+      std::fprintf(stderr, "case %d skipped: %s\n", r.id, r.note.c_str());
+      continue;
+    }
+    const std::string light = sim::lightingName(r.light);
+    const std::string occ = r.occluded ? "leaf" : "free";
+    for (const std::string& g : {std::string("all"), light, light + "/" + occ, std::string("all/") + occ}) {
+      ours[g].add(r.ours);
+      paper[g].add(r.paper);
+    }
+    fvf = std::max(fvf, r.fixedVsFloatPx);
+    fvfPoly = std::max(fvfPoly, r.fixedVsFloatPolyPx);
+    mismatch += r.rowSetMismatch;
+    simdBad += r.simdExact ? 0 : 1;
+    extra += r.extraRows;
+    dmin = std::min(dmin, r.distanceMm);
+    dmax = std::max(dmax, r.distanceMm);
+    if (r.occluded) {
+      ++nOcc;
+      minCoverageOcc = std::min(minCoverageOcc, r.coverage);
+      meanCoverageOcc += r.coverage;
+    }
+  }
+  std::printf("LLE benchmark on the twin: %d cases (ids %d..%d, %d skipped), %.2f-%.2f m, %d with leaves in front%s\n",
+              cases - failed, first, first + cases - 1, failed, dmin / 1000.0, dmax / 1000.0, nOcc,
+              laserOff ? ", laser-off frame subtracted" : "");
+  std::printf("Mean displacement (px) per central segment = mean over cases of the case's mean |column - truth|;\n"
+              "worst = max over cases of the 80 %% segment's mean; max row = largest single-row error in the 80 %%\n"
+              "segment; found = share of visible truth rows with a valid sample (central 80 %% / whole line).\n");
+  std::printf("%-6s %-16s %4s", "method", "cases", "n");
+  for (int k : kSegments) std::printf("  %4d%%", k);
+  std::printf("   worst maxrow  found80  found\n");
+  const char* order[] = {"all",           "all/free", "all/leaf", "lab",           "lab/free",    "lab/leaf",
+                         "overcast",      "overcast/free", "overcast/leaf", "direct",   "direct/free", "direct/leaf",
+                         "sun",           "sun/free", "sun/leaf"};
+  for (const char* g : order) {
+    if (ours.count(g) == 0) continue;
+    ours[g].print("ours", g);
+    paper[g].print("paper", g);
+  }
+  std::printf("fixed point vs float reference: max |dcolumn| %.5f px, max |dcurve| %.5f px (limit 1/64 = 0.01563), "
+              "rows present/status differing: %d\n",
+              fvf, fvfPoly, mismatch);
+  std::printf("SIMD (%s) vs scalar kernels: %s on %d of %d cases\n", image::lleSimdName(),
+              simdBad == 0 ? "bit-exact" : "DIFFERENT", cases - failed - simdBad, cases - failed);
+  std::printf("valid rows of ours outside the visible truth (leaf, background): %d; coverage with a leaf: mean %.3f, min %.3f\n",
+              extra, nOcc > 0 ? meanCoverageOcc / nOcc : 0.0, nOcc > 0 ? minCoverageOcc : 0.0);
+  if (!csv.empty()) {
+    std::ofstream f(csv);
+    f << "id,light,occluded,distance_mm,method";
+    for (int k : kSegments) f << ",seg" << k;
+    f << ",max_row,visible80,found80,visible,found,fixed_vs_float_px,simd_exact,coverage\n";
+    for (const auto& r : results) {
+      if (!r.ok) continue;
+      for (int m = 0; m < 2; ++m) {
+        const Score& s = m == 0 ? r.ours : r.paper;
+        f << r.id << "," << sim::lightingName(r.light) << "," << (r.occluded ? 1 : 0) << "," << r.distanceMm << ","
+          << (m == 0 ? "ours" : "paper");
+        for (double v : s.segMean) f << "," << v;
+        f << "," << s.maxRowErr << "," << s.visible80 << "," << s.found80 << "," << s.visible << "," << s.found << ","
+          << r.fixedVsFloatPx << "," << (r.simdExact ? 1 : 0) << "," << r.coverage << "\n";
+      }
+    }
+  }
+  const bool ok = fvf <= 1.0 / 64.0 && fvfPoly <= 1.0 / 64.0 && simdBad == 0;
+  return ok ? 0 : 1;
+}
