@@ -30,13 +30,16 @@ void FramePipeline::push(const image::ImageView& frame, double slideMm) {
   cv_.wait(lock, [&] { return !bufferBusy_[0] || !bufferBusy_[1]; });
   const size_t b = bufferBusy_[0] ? 1 : 0;
   const size_t bytes = frame.strideBytes * static_cast<size_t>(frame.height);
-  if (buffers_[b].size() != bytes) buffers_[b].assign(bytes, 0);  // once per frame size
+  if (bufferBytes_[b] != bytes) {  // once per frame size
+    buffers_[b].reset(new uint8_t[bytes]);
+    bufferBytes_[b] = bytes;
+  }
   shape_ = frame;
   // Only the ROI rows and columns are read by the LLE: copy those.
   const image::Roi& roi = plan_.roi;
   for (int y = roi.y; y < roi.y + roi.height; ++y) {
     const size_t off = static_cast<size_t>(y) * frame.strideBytes + static_cast<size_t>(roi.x) * 3U;
-    std::memcpy(buffers_[b].data() + off, frame.data + off, static_cast<size_t>(roi.width) * 3U);
+    std::memcpy(buffers_[b].get() + off, frame.data + off, static_cast<size_t>(roi.width) * 3U);
   }
   bufferBusy_[b] = true;
   lastBuffer_ = b;
@@ -54,7 +57,7 @@ std::vector<localize::LineObservation> FramePipeline::finish() {
 image::ImageView FramePipeline::lastFrame() const {
   std::lock_guard<std::mutex> lock(mu_);
   image::ImageView v = shape_;
-  v.data = buffers_[lastBuffer_].empty() ? nullptr : buffers_[lastBuffer_].data();
+  v.data = buffers_[lastBuffer_].get();
   return v;
 }
 
@@ -69,7 +72,7 @@ void FramePipeline::run() {
       task = queue_.front();
       queue_.pop_front();
       view = shape_;
-      view.data = buffers_[task.buffer].data();
+      view.data = buffers_[task.buffer].get();
     }
     // The localizer and plan only change in begin(), which first waits for this work.
     Result<localize::LineObservation> obs = localizer_->observe(view, plan_, task.slideMm, ws_);

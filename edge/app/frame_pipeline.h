@@ -7,6 +7,7 @@
 
 #include <condition_variable>
 #include <deque>
+#include <memory>
 #include <mutex>
 #include <thread>
 #include <vector>
@@ -45,7 +46,10 @@ class FramePipeline {
   bool quit_ = false;
   std::deque<Task> queue_;
   size_t inFlight_ = 0;
-  std::vector<uint8_t> buffers_[2];
+  // Left uninitialised on purpose: only the window's pages are ever written, so a 5 MP
+  // frame buffer costs the window's size in resident memory, not 15 MB.
+  std::unique_ptr<uint8_t[]> buffers_[2];
+  size_t bufferBytes_[2] = {0, 0};
   bool bufferBusy_[2] = {false, false};
   size_t lastBuffer_ = 0;
   image::ImageView shape_;  // size and format of the frames of this scan

@@ -143,20 +143,21 @@ namespace {
 void writeOverlay(const std::string& dir, const image::ImageView& frame, const localize::ScanPlan& plan,
                   const std::vector<localize::LineObservation>& lines) {
   if (frame.data == nullptr) return;
-  cv::Mat img(frame.height, frame.width, CV_8UC3, const_cast<uint8_t*>(frame.data), frame.strideBytes);
-  cv::Mat out = img.clone();
+  // Only the target's window of the frame is valid (windowed capture): draw on a copy of it.
+  const cv::Rect window(plan.roi.x, plan.roi.y, plan.roi.width, plan.roi.height);
+  const cv::Mat img(frame.height, frame.width, CV_8UC3, const_cast<uint8_t*>(frame.data), frame.strideBytes);
+  cv::Mat out = img(window).clone();
   static const cv::Scalar kColours[] = {{255, 255, 0}, {0, 255, 0}, {255, 0, 255}, {0, 255, 255}, {255, 128, 0}};
   size_t k = 0;
   for (const auto& l : lines) {
     const cv::Scalar c = kColours[k++ % 5];
     for (const auto& r : l.line.rows) {
-      const cv::Point p(static_cast<int>(std::lround(r.column)), r.row);
+      const cv::Point p(static_cast<int>(std::lround(r.column)) - window.x, r.row - window.y);
       cv::circle(out, p, 1, r.inlier ? c : cv::Scalar(0, 0, 255), cv::FILLED);
     }
   }
-  cv::rectangle(out, cv::Rect(plan.roi.x, plan.roi.y, plan.roi.width, plan.roi.height), {255, 255, 255}, 2);
-  cv::Mat crop = out(cv::Rect(plan.roi.x, plan.roi.y, plan.roi.width, plan.roi.height));
-  cv::imwrite(dir + "/overlay.png", crop);
+  cv::rectangle(out, cv::Rect(0, 0, window.width, window.height), {255, 255, 255}, 2);
+  cv::imwrite(dir + "/overlay.png", out);
 }
 }  // namespace
 
