@@ -23,7 +23,14 @@ Result<ports::CapturedFrame> SimCamera::doCapture(const ports::CaptureRequest& r
   // The laser counts for the part of the exposure it was seen on (start and end samples).
   const double laserFraction = 0.5 * ((laserAtStart ? 1.0 : 0.0) + (laserAtEnd ? 1.0 : 0.0));
   lastSlideMm_ = 0.5 * (slideAtStart + slideAtEnd);
-  renderer_.render(lastSlideMm_, laserFraction, sequence_, frame_);
+  // A frame exposed while the slide moves smears the line between the two positions.
+  FrameRequest r;
+  r.slideStartMm = slideAtStart;
+  r.slideEndMm = slideAtEnd;
+  r.laserFraction = laserFraction;
+  r.exposureUs = request.exposureUs;
+  r.frameIndex = sequence_;
+  renderer_.render(r, frame_);
   ports::CapturedFrame out;
   out.view = {frame_.data, frame_.cols, frame_.rows, frame_.step[0], image::PixelFormat::kBgr888};
   out.info.sequence = sequence_++;

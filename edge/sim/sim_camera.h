@@ -1,5 +1,6 @@
 // The simulated camera: a FrameSource that renders the scene at the slide's position
-// with the laser as it really was during the exposure (read from the laser line).
+// with the laser as it really was during the exposure (read from the laser line), with
+// the requested exposure time; a slide that moves during the exposure smears the line.
 #pragma once
 
 #include <functional>

@@ -1,0 +1,69 @@
+#include "replay/replay_source.h"
+
+#include <cmath>
+#include <limits>
+
+namespace alacs::replay {
+
+Result<std::unique_ptr<ReplaySource>> ReplaySource::open(const std::string& dir, const Clock& clock,
+                                                         std::function<bool()> laserLevel,
+                                                         std::function<double()> slideMm) {
+  Result<ScanManifest> m = readManifest(dir);
+  if (!m) return m.status();
+  if (m->frames.empty()) return Status(Error::kBadInput, "scan '" + dir + "' holds no frame");
+  return std::unique_ptr<ReplaySource>(
+      new ReplaySource(dir, std::move(*m), clock, std::move(laserLevel), std::move(slideMm)));
+}
+
+ReplaySource::ReplaySource(std::string dir, ScanManifest m, const Clock& clock, std::function<bool()> laserLevel,
+                           std::function<double()> slideMm)
+    : dir_(std::move(dir)),
+      manifest_(std::move(m)),
+      clock_(clock),
+      laserLevel_(std::move(laserLevel)),
+      slideMm_(std::move(slideMm)),
+      lastSlideMm_(std::numeric_limits<double>::quiet_NaN()) {}
+
+int ReplaySource::nearestFrame(double slideMm, bool laserOn) const {
+  int best = -1;
+  double bestErr = std::numeric_limits<double>::infinity();
+  for (size_t i = 0; i < manifest_.frames.size(); ++i) {
+    const FrameRecord& f = manifest_.frames[i];
+    if (f.laserOn != laserOn) continue;
+    const double err = std::abs(f.slideMm - slideMm);
+    if (err < bestErr) {
+      bestErr = err;
+      best = static_cast<int>(i);
+    }
+  }
+  return best;
+}
+
+Result<ports::CapturedFrame> ReplaySource::doCapture(const ports::CaptureRequest& request,
+                                                     const std::function<void()>& onExposureEnd) {
+  if (request.exposureUs <= 0 || request.exposureUs > 1000000)
+    return Status(Error::kInvalidArgument, "exposure must be in 1..1000000 us");
+  const TimeNs start = clock_.now();
+  const bool laserOn = laserLevel_();
+  const double position = slideMm_();
+  // The recorded exposure is over at once: the laser goes off before the PNG is decoded.
+  if (onExposureEnd) onExposureEnd();
+  const int index = nearestFrame(position, laserOn);
+  if (index < 0)
+    return Status(Error::kNotFound, std::string("scan '") + dir_ + "' has no frame with the laser " + (laserOn ? "on" : "off"));
+  const FrameRecord& rec = manifest_.frames[static_cast<size_t>(index)];
+  Result<cv::Mat> img = loadFrame(dir_, manifest_, rec);
+  if (!img) return img.status();
+  frame_ = std::move(*img);
+  lastSlideMm_.store(rec.slideMm);
+  lastErrorMm_.store(std::abs(rec.slideMm - position));
+  lastFrame_.store(index);
+  ports::CapturedFrame out;
+  out.view = {frame_.data, frame_.cols, frame_.rows, frame_.step[0], image::PixelFormat::kBgr888};
+  out.info.sequence = sequence_++;
+  out.info.exposureStartNs = start;
+  out.info.exposureUs = rec.exposureUs;
+  return out;
+}
+
+}  // namespace alacs::replay

@@ -1,0 +1,64 @@
+// Records live scans as scan directories (alacsd --record DIR): one directory per scan,
+// DIR/scan_0001, DIR/scan_0002, ..., each with its frames, the calibration in use and a
+// manifest, so that any scan can be replayed (alacsd --replay) or evaluated later.
+// Thread-safe: begin() and end() come from the event loop, frames from the worker.
+#pragma once
+
+#include <Eigen/Core>
+#include <functional>
+#include <memory>
+#include <mutex>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "common/clock.h"
+#include "ports/frame_source.h"
+#include "replay/scan_dir.h"
+
+namespace alacs::replay {
+
+class ScanRecorder {
+ public:
+  ScanRecorder(std::string rootDir, geometry::Calibration calibration, std::string source = "alacsd");
+
+  // Opens the next scan directory; an unfinished one is finished first. Errors: kIo.
+  Status begin(int targetId, const Eigen::Vector3d& roughMm, const std::vector<double>& stopsMm,
+               const image::Roi& roi);
+  // Writes one frame (full frame) into the open scan. Errors: kInvalidArgument when no
+  // scan is open; kIo.
+  Status frame(const image::ImageView& view, double slideMm, TimeNs exposureStartNs, int64_t exposureUs,
+               bool laserOn);
+  // Writes the manifest and closes the scan; returns its directory. Errors: kInvalidArgument
+  // when no scan is open; kIo.
+  Result<std::string> end();
+  int scansStarted() const;
+
+ private:
+  std::string root_;
+  geometry::Calibration calibration_;
+  std::string source_;
+  mutable std::mutex mu_;
+  std::optional<ScanWriter> writer_;
+  int count_ = 0;
+};
+
+// A camera decorator: every frame captured through it is also written to the recorder.
+class RecordingSource final : public ports::FrameSource {
+ public:
+  // `slideMm` and `laserOn` are read at the start of each capture.
+  RecordingSource(std::unique_ptr<ports::FrameSource> inner, ScanRecorder& recorder, std::function<double()> slideMm,
+                  std::function<bool()> laserOn);
+  const char* name() const override { return inner_->name(); }
+  ports::FrameSource& inner() { return *inner_; }
+
+ private:
+  Result<ports::CapturedFrame> doCapture(const ports::CaptureRequest& request,
+                                         const std::function<void()>& onExposureEnd) override;
+  std::unique_ptr<ports::FrameSource> inner_;
+  ScanRecorder& recorder_;
+  std::function<double()> slideMm_;
+  std::function<bool()> laserOn_;
+};
+
+}  // namespace alacs::replay
