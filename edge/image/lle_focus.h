@@ -273,7 +273,8 @@ inline int nextClear(const uint64_t* words, int nbits, int from) {
 
 template <class Col>
 struct Peak {
-  Col col;          // ROI columns
+  Col col;          // ROI columns, the value
+  int32_t key;      // the same in Q8, on which decisions are taken
   int32_t area;
   int32_t excess;
   int32_t chain;
@@ -281,15 +282,14 @@ struct Peak {
   uint8_t saturated;
 };
 
-template <class Col>
 struct Chain {
   int32_t first;
   int32_t last;
   int32_t prevRow;
   int32_t count;
   int64_t area;
-  Col lastCol;
-  Col prevCol;
+  int32_t lastKey;
+  int32_t prevKey;
   int32_t head;     // first peak
   int32_t tail;     // last peak
   int32_t segment;  // index in LaserLine::segments, -1: too short
@@ -301,9 +301,12 @@ struct Chain {
 template <class A>
 void focusRobust(const ImageView& frame, const ImageView* laserOff, const Roi& roi, const LleParams& p,
                  LleWorkspace& ws, LaserLine& out) {
+  // Decisions use Q = FixedArith on the exact Q8 keys (shared by both arithmetics);
+  // output values use A.
+  using Q = FixedArith;
   using Col = typename A::Col;
   using Peak = focus::Peak<Col>;
-  using Chain = focus::Chain<Col>;
+  using Chain = focus::Chain;
   const int w = roi.width;
   const int h = roi.height;
   const int words = paddedWidth(w) / 64;
@@ -319,13 +322,15 @@ void focusRobust(const ImageView& frame, const ImageView* laserOff, const Roi& r
   arena.reserve<int32_t>(uh);      // owner peak of each row on the line
   arena.reserve<int32_t>(slots);   // segments by strength
   arena.reserve<int32_t>(uh);      // fit rows
-  arena.reserve<Col>(uh);          // fit columns
+  arena.reserve<int32_t>(uh);      // fit keys
+  arena.reserve<Col>(uh);          // fit values
   arena.reserve<uint8_t>(uh);      // fit use
   arena.reserve<uint8_t>(uh);      // fit use, previous iteration
-  arena.reserve<Col>(uh);          // residuals
-  arena.reserve<Col>(uh);          // residuals for the median
+  arena.reserve<int32_t>(uh);      // residuals (Q8)
+  arena.reserve<int32_t>(uh);      // residuals for the median
   arena.reserve<int64_t>(3 * uh);  // fixed-point fit scratch
   arena.reserve<int>(64);
+  arena.reserve<int32_t>(64);
   arena.reserve<Col>(64);
   arena.reserve<Col>(uh);          // output centroids
   arena.reserve<int32_t>(uh);      // output smoothing keys
@@ -337,14 +342,16 @@ void focusRobust(const ImageView& frame, const ImageView* laserOff, const Roi& r
   int32_t* owner = arena.take<int32_t>(uh);
   int32_t* order = arena.take<int32_t>(slots);
   int32_t* fitRows = arena.take<int32_t>(uh);
+  int32_t* fitKeys = arena.take<int32_t>(uh);
   Col* fitCols = arena.take<Col>(uh);
   uint8_t* use = arena.take<uint8_t>(uh);
   uint8_t* usePrev = arena.take<uint8_t>(uh);
-  Col* residual = arena.take<Col>(uh);
-  Col* sorted = arena.take<Col>(uh);
+  int32_t* residual = arena.take<int32_t>(uh);
+  int32_t* sorted = arena.take<int32_t>(uh);
   int64_t* fitScratch = arena.take<int64_t>(3 * uh);
   int* endRows = arena.take<int>(64);
-  Col* endCols = arena.take<Col>(64);
+  int32_t* endKeys = arena.take<int32_t>(64);
+  Col* smoothCols = arena.take<Col>(64);
   Col* outCol = arena.take<Col>(uh);
   int32_t* outKey = arena.take<int32_t>(uh);
 
@@ -381,7 +388,8 @@ void focusRobust(const ImageView& frame, const ImageView* laserOff, const Roi& r
         row[i] = row[i - 1];
         --i;
       }
-      row[i] = Peak{A::ratio(s.sumXW, s.sumW), s.area, s.excess, -1, -1, static_cast<uint8_t>(s.saturated ? 1 : 0)};
+      row[i] = Peak{A::ratio(s.sumXW, s.sumW), Q::ratio(s.sumXW, s.sumW), s.area, s.excess, -1, -1,
+                    static_cast<uint8_t>(s.saturated ? 1 : 0)};
     }
     nPeaks[y] = n;
   }
@@ -389,7 +397,7 @@ void focusRobust(const ImageView& frame, const ImageView* laserOff, const Roi& r
   // Stage 4a: link peaks of successive rows into chains. A peak continues the active chain
   // whose prediction (its last two rows extrapolated) is nearest, when within maxJump
   // (growing by half of it per skipped row); stronger peaks choose first.
-  const Col jump = A::fromPx(p.maxJumpPx);
+  const int32_t jump = Q::fromPx(p.maxJumpPx);
   int nChains = 0;
   int nActive = 0;
   for (int y = 0; y < h; ++y) {
@@ -402,14 +410,14 @@ void focusRobust(const ImageView& frame, const ImageView* laserOff, const Roi& r
       const int pi = y * kMax + j;
       Peak& pk = peaks[pi];
       int best = -1;
-      Col bestD{};
+      int32_t bestD = 0;
       for (int i = 0; i < activeBefore; ++i) {
         const Chain& c = chains[active[i]];
         if (c.last >= y) continue;  // already continued in this row
         const int gap = y - c.last;
-        const Col pred = c.count >= 2 ? A::extrapolate(c.lastCol, c.prevCol, gap, c.last - c.prevRow) : c.lastCol;
-        const Col d = A::absDiff(pk.col, pred);
-        const Col tol = jump + jump * (gap - 1) / 2;
+        const int32_t pred = c.count >= 2 ? Q::extrapolate(c.lastKey, c.prevKey, gap, c.last - c.prevRow) : c.lastKey;
+        const int32_t d = Q::absDiff(pk.key, pred);
+        const int32_t tol = jump + jump * (gap - 1) / 2;
         if (d <= tol && (best < 0 || d < bestD)) {
           best = active[i];
           bestD = d;
@@ -417,16 +425,16 @@ void focusRobust(const ImageView& frame, const ImageView* laserOff, const Roi& r
       }
       if (best < 0) {
         best = nChains++;
-        chains[best] = Chain{y, y, -1, 0, 0, pk.col, pk.col, pi, pi, -1, 0};
+        chains[best] = Chain{y, y, -1, 0, 0, pk.key, pk.key, pi, pi, -1, 0};
         active[nActive++] = best;
       } else {
         Chain& c = chains[best];
         peaks[c.tail].next = pi;
         c.tail = pi;
         c.prevRow = c.last;
-        c.prevCol = c.lastCol;
+        c.prevKey = c.lastKey;
         c.last = y;
-        c.lastCol = pk.col;
+        c.lastKey = pk.key;
       }
       Chain& c = chains[best];
       c.count += 1;
@@ -449,24 +457,23 @@ void focusRobust(const ImageView& frame, const ImageView* laserOff, const Roi& r
   std::fill(owner, owner + h, -1);
   auto rowOf = [&](int pi) { return pi / kMax; };
   auto endFit = [&](int head, bool fromTop, int m) {
-    // Up to 8 peaks of a chain from one end.
     int n = 0;
     if (fromTop) {
       for (int pi = head; pi >= 0 && n < 8; pi = peaks[pi].next) {
         endRows[n] = rowOf(pi);
-        endCols[n++] = peaks[pi].col;
+        endKeys[n++] = peaks[pi].key;
       }
     } else {
-      // Walk the whole chain keeping the last 8 (chains are singly linked).
+      // The last 8 peaks (chains are singly linked: keep a ring of them).
       int cnt = 0;
       for (int pi = head; pi >= 0; pi = peaks[pi].next) {
         endRows[cnt % 8] = rowOf(pi);
-        endCols[cnt % 8] = peaks[pi].col;
+        endKeys[cnt % 8] = peaks[pi].key;
         ++cnt;
       }
       n = std::min(cnt, 8);
     }
-    return A::lineAt(endRows, endCols, n, m);
+    return Q::lineAt(endRows, endKeys, n, m);
   };
   auto lineEndFit = [&](int from, int dir, int m) {
     // Up to 8 line rows from `from` going in `dir`, within 64 rows.
@@ -474,12 +481,12 @@ void focusRobust(const ImageView& frame, const ImageView* laserOff, const Roi& r
     for (int y = from; y >= 0 && y < h && n < 8 && std::abs(y - from) <= 64; y += dir) {
       if (owner[y] < 0) continue;
       endRows[n] = y;
-      endCols[n++] = peaks[owner[y]].col;
+      endKeys[n++] = peaks[owner[y]].key;
     }
-    return A::lineAt(endRows, endCols, n, m);
+    return Q::lineAt(endRows, endKeys, n, m);
   };
-  const Col bridge = A::fromPx(p.bridgePx);
-  const Col bridgePerRow = A::fromPx(p.bridgePxPerRow);
+  const int32_t bridge = Q::fromPx(p.bridgePx);
+  const int32_t bridgePerRow = Q::fromPx(p.bridgePxPerRow);
   for (int s = 0; s < nSeg; ++s) {
     Chain& c = chains[order[s]];
     if (s > 0) {
@@ -502,13 +509,13 @@ void focusRobust(const ImageView& frame, const ImageView* laserOff, const Roi& r
       if (above >= 0) {
         const int gap = c.first - above;
         const int m = (above + c.first) / 2;
-        const Col d = A::absDiff(lineEndFit(above, -1, m), endFit(c.head, true, m));
+        const int32_t d = Q::absDiff(lineEndFit(above, -1, m), endFit(c.head, true, m));
         agrees = agrees && d <= bridge + bridgePerRow * gap;
       }
       if (below >= 0) {
         const int gap = below - c.last;
         const int m = (below + c.last) / 2;
-        const Col d = A::absDiff(lineEndFit(below, +1, m), endFit(c.head, false, m));
+        const int32_t d = Q::absDiff(lineEndFit(below, +1, m), endFit(c.head, false, m));
         agrees = agrees && d <= bridge + bridgePerRow * gap;
       }
       if (!agrees) continue;
@@ -518,38 +525,40 @@ void focusRobust(const ImageView& frame, const ImageView* laserOff, const Roi& r
       if (owner[rowOf(pi)] < 0) owner[rowOf(pi)] = pi;
   }
 
-  // Stage 4c: robust curve fit over the line's rows (full-frame coordinates).
+  // Stage 4c: robust curve fit over the line's rows (full-frame coordinates): rows beyond
+  // max(outlierPx, 3·1.4826·MAD) are dropped and the fit repeated until stable. The
+  // decisions are taken on the keys with the fixed-point fit; the curve reported is then
+  // fitted (in A) through the values of the rows kept.
   int n = 0;
   for (int y = 0; y < h; ++y) {
     if (owner[y] < 0) continue;
     fitRows[n] = roi.y + y;
+    fitKeys[n] = peaks[owner[y]].key + Q::fromInt(roi.x);
     fitCols[n] = peaks[owner[y]].col + A::fromInt(roi.x);
     use[n] = 1;
     ++n;
   }
-  typename A::Fit fit;
-  if constexpr (A::kFixed) fit.scratch = fitScratch;
-  const Col outlier = A::fromPx(p.outlierPx);
-  Col limit = outlier;
+  Q::Fit decide;
+  decide.scratch = fitScratch;
+  const int32_t outlier = Q::fromPx(p.outlierPx);
+  int32_t limit = outlier;
   bool fitted = false;
+  const int fitOrder = std::max(0, std::min(p.polyOrder, n / 2 - 1));
   if (n >= p.minRows) {
-    const int fitOrder = std::max(0, std::min(p.polyOrder, n / 2 - 1));
-    const int first = fitRows[0];
-    const int last = fitRows[n - 1];
     for (int iteration = 0; iteration < 8; ++iteration) {
       int inl = 0;
       for (int i = 0; i < n; ++i) inl += use[i];
-      if (inl < p.minRows || !fit.fit(fitRows, fitCols, use, n, fitOrder, first, last)) {
+      if (inl < p.minRows || !decide.fit(fitRows, fitKeys, use, n, fitOrder, fitRows[0], fitRows[n - 1])) {
         fitted = false;
         break;
       }
       fitted = true;
       for (int i = 0; i < n; ++i) {
-        residual[i] = A::absDiff(fitCols[i], fit.eval(fitRows[i]));
+        residual[i] = Q::absDiff(fitKeys[i], decide.eval(fitRows[i]));
         sorted[i] = residual[i];
       }
       std::nth_element(sorted, sorted + n / 2, sorted + n);
-      limit = std::max(outlier, A::madLimit(sorted[n / 2]));
+      limit = std::max(outlier, Q::madLimit(sorted[n / 2]));
       bool changed = false;
       for (int i = 0; i < n; ++i) {
         usePrev[i] = use[i];
@@ -558,11 +567,12 @@ void focusRobust(const ImageView& frame, const ImageView* laserOff, const Roi& r
       }
       if (!changed) break;
     }
-    if (fitted) {
-      // Report against the fit the final inlier set produced (the loop refits until stable;
-      // after 8 rounds without convergence the last fit's inliers stand).
-      for (int i = 0; i < n; ++i) use[i] = residual[i] <= limit ? 1 : 0;
-    }
+  }
+  typename A::Fit curve;
+  if constexpr (A::kFixed) {
+    curve = decide;
+  } else {
+    if (fitted) fitted = curve.fit(fitRows, fitCols, use, n, fitOrder, fitRows[0], fitRows[n - 1]);
   }
 
   // Stage 5: one sample per row: the line's, else (keepOtherSegments) the strongest
@@ -583,8 +593,8 @@ void focusRobust(const ImageView& frame, const ImageView* laserOff, const Roi& r
       pk = &peaks[owner[y]];
       if (fitted && use[fi] != 0) {
         status = RowStatus::kLine;
-        fitTerm = A::fitTerm(residual[fi], limit);
-        const double d = A::toPx(residual[fi]);
+        fitTerm = Q::fitTerm(residual[fi], limit);
+        const double d = A::toPx(A::absDiff(fitCols[fi], curve.eval(fitRows[fi])));
         sumSq += d * d;
       } else {
         status = fitted ? RowStatus::kOutlier : RowStatus::kSegment;
@@ -639,17 +649,17 @@ void focusRobust(const ImageView& frame, const ImageView* laserOff, const Roi& r
       for (int j = lo; j < nRows && out.rows[static_cast<size_t>(j)].row - r0 <= p.smoothRows; ++j) {
         if (outKey[j] != outKey[k]) continue;
         endRows[m] = out.rows[static_cast<size_t>(j)].row - r0;
-        endCols[m] = outCol[j];
+        smoothCols[m] = outCol[j];
         if (++m == 64) break;
       }
-      const Col smooth = A::quadAtZero(endRows, endCols, m);
+      const Col smooth = A::quadAtZero(endRows, smoothCols, m);
       RowSample& sm = out.rows[static_cast<size_t>(k)];
       sm.columnQ8 = A::toQ8(smooth);
       sm.column = static_cast<float>(A::toPx(smooth));
     }
   }
   if (fitted) {
-    fit.describe(out);
+    curve.describe(out);
     out.valid = true;
     out.rmsResidualPx = out.inliers > 0 ? std::sqrt(sumSq / out.inliers) : 0.0;
   }
