@@ -102,7 +102,7 @@ Status validateInputs(const ImageView& frame, const Roi& roi, const LleParams& p
 
 void reserveOutput(const Roi& roi, const LleParams& p, LaserLine& out) {
   out.clear();
-  out.rows.reserve(static_cast<size_t>(roi.height));
+  out.rows.reserve(static_cast<size_t>(roi.height) * static_cast<size_t>(p.maxPeaksPerRow));
   out.segments.reserve(static_cast<size_t>(roi.height * p.maxPeaksPerRow / p.minSegmentRows + 1));
 }
 

@@ -110,7 +110,11 @@ struct LineSegment {
 };
 
 struct LaserLine {
-  std::vector<RowSample> rows;        // at most one per image row, ascending
+  // Ascending by row. A row has at most one sample of the line (kLine or kOutlier), which
+  // comes first, then one per other segment crossing it (kSegment), stronger first: where
+  // a leaf or a second fruit also carries the laser, both are reported and the caller
+  // tells them apart in 3D.
+  std::vector<RowSample> rows;
   std::vector<LineSegment> segments;  // in order of first row
   // column = Σ coeffs[k] * t^k with t = (row - rowCenter) / rowHalfSpan
   std::array<double, 8> coeffs{};
@@ -127,7 +131,8 @@ struct LaserLine {
   double coverage = 0.0;
 
   double columnAt(double row) const;
-  // The sample of `row`, or nullptr when the row has none (no line there: invalid).
+  // The first sample of `row` (the line's when it has one), or nullptr when the row has
+  // none (no line there: invalid).
   const RowSample* sampleAt(int row) const;
   void clear();
 };

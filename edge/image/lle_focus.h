@@ -332,8 +332,8 @@ void focusRobust(const ImageView& frame, const ImageView* laserOff, const Roi& r
   arena.reserve<int>(64);
   arena.reserve<int32_t>(64);
   arena.reserve<Col>(64);
-  arena.reserve<Col>(uh);          // output centroids
-  arena.reserve<int32_t>(uh);      // output smoothing keys
+  arena.reserve<Col>(slots);       // output centroids
+  arena.reserve<int32_t>(slots);   // output smoothing keys
   arena.commit();
   Peak* peaks = arena.take<Peak>(slots);
   int32_t* nPeaks = arena.take<int32_t>(uh);
@@ -352,8 +352,8 @@ void focusRobust(const ImageView& frame, const ImageView* laserOff, const Roi& r
   int* endRows = arena.take<int>(64);
   int32_t* endKeys = arena.take<int32_t>(64);
   Col* smoothCols = arena.take<Col>(64);
-  Col* outCol = arena.take<Col>(uh);
-  int32_t* outKey = arena.take<int32_t>(uh);
+  Col* outCol = arena.take<Col>(slots);
+  int32_t* outKey = arena.take<int32_t>(slots);
 
   const int redOff = redOffset(frame.format);
   const int step = p.brceStep;
@@ -575,53 +575,27 @@ void focusRobust(const ImageView& frame, const ImageView* laserOff, const Roi& r
     if (fitted) fitted = curve.fit(fitRows, fitCols, use, n, fitOrder, fitRows[0], fitRows[n - 1]);
   }
 
-  // Stage 5: one sample per row: the line's, else (keepOtherSegments) the strongest
-  // other segment's.
+  // Stage 5: the samples of each row: the line's first, then those of the other segments
+  // (keepOtherSegments), stronger segments first.
   int nOut = 0;
   for (int c = 0; c < nChains; ++c)
     if (chains[c].count >= p.minSegmentRows) chains[c].segment = nOut++;
   for (int c = 0; c < nChains; ++c)
     if (chains[c].segment >= 0)
       out.segments.push_back(LineSegment{roi.y + chains[c].first, roi.y + chains[c].last, 0, chains[c].onLine != 0});
-  double sumSq = 0.0;
-  int fi = 0;
-  for (int y = 0; y < h; ++y) {
-    const Peak* pk = nullptr;
-    RowStatus status = RowStatus::kSegment;
-    int fitTerm = 128;
-    if (owner[y] >= 0) {
-      pk = &peaks[owner[y]];
-      if (fitted && use[fi] != 0) {
-        status = RowStatus::kLine;
-        fitTerm = Q::fitTerm(residual[fi], limit);
-        const double d = A::toPx(A::absDiff(fitCols[fi], curve.eval(fitRows[fi])));
-        sumSq += d * d;
-      } else {
-        status = fitted ? RowStatus::kOutlier : RowStatus::kSegment;
-      }
-      ++fi;
-    } else if (p.keepOtherSegments) {
-      int64_t bestArea = -1;
-      for (int j = 0; j < nPeaks[y]; ++j) {
-        const Peak& q = peaks[y * kMax + j];
-        if (chains[q.chain].segment < 0 || chains[q.chain].area <= bestArea) continue;
-        bestArea = chains[q.chain].area;
-        pk = &q;
-      }
-    }
-    if (pk == nullptr) continue;
+  auto emit = [&](int y, const Peak& pk, RowStatus status, int fitTerm) {
     RowSample sm;
     sm.row = roi.y + y;
-    const Col col = pk->col + A::fromInt(roi.x);
+    const Col col = pk.col + A::fromInt(roi.x);
     sm.centroidQ8 = A::toQ8(col);
     sm.columnQ8 = sm.centroidQ8;
     sm.column = static_cast<float>(A::toPx(col));
     sm.status = status;
     sm.inlier = status == RowStatus::kLine;
-    sm.saturated = pk->saturated != 0;
-    sm.segment = chains[pk->chain].segment;
+    sm.saturated = pk.saturated != 0;
+    sm.segment = chains[pk.chain].segment;
     if (status != RowStatus::kOutlier) {
-      int conf = std::min(256, pk->excess * 256 / 96) * fitTerm / 256;
+      int conf = std::min(256, pk.excess * 256 / 96) * fitTerm / 256;
       if (sm.saturated) conf = conf * 3 / 4;
       sm.confidence = static_cast<float>(conf) / 256.0F;
     }
@@ -634,6 +608,38 @@ void focusRobust(const ImageView& frame, const ImageView* laserOff, const Roi& r
       out.lastLineRow = sm.row;
       out.inliers += 1;
     }
+  };
+  double sumSq = 0.0;
+  int fi = 0;
+  int others[8];
+  for (int y = 0; y < h; ++y) {
+    if (owner[y] >= 0) {
+      RowStatus status = RowStatus::kSegment;
+      int fitTerm = 128;
+      if (fitted && use[fi] != 0) {
+        status = RowStatus::kLine;
+        fitTerm = Q::fitTerm(residual[fi], limit);
+        const double d = A::toPx(A::absDiff(fitCols[fi], curve.eval(fitRows[fi])));
+        sumSq += d * d;
+      } else if (fitted) {
+        status = RowStatus::kOutlier;
+      }
+      ++fi;
+      emit(y, peaks[owner[y]], status, fitTerm);
+    }
+    if (!p.keepOtherSegments) continue;
+    int n2 = 0;
+    for (int j = 0; j < nPeaks[y]; ++j) {
+      const int pi = y * kMax + j;
+      if (pi == owner[y] || chains[peaks[pi].chain].segment < 0) continue;
+      int i = n2++;
+      while (i > 0 && chains[peaks[others[i - 1]].chain].area < chains[peaks[pi].chain].area) {
+        others[i] = others[i - 1];
+        --i;
+      }
+      others[i] = pi;
+    }
+    for (int i = 0; i < n2; ++i) emit(y, peaks[others[i]], RowStatus::kSegment, 128);
   }
   // Stage 5b: along the line, each row's column is the local quadratic fit through the
   // centroids within ±smoothRows rows of the same line or segment (speckle averages out

@@ -28,6 +28,7 @@
 #include <vector>
 
 #include "image/lle.h"
+#include "geometry/triangulation.h"
 #include "localize/localizer.h"
 #include "sim/orchard.h"
 #include "sim/renderer.h"
@@ -54,7 +55,7 @@ struct CaseResult {
   sim::LightingKind light = sim::LightingKind::kLab;
   bool occluded = false;
   double distanceMm = 0.0;
-  Score ours, paper;
+  Score ours, line, paper;
   double fixedVsFloatPx = 0.0;     // max |Δcolumn| over common valid rows
   double fixedVsFloatPolyPx = 0.0; // max |Δcurve| over the line's rows
   int rowSetMismatch = 0;          // rows whose presence or status differs
@@ -236,24 +237,54 @@ CaseResult runCase(int i, bool laserOff, const std::string& dumpDir, const std::
   pp.method = image::LleMethod::kPaper;
   if (!image::extractLine(frame, roi, pp, ws, paper).isOk()) std::abort();
 
-  // Fixed point vs the floating-point reference.
-  for (const auto& a : ours.rows) {
-    const image::RowSample* b = ref.sampleAt(a.row);
-    if (b == nullptr || b->status != a.status) {
+  // Fixed point vs the floating-point reference: the decisions are shared, so the two
+  // outputs list the same samples in the same order.
+  if (ours.rows.size() != ref.rows.size()) res.rowSetMismatch += 1;
+  for (size_t k = 0; k < std::min(ours.rows.size(), ref.rows.size()); ++k) {
+    const auto& a = ours.rows[k];
+    const auto& b = ref.rows[k];
+    if (a.row != b.row || a.status != b.status || a.segment != b.segment) {
       res.rowSetMismatch += 1;
       continue;
     }
-    res.fixedVsFloatPx = std::max(res.fixedVsFloatPx, std::abs(static_cast<double>(a.column) - static_cast<double>(b->column)));
+    res.fixedVsFloatPx = std::max(res.fixedVsFloatPx, std::abs(static_cast<double>(a.column) - static_cast<double>(b.column)));
     if (a.status == image::RowStatus::kLine && ours.valid && ref.valid)
       res.fixedVsFloatPolyPx = std::max(res.fixedVsFloatPolyPx, std::abs(ours.columnAt(a.row) - ref.columnAt(a.row)));
   }
-  for (const auto& b : ref.rows)
-    if (ours.sampleAt(b.row) == nullptr) res.rowSetMismatch += 1;
 
   const auto visible = truthByRow(truth);
+  // What the localizer keeps of a row: of its valid samples, the one whose triangulated
+  // point is nearest the rough (RGB-D) position, within the gate. No truth is used.
+  std::map<int, double> chosen;
+  {
+    std::vector<geometry::PixelPoint> px;
+    for (const auto& s : ours.rows) px.push_back({static_cast<double>(s.column), static_cast<double>(s.row)});
+    const std::vector<Eigen::Vector2d> xn = geometry::undistortPixels(scene.truth.camera, px);
+    const double gate = localize::ScanParams{}.gateMm;
+    std::map<int, double> bestDist;
+    for (size_t k = 0; k < ours.rows.size(); ++k) {
+      const auto& s = ours.rows[k];
+      if (!s.valid()) continue;
+      const geometry::TriangulatedPoint tp = geometry::triangulate(scene.truth.laser, slide, xn[k]);
+      if (!tp.valid) continue;
+      const double dist = (tp.pointMm - oc->roughMm).norm();
+      if (dist > gate) continue;
+      auto it = bestDist.find(s.row);
+      if (it == bestDist.end() || dist < it->second) {
+        bestDist[s.row] = dist;
+        chosen[s.row] = s.column;
+      }
+    }
+  }
   res.ours = score(visible, truth, [&](int row, double& col) {
+    auto it = chosen.find(row);
+    if (it == chosen.end()) return false;
+    col = it->second;
+    return true;
+  });
+  res.line = score(visible, truth, [&](int row, double& col) {
     const image::RowSample* s = ours.sampleAt(row);
-    if (s == nullptr || !s->valid()) return false;
+    if (s == nullptr || s->status != image::RowStatus::kLine) return false;
     col = s->column;
     return true;
   });
@@ -262,8 +293,8 @@ CaseResult runCase(int i, bool laserOff, const std::string& dumpDir, const std::
     col = paper.columnAt(row);
     return true;
   });
-  for (const auto& s : ours.rows)
-    if (s.valid() && visible.find(s.row) == visible.end()) res.extraRows += 1;
+  for (const auto& [row, col] : chosen)
+    if (visible.find(row) == visible.end()) res.extraRows += 1;
   res.coverage = ours.coverage;
   res.ok = true;
 
@@ -330,6 +361,7 @@ int main(int argc, char** argv) {
   int first = 0;
   int jobs = 1;
   bool laserOff = false;
+  bool showLine = false;
   std::string csv;
   std::string dump;
   for (int i = 1; i < argc; ++i) {
@@ -345,6 +377,7 @@ int main(int argc, char** argv) {
     else if (a == "--first") first = std::atoi(next().c_str());
     else if (a == "--jobs") jobs = std::max(1, std::atoi(next().c_str()));
     else if (a == "--laser-off") laserOff = true;
+    else if (a == "--line") showLine = true;
     else if (a == "--csv") csv = next();
     else if (a == "--dump") dump = next();
     else if (a == "--set") {
@@ -355,7 +388,7 @@ int main(int argc, char** argv) {
     }
     else {
       std::fprintf(stderr,
-                   "usage: alacs_lle_eval [--cases N] [--first K] [--jobs J] [--laser-off] [--csv FILE] [--dump DIR]\n"
+                   "usage: alacs_lle_eval [--cases N] [--first K] [--jobs J] [--laser-off] [--line] [--csv FILE] [--dump DIR]\n"
                    "                      [--set step|th|theta|gamma|order|outlier|minrows|peaks|jump|gap|minseg|bridge|\n"
                    "                             bridgerow|smooth=VALUE]...\n");
       return 2;
@@ -389,7 +422,7 @@ int main(int argc, char** argv) {
   for (auto& t : pool) t.join();
   std::fprintf(stderr, "\n");
 
-  std::map<std::string, Agg> ours, paper;
+  std::map<std::string, Agg> ours, line, paper;
   double fvf = 0.0, fvfPoly = 0.0;
   int mismatch = 0, simdBad = 0, extra = 0, nOcc = 0;
   double minCoverageOcc = 1.0, meanCoverageOcc = 0.0;
@@ -405,6 +438,7 @@ int main(int argc, char** argv) {
     const std::string occ = r.occluded ? "leaf" : "free";
     for (const std::string& g : {std::string("all"), light, light + "/" + occ, std::string("all/") + occ}) {
       ours[g].add(r.ours);
+      line[g].add(r.line);
       paper[g].add(r.paper);
     }
     fvf = std::max(fvf, r.fixedVsFloatPx);
@@ -423,6 +457,9 @@ int main(int argc, char** argv) {
   std::printf("LLE benchmark on the twin: %d cases (ids %d..%d, %d skipped), %.2f-%.2f m, %d with leaves in front%s\n",
               cases - failed, first, first + cases - 1, failed, dmin / 1000.0, dmax / 1000.0, nOcc,
               laserOff ? ", laser-off frame subtracted" : "");
+  std::printf("ours = per row, of the valid samples the one the localizer keeps (triangulated point nearest the\n"
+              "rough RGB-D position, within its 90 mm gate)%s; paper = the paper's four steps, its fitted curve.\n",
+              showLine ? "; line = only the extracted line's rows (status line)" : "");
   std::printf("Mean displacement (px) per central segment = mean over cases of the case's mean |column - truth|;\n"
               "worst = max over cases of the 80 %% segment's mean; max row = largest single-row error in the 80 %%\n"
               "segment; found = share of visible truth rows with a valid sample (central 80 %% / whole line).\n");
@@ -435,6 +472,7 @@ int main(int argc, char** argv) {
   for (const char* g : order) {
     if (ours.count(g) == 0) continue;
     ours[g].print("ours", g);
+    if (showLine) line[g].print("line", g);
     paper[g].print("paper", g);
   }
   std::printf("fixed point vs float reference: max |dcolumn| %.5f px, max |dcurve| %.5f px (limit 1/64 = 0.01563), "
