@@ -58,7 +58,7 @@ PY
 cd "$out"
 set +e
 ASAN_OPTIONS=detect_leaks=1:abort_on_error=1 UBSAN_OPTIONS=print_stacktrace=1:halt_on_error=1 \
-  ./fuzz_can -max_total_time="$seconds" -max_len=4096 -timeout=10 -print_final_stats=1 \
+  ./fuzz_can -max_total_time="$seconds" -max_len=4096 -timeout=10 -use_value_profile=1 -print_final_stats=1 \
   -artifact_prefix="$out/" corpus seeds 2>"$out/fuzz.log"
 status=$?
 set -e
