@@ -1,8 +1,13 @@
 // Robust sphere fit to the 3D points of every laser line on a fruit (Eigen).
-// RANSAC over four points from at least two lines (points of one line are coplanar and
-// cannot fix a sphere) gives the start and the inliers, so that leaf and branch points do
-// not pull it; Gauss–Newton on the geometric distance with Huber weights refines it.
-// Thread-safe (pure functions, deterministic for a seed).
+//
+// The points come in groups: pieces of one laser line that are continuous in 3D (a leaf
+// or a neighbouring fruit breaks a line into pieces). A piece lies on one surface, so a
+// sphere either explains most of a piece or it does not explain it. Hypotheses come from
+// every pair of pieces on different lines (least squares through both) and from random
+// four-point samples across lines; each is scored by the pieces it explains
+// (coherently), its radius against the prior and its centre's nearness to the rough
+// position. Gauss–Newton on the geometric distance with Huber weights then refines it
+// over the pieces it explains. Thread-safe (pure functions, deterministic for a seed).
 #pragma once
 
 #include <Eigen/Core>
@@ -15,18 +20,19 @@ namespace alacs::geometry {
 
 struct SphereFitParams {
   double huberMm = 1.0;         // residuals beyond this weigh as |r| rather than r²
-  double ransacBandMm = 1.5;    // RANSAC inlier band
-  double outlierMm = 5.0;       // final inlier band
+  double ransacBandMm = 1.5;    // hypothesis inlier band
+  double outlierMm = 4.0;       // final inlier band
   double minRadiusMm = 20.0;
   double maxRadiusMm = 80.0;
-  double priorRadiusMm = 0.0;        // > 0: a soft prior on the radius (fruit of this kind)
-  double priorRadiusSigmaMm = 10.0;  // its 1σ; weak, it only matters when the cap is small
-  // > 0: RANSAC prefers spheres whose centre is near `priorCenterMm` (the rough position):
-  // support × exp(−d²/2σ²). A neighbour in the fruit's cluster can show more skin than
-  // an occluded target; the refinement itself is not pulled.
+  double priorRadiusMm = 0.0;        // > 0: a prior on the radius (fruit of this kind)
+  double priorRadiusSigmaMm = 10.0;  // its 1σ; weak in the fit, it only matters when the cap is small
+  // > 0: hypotheses are ranked by nearness of their centre to `priorCenterMm` (the rough
+  // position), exp(−d²/2σ²): in a cluster a neighbour can show more skin than an
+  // occluded target. The refinement itself is not pulled.
   double priorCenterSigmaMm = 0.0;
   Eigen::Vector3d priorCenterMm = Eigen::Vector3d::Zero();
-  int ransacIterations = 400;
+  double coherentShare = 0.6;   // a piece counts fully when this share of it is explained
+  int ransacIterations = 300;
   int iterations = 30;
   size_t minPoints = 12;
   uint64_t seed = 1;
@@ -40,15 +46,23 @@ struct SphereFit {
   double centerSigmaMm = 0.0;    // sqrt(trace) of the centre block: 3D 1σ
   double radiusSigmaMm = 0.0;
   size_t inliers = 0;
+  int groupsUsed = 0;            // pieces explained
+  int linesUsed = 0;             // lines with an explained piece
   std::vector<bool> inlier;      // per input point
 };
 
-// Fits without knowing which line a point came from. Errors: kBadInput (too few points
-// or inliers), kOutOfRange (the radius is not a fruit's).
+// Fits without knowing lines or pieces (all points one piece, random samples only).
+// Errors: kBadInput (too few points or inliers), kOutOfRange (the radius is not a fruit's).
 Result<SphereFit> fitSphere(const std::vector<Eigen::Vector3d>& pointsMm, const SphereFitParams& p = {});
 
-// `lineIds[i]` names the laser line of point i; RANSAC samples span two lines or more.
+// `lineIds[i]` names the laser line of point i; `groupIds[i]` its piece (unique across
+// lines; empty: one piece per line). Pieces on at least two lines are needed.
 Result<SphereFit> fitSphere(const std::vector<Eigen::Vector3d>& pointsMm, const std::vector<int>& lineIds,
-                            const SphereFitParams& p = {});
+                            const std::vector<int>& groupIds, const SphereFitParams& p = {});
+
+// Splits one line's points (in row order) into pieces continuous in 3D: a new piece where
+// consecutive points are farther apart than `breakMm`. Returns a piece index per point,
+// starting at `firstId`.
+std::vector<int> splitPieces(const std::vector<Eigen::Vector3d>& linePointsMm, double breakMm, int firstId);
 
 }  // namespace alacs::geometry

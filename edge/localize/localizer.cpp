@@ -19,6 +19,7 @@ double withinProbability(double x, double sigma3d) {
 }
 
 constexpr double kToleranceMm = 20.0;  // the vacuum end effector's tolerance (paper)
+constexpr double kPieceBreakMm = 6.0;
 
 }  // namespace
 
@@ -78,22 +79,63 @@ Result<ScanPlan> Localizer::plan(const Eigen::Vector3d& roughMm, double strokeMm
   return plan;
 }
 
+image::Roi Localizer::stopRoi(const ScanPlan& plan, double slideMm) const {
+  // The part of the laser plane within the gate around the rough position is a disc; its
+  // image is a narrow band (the plane is seen nearly edge-on). Surfaces much nearer or
+  // farther than the target light the plane elsewhere in the row, so LLE, which keeps
+  // one peak per row, is not drawn to them.
+  const Eigen::Vector3d n = cal_.laser.planeNormal;
+  const double delta = n.dot(plan.roughMm) - cal_.laser.planeOffsetAt(slideMm);
+  if (!(std::abs(delta) < scan_.gateMm)) return {};
+  const Eigen::Vector3d centre = plan.roughMm - delta * n;
+  const double rho = std::sqrt(scan_.gateMm * scan_.gateMm - delta * delta);
+  const Eigen::Vector3d e1 = n.unitOrthogonal();
+  const Eigen::Vector3d e2 = n.cross(e1);
+  std::vector<Eigen::Vector3d> rim;
+  for (int i = 0; i < 48; ++i) {
+    const double phi = 2.0 * M_PI * i / 48.0;
+    const Eigen::Vector3d q = centre + rho * (std::cos(phi) * e1 + std::sin(phi) * e2);
+    if (q.z() > 1.0) rim.push_back(q);
+  }
+  if (rim.empty()) return {};
+  // Margin: the line's width and bRCE's reach on each side.
+  const double margin = 2.0 * lle_.brceStep + 4.0;
+  double u0 = 1e9, v0 = 1e9, u1 = -1e9, v1 = -1e9;
+  for (const geometry::PixelPoint& px : geometry::projectPoints(cal_.camera, rim)) {
+    u0 = std::min(u0, px.columnPx - margin);
+    u1 = std::max(u1, px.columnPx + margin);
+    v0 = std::min(v0, px.rowPx - margin);
+    v1 = std::max(v1, px.rowPx + margin);
+  }
+  const image::Roi& r = plan.roi;
+  const int x0 = std::max(r.x, static_cast<int>(std::floor(u0)));
+  const int x1 = std::min(r.x + r.width, static_cast<int>(std::ceil(u1)));
+  const int y0 = std::max(r.y, static_cast<int>(std::floor(v0)));
+  const int y1 = std::min(r.y + r.height, static_cast<int>(std::ceil(v1)));
+  if (x1 - x0 < 16 || y1 - y0 < 16) return {};
+  return {x0, y0, x1 - x0, y1 - y0};
+}
+
 Result<LineObservation> Localizer::observe(const image::ImageView& frame, const ScanPlan& plan, double slideMm,
                                            image::LleWorkspace& ws) const {
   if (frame.width != cal_.camera.widthPx || frame.height != cal_.camera.heightPx)
     return Status(Error::kBadInput, "frame is " + std::to_string(frame.width) + "x" + std::to_string(frame.height) +
                                         " but the calibration is for " + std::to_string(cal_.camera.widthPx) + "x" +
                                         std::to_string(cal_.camera.heightPx));
-  Result<image::LaserLine> line = image::extractLine(frame, plan.roi, lle_, ws);
-  if (!line) return line.status();
   LineObservation obs;
   obs.slideMm = slideMm;
+  const image::Roi roi = stopRoi(plan, slideMm);
+  if (roi.empty()) return obs;  // the plane misses the gate: nothing of the target can be lit
+  Result<image::LaserLine> line = image::extractLine(frame, roi, lle_, ws);
+  if (!line) return line.status();
   obs.line = std::move(*line);
-  // Every row's own centroid, not the fitted curve: the curve smooths across the edges
-  // where a leaf cuts the line; the 3D gate and the robust fit sort the rows out.
+  // Every valid row (the line's and the other surfaces' segments), not only the fitted
+  // curve: a leaf can make the line, the fruit another segment; the 3D gate and the
+  // robust fit sort the rows out.
   std::vector<geometry::PixelPoint> pixels;
   pixels.reserve(obs.line.rows.size());
-  for (const auto& r : obs.line.rows) pixels.push_back({static_cast<double>(r.column), static_cast<double>(r.row)});
+  for (const auto& r : obs.line.rows)
+    if (r.valid()) pixels.push_back({static_cast<double>(r.column), static_cast<double>(r.row)});
   const std::vector<Eigen::Vector2d> xn = geometry::undistortPixels(cal_.camera, pixels);
   for (size_t i = 0; i < xn.size(); ++i) {
     const geometry::TriangulatedPoint p = geometry::triangulate(cal_.laser, slideMm, xn[i], range_);
@@ -165,9 +207,16 @@ Result<AppleEstimate> Localizer::estimateSingleLine(const ScanPlan& plan, const 
 Result<AppleEstimate> Localizer::estimate(const ScanPlan& plan, const std::vector<LineObservation>& lines) const {
   std::vector<Eigen::Vector3d> all;
   std::vector<int> lineIds;
+  std::vector<int> pieceIds;
+  int nextPiece = 0;
   for (size_t i = 0; i < lines.size(); ++i) {
     all.insert(all.end(), lines[i].pointsMm.begin(), lines[i].pointsMm.end());
     lineIds.insert(lineIds.end(), lines[i].pointsMm.size(), static_cast<int>(i));
+    // Pieces continuous in 3D: one surface each (kPieceBreakMm exceeds the step between
+    // rows on skin up to near the limb, and is less than the gap to a leaf in front).
+    const std::vector<int> pieces = geometry::splitPieces(lines[i].pointsMm, kPieceBreakMm, nextPiece);
+    pieceIds.insert(pieceIds.end(), pieces.begin(), pieces.end());
+    if (!pieces.empty()) nextPiece = pieces.back() + 1;
   }
   if (all.empty()) return Status(Error::kNotFound, "no laser line hit the target");
   geometry::SphereFitParams sp;
@@ -175,7 +224,7 @@ Result<AppleEstimate> Localizer::estimate(const ScanPlan& plan, const std::vecto
   sp.priorRadiusSigmaMm = scan_.priorRadiusSigmaMm;
   sp.priorCenterMm = plan.roughMm;
   sp.priorCenterSigmaMm = scan_.roughSigmaMm;
-  Result<geometry::SphereFit> fit = geometry::fitSphere(all, lineIds, sp);
+  Result<geometry::SphereFit> fit = geometry::fitSphere(all, lineIds, pieceIds, sp);
   // Lines whose points reached the fit: one line alone leaves the sphere to the prior.
   std::vector<int> inliersPerLine(lines.size(), 0);
   if (fit) {

@@ -102,6 +102,10 @@ class Localizer {
   std::vector<PaperCandidate> paperCandidates(const ScanPlan& plan, const std::vector<LineObservation>& lines) const;
   static size_t selectCandidate(const std::vector<PaperCandidate>& candidates, double w1, double w2);
 
+ // The part of the plan's ROI where the laser plane at `slideMm` can light anything within
+  // the gate around the rough position (empty when it cannot).
+  image::Roi stopRoi(const ScanPlan& plan, double slideMm) const;
+
  private:
   geometry::Calibration cal_;
   image::LleParams lle_;

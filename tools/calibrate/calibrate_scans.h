@@ -1,0 +1,75 @@
+// The calibration pipeline behind `alacs_calibrate`, apart from its command line so that
+// tests can drive it: corners of the checkerboard views -> intrinsics and distortion;
+// per target placement, the board's pose and the laser line of every slide position on
+// it -> the laser plane and the slide; the quality figures for the gate.
+// Images are loaded one at a time through `ImageLoader` (a calibration set is hundreds
+// of megabytes of pixels).
+#pragma once
+
+#include <Eigen/Core>
+#include <functional>
+#include <opencv2/core.hpp>
+#include <string>
+#include <vector>
+
+#include "common/result.h"
+#include "geometry/calibration.h"
+#include "geometry/camera_calibration.h"
+#include "geometry/laser_calibration.h"
+#include "image/lle.h"
+
+namespace alacs::calib {
+
+// A checkerboard of squaresX × squaresY squares (inner corners one fewer each way), with a
+// plain margin around it that also catches the laser.
+struct BoardSpec {
+  int squaresX = 10;
+  int squaresY = 7;
+  double squareMm = 40.0;
+  double marginMm = 60.0;
+};
+
+// Loads one image (8-bit BGR, full frame) by its name.
+using ImageLoader = std::function<Result<cv::Mat>(const std::string& name)>;
+
+struct LaserFrameRef {
+  double slideMm = 0.0;
+  std::string image;       // laser on
+};
+
+// The board at one pose: an image with the laser off (its corners give the pose) and
+// frames with the laser on at several slide positions.
+struct PlacementRef {
+  std::string name;
+  std::string boardImage;  // laser off
+  std::vector<LaserFrameRef> laserFrames;
+};
+
+struct CalibrationInput {
+  BoardSpec board;
+  int widthPx = 0;
+  int heightPx = 0;
+  std::vector<std::string> cameraViews;  // checkerboard, laser off; placements' board images are added
+  std::vector<PlacementRef> placements;
+  Eigen::Vector3d nominalSlideAxis{1.0, 0.0, 0.0};
+  geometry::CameraFitOptions cameraOptions;
+  image::LleParams lle;
+  double boardEdgeGuardMm = 8.0;  // laser pixels this close to the board's edge are not used
+};
+
+struct CalibrationRun {
+  geometry::Calibration calibration;  // with its quality figures (gate not yet applied)
+  geometry::CameraFit camera;
+  geometry::LaserFit laser;
+  std::vector<std::string> log;       // what was used and what was skipped, and why
+};
+
+// Inner corners of the checkerboard in `bgr`, with their board coordinates (mm, z = 0).
+// Errors: kNotFound when the board is not found.
+Result<geometry::TargetView> detectCheckerboard(const cv::Mat& bgr, const BoardSpec& board);
+
+// Runs the whole calibration. Errors: kBadInput naming what is missing (too few views
+// with a board, no laser on the board, ...).
+Result<CalibrationRun> runCalibration(const CalibrationInput& input, const ImageLoader& load);
+
+}  // namespace alacs::calib

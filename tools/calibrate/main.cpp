@@ -1,0 +1,241 @@
+// alacs_calibrate: the sensor's calibration from a directory of calibration scans (from
+// the twin here, from the rig in the field), with the quality gate. See usage() and
+// docs/calibration.md.
+#include <Eigen/Core>
+#include <cstdio>
+#include <cstdlib>
+#include <filesystem>
+#include <map>
+#include <string>
+#include <vector>
+
+#include "calibrate/calibrate_scans.h"
+#include "geometry/calibration.h"
+#include "geometry/calibration_gate.h"
+#include "replay/scan_dir.h"
+
+using namespace alacs;
+namespace fs = std::filesystem;
+
+namespace {
+
+void usage(FILE* out) {
+  std::fprintf(out,
+               "usage: alacs_calibrate --scans DIR [--out FILE] [--limits FILE] [--board SXxSYxMM]\n"
+               "                       [--margin-mm MM] [--slide-axis X,Y,Z] [--free-k3] [--verbose]\n"
+               "\n"
+               "  --scans DIR       a directory of scan directories (docs/scan-format.md):\n"
+               "                    kind \"checkerboard\": every laser-off frame is a camera view;\n"
+               "                    kind \"laser_plane\": one board placement, a laser-off frame and\n"
+               "                    laser-on frames at several slide positions\n"
+               "  --out FILE        calibration.json to write (default DIR/calibration.json); written\n"
+               "                    atomically and only when the quality gate passes; a refused\n"
+               "                    calibration goes to FILE.refused for diagnosis\n"
+               "  --limits FILE     the gate's limits (JSON, docs/calibration.md); default built in\n"
+               "  --board           checkerboard squares and square size (default 10x7x40)\n"
+               "  --margin-mm       the board's plain margin around the squares (default 60)\n"
+               "  --slide-axis      the slide's direction in the camera frame from the drawing\n"
+               "                    (default 1,0,0; only its component along the laser normal is\n"
+               "                    observable, see docs/calibration.md)\n"
+               "  --free-k3         estimate the sixth-order radial term too\n"
+               "\n"
+               "exit status: 0 calibrated and accepted, 3 refused by the quality gate, 1 failed, 2 usage\n");
+}
+
+bool parseTriple(const char* s, Eigen::Vector3d* out) {
+  double x = 0, y = 0, z = 0;
+  if (std::sscanf(s, "%lf,%lf,%lf", &x, &y, &z) != 3) return false;
+  *out = Eigen::Vector3d(x, y, z);
+  return out->norm() > 0.0;
+}
+
+void printQuality(const geometry::CalibrationQuality& q) {
+  std::printf("quality:\n");
+  std::printf("  camera_views            %d\n", q.cameraViews);
+  std::printf("  reprojection_rms_px     %.3f\n", q.reprojectionRmsPx);
+  std::printf("  fx/fy_sigma_px          %.3f / %.3f\n", q.fxSigmaPx, q.fySigmaPx);
+  std::printf("  cx/cy_sigma_px          %.3f / %.3f\n", q.cxSigmaPx, q.cySigmaPx);
+  std::printf("  target_placements       %d\n", q.targetPlacements);
+  std::printf("  slide_positions         %d\n", q.slidePositions);
+  std::printf("  inlier_share            %.3f\n", q.inlierShare);
+  std::printf("  laser_rms_px            %.3f\n", q.laserRmsPx);
+  std::printf("  plane_rms_mm            %.3f\n", q.planeRmsMm);
+  std::printf("  normal_sigma_mrad       %.4f\n", q.normalSigmaMrad);
+  std::printf("  offset_sigma_mm         %.4f\n", q.offsetSigmaMm);
+  std::printf("  scale_sigma             %.6f\n", q.scaleSigma);
+  std::printf("  depth_sigma_mm_at_1000  %.4f\n", q.depthSigmaMmAt1000);
+  std::printf("  depth_sigma_mm_at_1600  %.4f\n", q.depthSigmaMmAt1600);
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  std::string scansDir;
+  std::string outPath;
+  std::string limitsPath;
+  bool verbose = false;
+  calib::CalibrationInput input;
+  for (int i = 1; i < argc; ++i) {
+    const std::string k = argv[i];
+    auto value = [&]() -> const char* {
+      if (i + 1 >= argc) {
+        std::fprintf(stderr, "alacs_calibrate: %s needs a value\n", k.c_str());
+        std::exit(2);
+      }
+      return argv[++i];
+    };
+    if (k == "--scans") {
+      scansDir = value();
+    } else if (k == "--out") {
+      outPath = value();
+    } else if (k == "--limits") {
+      limitsPath = value();
+    } else if (k == "--board") {
+      int sx = 0, sy = 0;
+      double mm = 0;
+      if (std::sscanf(value(), "%dx%dx%lf", &sx, &sy, &mm) != 3 || sx < 3 || sy < 3 || !(mm > 0)) {
+        std::fprintf(stderr, "alacs_calibrate: --board wants SXxSYxMM, e.g. 10x7x40\n");
+        return 2;
+      }
+      input.board.squaresX = sx;
+      input.board.squaresY = sy;
+      input.board.squareMm = mm;
+    } else if (k == "--margin-mm") {
+      input.board.marginMm = std::atof(value());
+    } else if (k == "--slide-axis") {
+      if (!parseTriple(value(), &input.nominalSlideAxis)) {
+        std::fprintf(stderr, "alacs_calibrate: --slide-axis wants X,Y,Z\n");
+        return 2;
+      }
+      input.nominalSlideAxis.normalize();
+    } else if (k == "--free-k3") {
+      input.cameraOptions.fixK3 = false;
+    } else if (k == "--verbose") {
+      verbose = true;
+    } else if (k == "--help" || k == "-h") {
+      usage(stdout);
+      return 0;
+    } else {
+      std::fprintf(stderr, "alacs_calibrate: unknown option %s\n", k.c_str());
+      usage(stderr);
+      return 2;
+    }
+  }
+  if (scansDir.empty()) {
+    usage(stderr);
+    return 2;
+  }
+  if (outPath.empty()) outPath = (fs::path(scansDir) / "calibration.json").string();
+  geometry::CalibrationLimits limits;
+  if (!limitsPath.empty()) {
+    Result<geometry::CalibrationLimits> l = geometry::CalibrationLimits::load(limitsPath);
+    if (!l) {
+      std::fprintf(stderr, "alacs_calibrate: %s\n", l.status().toString().c_str());
+      return 1;
+    }
+    limits = *l;
+  }
+
+  // The scans: every sub-directory with a manifest, in name order.
+  std::vector<fs::path> dirs;
+  std::error_code ec;
+  for (const auto& e : fs::directory_iterator(scansDir, ec))
+    if (e.is_directory() && fs::exists(e.path() / "manifest.json")) dirs.push_back(e.path());
+  if (ec) {
+    std::fprintf(stderr, "alacs_calibrate: cannot read %s: %s\n", scansDir.c_str(), ec.message().c_str());
+    return 1;
+  }
+  std::sort(dirs.begin(), dirs.end());
+  // Frames are named "<scan dir>#<frame index>" and loaded on demand.
+  std::map<std::string, std::pair<std::string, replay::ScanManifest>> manifests;
+  std::map<std::string, std::pair<std::string, size_t>> frames;
+  for (const auto& d : dirs) {
+    Result<replay::ScanManifest> m = replay::readManifest(d.string());
+    if (!m) {
+      std::fprintf(stderr, "alacs_calibrate: %s: %s\n", d.c_str(), m.status().toString().c_str());
+      return 1;
+    }
+    const std::string key = d.filename().string();
+    if (input.widthPx == 0) {
+      input.widthPx = m->scan.widthPx;
+      input.heightPx = m->scan.heightPx;
+    } else if (input.widthPx != m->scan.widthPx || input.heightPx != m->scan.heightPx) {
+      std::fprintf(stderr, "alacs_calibrate: %s: frame size differs from the other scans\n", d.c_str());
+      return 1;
+    }
+    auto name = [&](size_t i) {
+      const std::string n = key + "#" + std::to_string(i);
+      frames[n] = {key, i};
+      return n;
+    };
+    if (m->scan.kind == "checkerboard") {
+      for (size_t i = 0; i < m->frames.size(); ++i)
+        if (!m->frames[i].laserOn) input.cameraViews.push_back(name(i));
+    } else if (m->scan.kind == "laser_plane") {
+      calib::PlacementRef p;
+      p.name = key;
+      for (size_t i = 0; i < m->frames.size(); ++i) {
+        if (!m->frames[i].laserOn) {
+          if (p.boardImage.empty()) p.boardImage = name(i);
+        } else {
+          p.laserFrames.push_back({m->frames[i].slideMm, name(i)});
+        }
+      }
+      if (p.boardImage.empty()) {
+        std::fprintf(stderr, "alacs_calibrate: %s: a laser_plane scan needs a frame with the laser off\n", d.c_str());
+        return 1;
+      }
+      input.placements.push_back(std::move(p));
+    } else {
+      if (verbose) std::printf("%s: kind \"%s\" is not a calibration scan, skipped\n", key.c_str(), m->scan.kind.c_str());
+      continue;
+    }
+    manifests[key] = {d.string(), std::move(*m)};
+  }
+  if (manifests.empty()) {
+    std::fprintf(stderr, "alacs_calibrate: no calibration scans (kind checkerboard or laser_plane) in %s\n",
+                 scansDir.c_str());
+    return 1;
+  }
+  const calib::ImageLoader load = [&](const std::string& n) -> Result<cv::Mat> {
+    const auto it = frames.find(n);
+    if (it == frames.end()) return Status(Error::kNotFound, "no frame " + n);
+    const auto& [dir, manifest] = manifests.at(it->second.first);
+    return replay::loadFrame(dir, manifest, manifest.frames[it->second.second]);
+  };
+  std::printf("alacs_calibrate: %zu camera views, %zu board placements from %s\n", input.cameraViews.size(),
+              input.placements.size(), scansDir.c_str());
+  Result<calib::CalibrationRun> run = calib::runCalibration(input, load);
+  if (!run) {
+    std::fprintf(stderr, "alacs_calibrate: %s\n", run.status().toString().c_str());
+    return 1;
+  }
+  if (verbose)
+    for (const auto& line : run->log) std::printf("  %s\n", line.c_str());
+  geometry::Calibration cal = run->calibration;
+  const auto& c = cal.camera;
+  const auto& l = cal.laser;
+  std::printf("camera: fx %.2f fy %.2f cx %.2f cy %.2f px, k1 %.5f k2 %.5f p1 %.6f p2 %.6f k3 %.5f\n", c.fxPx, c.fyPx,
+              c.cxPx, c.cyPx, c.distortion[0], c.distortion[1], c.distortion[2], c.distortion[3], c.distortion[4]);
+  std::printf("laser: normal (%.6f, %.6f, %.6f), offset %.3f mm, slide axis (%.4f, %.4f, %.4f), scale %.5f\n",
+              l.planeNormal.x(), l.planeNormal.y(), l.planeNormal.z(), l.planeOffsetMm, l.slideAxis.x(),
+              l.slideAxis.y(), l.slideAxis.z(), l.slideScale);
+  printQuality(cal.quality);
+  const geometry::GateVerdict verdict = geometry::checkCalibrationQuality(cal.quality, limits);
+  if (!verdict.passed()) {
+    cal.quality.gate = geometry::CalibrationQuality::Gate::kRefused;
+    std::fprintf(stderr, "alacs_calibrate: REFUSED by the quality gate:\n");
+    for (const auto& f : verdict.failures) std::fprintf(stderr, "  %s\n", f.c_str());
+    const Status s = geometry::writeFileAtomically(outPath + ".refused", geometry::calibrationJson(cal));
+    if (s) std::fprintf(stderr, "alacs_calibrate: the refused calibration is in %s.refused (it will not load)\n",
+                        outPath.c_str());
+    return 3;
+  }
+  cal.quality.gate = geometry::CalibrationQuality::Gate::kPassed;
+  if (Status s = geometry::saveCalibration(cal, outPath); !s) {
+    std::fprintf(stderr, "alacs_calibrate: %s\n", s.toString().c_str());
+    return 1;
+  }
+  std::printf("gate: passed; wrote %s\n", outPath.c_str());
+  return 0;
+}
