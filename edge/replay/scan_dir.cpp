@@ -146,6 +146,7 @@ Result<ScanManifest> readManifest(const std::string& dir) {
     if (r.cropPx && (r.cropPx->x + r.cropPx->width > s.widthPx || r.cropPx->y + r.cropPx->height > s.heightPx))
       return fieldError(dir, w + ".crop_px", "leaves the frame");
     if (f["truth"].isString()) r.truthFile = static_cast<std::string>(f["truth"]);
+    if (f["tag"].isString()) r.tag = static_cast<std::string>(f["tag"]);
     m.frames.push_back(r);
   }
   return m;
@@ -179,6 +180,7 @@ std::string manifestJson(const ScanManifest& m) {
       << ", \"laser_on\": " << (f.laserOn ? "true" : "false");
     if (f.cropPx) o << ", \"crop_px\": " << roiJson(*f.cropPx);
     if (!f.truthFile.empty()) o << ", \"truth\": " << jsonString(f.truthFile);
+    if (!f.tag.empty()) o << ", \"tag\": " << jsonString(f.tag);
     o << "}";
   }
   o << (m.frames.empty() ? "]\n}\n" : "\n  ]\n}\n");

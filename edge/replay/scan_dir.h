@@ -31,6 +31,7 @@ struct FrameRecord {
   bool laserOn = true;
   std::optional<image::Roi> cropPx; // the PNG holds only this part of the frame; the rest is zero
   std::string truthFile;            // optional: truth rows of this frame (CSV), relative
+  std::string tag;                  // optional role: "stop" (planned), "aimed" (laser on a known point), ...
 };
 
 struct ScanInfo {

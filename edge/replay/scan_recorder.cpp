@@ -55,6 +55,11 @@ Result<std::string> ScanRecorder::end() {
   return dir;
 }
 
+bool ScanRecorder::recording() const {
+  std::lock_guard<std::mutex> lock(mu_);
+  return writer_.has_value();
+}
+
 int ScanRecorder::scansStarted() const {
   std::lock_guard<std::mutex> lock(mu_);
   return count_;
@@ -69,7 +74,7 @@ Result<ports::CapturedFrame> RecordingSource::doCapture(const ports::CaptureRequ
   const bool laser = laserOn_();
   const double position = slideMm_();
   Result<ports::CapturedFrame> f = inner_->capture(request, onExposureEnd);
-  if (f) {
+  if (f && recorder_.recording()) {
     if (Status s = recorder_.frame(f->view, position, f->info.exposureStartNs, f->info.exposureUs, laser); !s)
       ALACS_LOG_WARN("record", "frame not recorded: %s", s.toString().c_str());
   }

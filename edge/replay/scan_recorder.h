@@ -33,6 +33,8 @@ class ScanRecorder {
   // when no scan is open; kIo.
   Result<std::string> end();
   int scansStarted() const;
+  // Whether a scan is open (frames outside scans are not recorded).
+  bool recording() const;
 
  private:
   std::string root_;

@@ -125,7 +125,12 @@ void setLighting(SimScene& s, LightingKind kind, CaseRng& rng, double* lux) {
 SimApple randomApple(CaseRng& rng, int id) {
   SimApple a;
   a.id = id;
-  a.radiusMm = rng.uniform(32.5, 47.5);  // 65-95 mm
+  a.radiusMm = rng.uniform(32.5, 47.5);  // 65-95 mm across
+  // A little oblate (height/width 0.82-0.98), the stem up to 35° off vertical.
+  a.aspect = rng.uniform(0.82, 0.98);
+  const double tiltRad = rng.uniform(0.0, 35.0) * M_PI / 180.0;
+  const double spinRad = rng.uniform(0.0, 2.0 * M_PI);
+  a.stemAxis = Eigen::Vector3d(std::sin(tiltRad) * std::cos(spinRad), -std::cos(tiltRad), std::sin(tiltRad) * std::sin(spinRad));
   const double shade = rng.uniform(0.8, 1.15);
   a.skinRgb = Eigen::Vector3d(0.45 * shade, rng.uniform(0.05, 0.09), rng.uniform(0.04, 0.07));
   a.groundRgb = Eigen::Vector3d(rng.uniform(0.45, 0.6), rng.uniform(0.38, 0.52), rng.uniform(0.10, 0.2));

@@ -31,9 +31,11 @@ SceneGeometry::SceneGeometry(const SimScene& scene) : scene_(scene) {
   for (size_t i = 0; i < scene.apples.size(); ++i) {
     const auto& a = scene.apples[i];
     Object o{SurfaceKind::kApple, static_cast<int>(i), {}, 0, {}, {}};
-    const Eigen::Vector3d r = Eigen::Vector3d::Constant(a.radiusMm);
+    const Eigen::Vector3d r = Eigen::Vector3d::Constant(appleBoundMm(a));
     boundsOf(a.centerMm - r, a.centerMm + r, &o);
     objects_.push_back(o);
+    appleToLocal_.push_back(appleFrame(a).transpose());
+    appleInvAxes_.emplace_back(1.0 / a.radiusMm, 1.0 / a.radiusMm, 1.0 / (a.radiusMm * a.aspect));
   }
   for (size_t i = 0; i < scene.leaves.size(); ++i) {
     const auto& l = scene.leaves[i];
@@ -75,18 +77,24 @@ bool SceneGeometry::intersectObject(int object, const Eigen::Vector3d& origin, c
   if (!mayHit(o, origin, dir, tMin, tMax)) return false;
   switch (o.kind) {
     case SurfaceKind::kApple: {
-      const auto& a = scene_.apples[static_cast<size_t>(o.index)];
-      const Eigen::Vector3d oc = origin - a.centerMm;
-      const double b = oc.dot(dir);
-      const double c = oc.squaredNorm() - a.radiusMm * a.radiusMm;
-      const double disc = b * b - c;
+      // In the apple's scaled frame the ellipsoid is the unit sphere; t is unchanged.
+      const auto i = static_cast<size_t>(o.index);
+      const auto& a = scene_.apples[i];
+      const Eigen::Vector3d& inv = appleInvAxes_[i];
+      const Eigen::Vector3d ol = (appleToLocal_[i] * (origin - a.centerMm)).cwiseProduct(inv);
+      const Eigen::Vector3d dl = (appleToLocal_[i] * dir).cwiseProduct(inv);
+      const double qa = dl.squaredNorm();
+      const double b = ol.dot(dl);
+      const double c = ol.squaredNorm() - 1.0;
+      const double disc = b * b - qa * c;
       if (disc < 0.0) return false;
       const double s = std::sqrt(disc);
-      double t = -b - s;
-      if (t <= tMin) t = -b + s;
+      double t = (-b - s) / qa;
+      if (t <= tMin) t = (-b + s) / qa;
       if (t <= tMin || t >= tMax) return false;
       hit->t = t;
-      hit->normal = (origin + t * dir - a.centerMm) / a.radiusMm;
+      const Eigen::Vector3d u = (ol + t * dl).cwiseProduct(inv);  // gradient in the local frame
+      hit->normal = (appleToLocal_[i].transpose() * u).normalized();
       if (hit->normal.dot(dir) > 0.0) hit->normal = -hit->normal;
       break;
     }
@@ -184,6 +192,7 @@ bool SceneGeometry::blocked(const Eigen::Vector3d& origin, const Eigen::Vector3d
   for (int i = 0; i < static_cast<int>(objects_.size()); ++i) {
     const Object& o = objects_[static_cast<size_t>(i)];
     if (o.kind == skipKind && o.index == skipIndex) continue;
+    if (!mayHit(o, origin, dir, tMin, tMax)) continue;
     Hit h;
     if (intersectObject(i, origin, dir, tMin, tMax, &h)) return true;
   }

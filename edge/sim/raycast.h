@@ -54,6 +54,8 @@ class SceneGeometry {
   const SimScene& scene_;
   std::vector<Object> objects_;
   std::vector<Eigen::Vector3d> leafSide_;  // normal × axis, per leaf
+  std::vector<Eigen::Matrix3d> appleToLocal_;  // per apple: Rᵀ, then scaled by appleInvAxes_
+  std::vector<Eigen::Vector3d> appleInvAxes_;  // 1/a, 1/a, 1/c
 };
 
 }  // namespace alacs::sim

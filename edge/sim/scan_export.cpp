@@ -79,6 +79,7 @@ Status exportScan(const SimScene& scene, const std::shared_ptr<const RayTable>& 
     rec.timestampS = f.timestampS;
     rec.exposureUs = req.exposureUs;
     rec.laserOn = f.laserOn;
+    rec.tag = f.tag;
     if (options.writeTruth && f.laserOn) {
       char name[64];
       std::snprintf(name, sizeof name, "truth/frame_%04d.csv", w->frameCount());

@@ -20,6 +20,7 @@ struct ExportFrame {
   bool laserOn = true;
   int64_t exposureUs = 0;     // 0: the scene's
   double timestampS = 0.0;
+  std::string tag;            // the frame's role in the manifest ("stop", "aimed"), optional
 };
 
 struct ExportOptions {

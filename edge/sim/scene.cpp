@@ -29,6 +29,8 @@ Status SimScene::validate() const {
       return fieldError(f + ".center_mm", "must lie between 300 mm and the background");
     if (!(a.blush >= 0.0 && a.blush <= 1.0)) return fieldError(f + ".blush", "must be in 0..1");
     if (!(a.blushAxis.norm() > 1e-6)) return fieldError(f + ".blush_axis", "must not be zero");
+    if (!(a.aspect >= 0.5 && a.aspect <= 1.5)) return fieldError(f + ".aspect", "must be in 0.5..1.5");
+    if (std::abs(a.stemAxis.norm() - 1.0) > 1e-6) return fieldError(f + ".stem_axis", "must be a unit vector");
     for (int c = 0; c < 3; ++c)
       if (!(a.skinRgb(c) >= 0.0 && a.skinRgb(c) <= 1.0 && a.groundRgb(c) >= 0.0 && a.groundRgb(c) <= 1.0))
         return fieldError(f + ".skin_rgb", "albedos must be in 0..1");
@@ -116,8 +118,32 @@ SimScene defaultScene() {
   return s;
 }
 
+Eigen::Matrix3d appleFrame(const SimApple& apple) {
+  const Eigen::Vector3d z = apple.stemAxis.normalized();
+  const Eigen::Vector3d x = z.unitOrthogonal();
+  Eigen::Matrix3d r;
+  r.col(0) = x;
+  r.col(1) = z.cross(x);
+  r.col(2) = z;
+  return r;
+}
+
+Eigen::Vector3d appleNormal(const SimApple& apple, const Eigen::Vector3d& p) {
+  const Eigen::Matrix3d r = appleFrame(apple);
+  const Eigen::Vector3d l = r.transpose() * (p - apple.centerMm);
+  const double a2 = apple.radiusMm * apple.radiusMm;
+  const double c2 = a2 * apple.aspect * apple.aspect;
+  return (r * Eigen::Vector3d(l.x() / a2, l.y() / a2, l.z() / c2)).normalized();
+}
+
 Eigen::Vector3d approachPoint(const SimApple& apple) {
-  return apple.centerMm - apple.radiusMm * apple.centerMm.normalized();
+  // Where the sight line to the centre enters the surface: x = t·ĉ with |S⁻¹Rᵀ(x - c)| = 1.
+  const Eigen::Vector3d dir = apple.centerMm.normalized();
+  const Eigen::Matrix3d r = appleFrame(apple);
+  const Eigen::Vector3d inv(1.0 / apple.radiusMm, 1.0 / apple.radiusMm, 1.0 / (apple.radiusMm * apple.aspect));
+  const Eigen::Vector3d d = (r.transpose() * dir).cwiseProduct(inv);
+  // From the centre back along the sight line: |s·d| = 1.
+  return apple.centerMm - dir / d.norm();
 }
 
 Eigen::Vector2d projectPx(const geometry::CameraIntrinsics& cam, const Eigen::Vector3d& p) {
@@ -261,6 +287,8 @@ Result<SimScene> loadScene(const std::string& path) {
       a.id = static_cast<int>(r.num(*it, "id", id, w));
       a.centerMm = r.vec3(*it, "center_mm", a.centerMm, w);
       a.radiusMm = r.num(*it, "radius_mm", a.radiusMm, w);
+      a.aspect = r.num(*it, "aspect", a.aspect, w);
+      a.stemAxis = r.vec3(*it, "stem_axis", a.stemAxis, w).normalized();
       a.skinRgb = r.vec3(*it, "skin_rgb", a.skinRgb, w);
       a.groundRgb = r.vec3(*it, "ground_rgb", a.groundRgb, w);
       a.blush = r.num(*it, "blush", a.blush, w);
@@ -366,7 +394,8 @@ std::string sceneJson(const SimScene& s) {
   for (size_t i = 0; i < s.apples.size(); ++i) {
     const auto& a = s.apples[i];
     o << (i ? ",\n" : "\n") << "    {\"id\": " << a.id << ", \"center_mm\": " << v3(a.centerMm)
-      << ", \"radius_mm\": " << a.radiusMm << ", \"approach_mm\": " << v3(approachPoint(a))
+      << ", \"radius_mm\": " << a.radiusMm << ", \"aspect\": " << a.aspect << ", \"stem_axis\": " << v3(a.stemAxis)
+      << ", \"approach_mm\": " << v3(approachPoint(a))
       << ", \"skin_rgb\": " << v3(a.skinRgb) << ", \"ground_rgb\": " << v3(a.groundRgb) << ", \"blush\": " << a.blush
       << ", \"blush_axis\": " << v3(a.blushAxis) << ", \"specular\": " << a.specular << ", \"shininess\": "
       << a.shininess << "}";

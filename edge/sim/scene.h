@@ -17,10 +17,14 @@
 
 namespace alacs::sim {
 
+// An apple: an ellipsoid of revolution about its stem axis (real apples are a little
+// oblate), radius `radiusMm` across and `aspect`·radius along the stem.
 struct SimApple {
   int id = 0;
   Eigen::Vector3d centerMm{0.0, 0.0, 1200.0};
-  double radiusMm = 40.0;
+  double radiusMm = 40.0;                       // equatorial radius (half the diameter across)
+  double aspect = 1.0;                          // polar / equatorial radius (1: a sphere)
+  Eigen::Vector3d stemAxis{0.0, -1.0, 0.0};     // unit, from the centre through the stem
   Eigen::Vector3d skinRgb{0.45, 0.07, 0.06};    // albedo of the red blush per channel
   Eigen::Vector3d groundRgb{0.55, 0.48, 0.16};  // albedo of the yellow-green ground colour
   double blush = 1.0;                           // share of the skin that is blushed (1: red, ~0.5: bicolour)
@@ -149,6 +153,12 @@ Status saveSceneTruth(const SimScene& scene, const std::string& path);
 
 // The point of the apple's surface nearest the sensor on the line to its centre.
 Eigen::Vector3d approachPoint(const SimApple& apple);
+// The apple's frame: columns e1, e2 (equatorial) and the stem axis.
+Eigen::Matrix3d appleFrame(const SimApple& apple);
+// Outward unit normal of the apple's surface at (or near) `pointMm`.
+Eigen::Vector3d appleNormal(const SimApple& apple, const Eigen::Vector3d& pointMm);
+// Largest semi-axis (a bounding radius).
+inline double appleBoundMm(const SimApple& a) { return a.radiusMm * (a.aspect > 1.0 ? a.aspect : 1.0); }
 
 // Projects a camera-frame point with the Brown–Conrady model (OpenCV's), in double,
 // without OpenCV. Pixel centres at integers. The point must have z > 0.

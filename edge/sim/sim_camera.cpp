@@ -30,7 +30,20 @@ Result<ports::CapturedFrame> SimCamera::doCapture(const ports::CaptureRequest& r
   r.laserFraction = laserFraction;
   r.exposureUs = request.exposureUs;
   r.frameIndex = sequence_;
-  renderer_.render(r, frame_);
+  if (request.window.empty()) {
+    renderer_.render(r, frame_);
+  } else {
+    // A windowed readout: only the requested region is rendered (the same pixels as the
+    // full frame's crop); the rest of the buffer is left as it was.
+    const auto& cam = renderer_.scene().truth.camera;
+    frame_.create(cam.heightPx, cam.widthPx, CV_8UC3);
+    const cv::Rect window = cv::Rect(request.window.x, request.window.y, request.window.width, request.window.height) &
+                            cv::Rect(0, 0, cam.widthPx, cam.heightPx);
+    if (!window.empty()) {
+      renderer_.renderRegion(r, window, crop_);
+      crop_.copyTo(frame_(window));
+    }
+  }
   ports::CapturedFrame out;
   out.view = {frame_.data, frame_.cols, frame_.rows, frame_.step[0], image::PixelFormat::kBgr888};
   out.info.sequence = sequence_++;

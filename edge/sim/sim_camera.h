@@ -28,6 +28,7 @@ class SimCamera final : public ports::FrameSource {
   std::function<bool()> laserLevel_;
   std::function<double()> slideMm_;
   cv::Mat frame_;
+  cv::Mat crop_;  // windowed renders
   uint64_t sequence_ = 0;
   double lastSlideMm_ = 0.0;
 };

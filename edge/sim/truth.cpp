@@ -85,14 +85,23 @@ std::vector<RowTruth> laserLineTruthAll(const SimScene& scene, const SimApple& a
   const auto& las = scene.truth.laser;
   const Eigen::Vector3d n = las.planeNormal;
   const double d = las.planeOffsetAt(slideMm);
-  const double delta = n.dot(apple.centerMm) - d;
-  if (std::abs(delta) >= apple.radiusMm) return rows;
-  const Eigen::Vector3d c0 = apple.centerMm - delta * n;
-  const double rho = std::sqrt(apple.radiusMm * apple.radiusMm - delta * delta);
-  const Eigen::Vector3d e1 = n.unitOrthogonal();
-  const Eigen::Vector3d e2 = n.cross(e1);
-  auto circle = [&](double phi) -> Eigen::Vector3d { return c0 + rho * (std::cos(phi) * e1 + std::sin(phi) * e2); };
-  auto facesCamera = [&](const Eigen::Vector3d& p) { return (p - apple.centerMm).dot(-p) > 0.0; };
+  // X = c + R·S·u with u on the unit sphere: the plane n·X = d becomes m·u = e, m = S·Rᵀ·n,
+  // which cuts the unit sphere in a circle; mapped back, the laser line's ellipse.
+  const Eigen::Matrix3d frame = appleFrame(apple);
+  const Eigen::Vector3d axes(apple.radiusMm, apple.radiusMm, apple.radiusMm * apple.aspect);
+  const Eigen::Vector3d m = (frame.transpose() * n).cwiseProduct(axes);
+  const double e = (d - n.dot(apple.centerMm)) / m.norm();
+  if (std::abs(e) >= 1.0) return rows;
+  const Eigen::Vector3d mu = m.normalized();
+  const Eigen::Vector3d u0 = e * mu;
+  const double rho = std::sqrt(1.0 - e * e);
+  const Eigen::Vector3d e1 = mu.unitOrthogonal();
+  const Eigen::Vector3d e2 = mu.cross(e1);
+  auto circle = [&](double phi) -> Eigen::Vector3d {
+    const Eigen::Vector3d u = u0 + rho * (std::cos(phi) * e1 + std::sin(phi) * e2);
+    return apple.centerMm + frame * u.cwiseProduct(axes);
+  };
+  auto facesCamera = [&](const Eigen::Vector3d& p) { return appleNormal(apple, p).dot(-p) > 0.0; };
   std::vector<std::pair<int, double>> crossings;
   rowCrossings(scene.truth.camera, circle, facesCamera, 0.0, 2.0 * M_PI, 4096, true, &crossings);
   const SceneGeometry geo(scene);
@@ -106,7 +115,7 @@ std::vector<RowTruth> laserLineTruthAll(const SimScene& scene, const SimApple& a
     r.pointMm = circle(phi);
     r.column = projectPx(scene.truth.camera, r.pointMm).x();
     r.appleId = apple.id;
-    const Eigen::Vector3d normal = (r.pointMm - apple.centerMm) / apple.radiusMm;
+    const Eigen::Vector3d normal = appleNormal(apple, r.pointMm);
     r.flags = laserFlags(scene, geo, r.pointMm, normal, slideMm, SurfaceKind::kApple, appleIndex);
     if (r.column < -0.5 || r.column > scene.truth.camera.widthPx - 0.5) r.flags |= kTruthOutside;
     rows.push_back(r);
@@ -224,7 +233,7 @@ double occlusionShare(const SimScene& scene, const SimApple& apple, int samples)
   const Eigen::Vector3d w = c / dist;
   const Eigen::Vector3d e1 = w.unitOrthogonal();
   const Eigen::Vector3d e2 = w.cross(e1);
-  const double halfAngle = std::asin(std::min(1.0, apple.radiusMm / dist));
+  const double halfAngle = std::asin(std::min(1.0, appleBoundMm(apple) / dist));
   const int side = std::max(4, static_cast<int>(std::sqrt(static_cast<double>(samples))));
   int onApple = 0;
   int hidden = 0;

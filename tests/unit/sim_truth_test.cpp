@@ -129,6 +129,36 @@ TEST_CASE("With distortion every truth point is on the sphere and the plane and 
   }
 }
 
+TEST_CASE("On an oblate, tilted apple every truth point is on the ellipsoid and the plane", "[sim][truth]") {
+  sim::SimScene s = sim::defaultScene();
+  auto& apple = s.apples[0];
+  apple.aspect = 0.85;
+  apple.stemAxis = Eigen::Vector3d(0.3, -0.9, 0.2).normalized();
+  const double slide = s.truth.laser.slideForPoint(apple.centerMm + Eigen::Vector3d(-9, 0, 0));
+  const auto rows = sim::laserLineTruth(s, apple, slide);
+  REQUIRE(rows.size() > 100);
+  const Eigen::Matrix3d f = sim::appleFrame(apple);
+  const double d = s.truth.laser.planeOffsetAt(slide);
+  for (const auto& r : rows) {
+    const Eigen::Vector3d l = f.transpose() * (r.pointMm - apple.centerMm);
+    const double q = (l.x() * l.x() + l.y() * l.y()) / (40.0 * 40.0) + l.z() * l.z() / (34.0 * 34.0);
+    CHECK(std::abs(q - 1.0) < 1e-9);
+    CHECK(std::abs(s.truth.laser.planeNormal.dot(r.pointMm) - d) < 1e-9);
+    CHECK(std::abs(sim::projectPx(s.truth.camera, r.pointMm).y() - r.row) < 1e-6);
+    CHECK(sim::appleNormal(apple, r.pointMm).dot(-r.pointMm) > 0.0);
+  }
+  // The approach point: on the surface, on the sight line to the centre, nearer than it.
+  const Eigen::Vector3d ap = sim::approachPoint(apple);
+  const Eigen::Vector3d l = f.transpose() * (ap - apple.centerMm);
+  CHECK(std::abs((l.x() * l.x() + l.y() * l.y()) / 1600.0 + l.z() * l.z() / (34.0 * 34.0) - 1.0) < 1e-9);
+  CHECK(ap.normalized().cross(apple.centerMm.normalized()).norm() < 1e-12);
+  CHECK(ap.norm() < apple.centerMm.norm());
+  // A sphere's approach point is one radius short of the centre.
+  sim::SimApple round = apple;
+  round.aspect = 1.0;
+  CHECK((sim::approachPoint(round) - (round.centerMm - 40.0 * round.centerMm.normalized())).norm() < 1e-9);
+}
+
 TEST_CASE("The distortion model matches OpenCV's projectPoints", "[sim][truth]") {
   const sim::SimScene s = sim::defaultScene();
   std::vector<Eigen::Vector3d> pts;

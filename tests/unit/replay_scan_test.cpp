@@ -1,0 +1,322 @@
+// Scan directories: the manifest round trip and its errors, the replay source (nearest
+// frame, laser state, crops, the recorded position), the recorder, and the property that
+// matters: a scan exported by the twin and replayed gives the localizer exactly what the
+// live frames gave it.
+#include <catch2/catch.hpp>
+
+#include <stdlib.h>
+#include <sys/stat.h>
+
+#include <cmath>
+#include <fstream>
+#include <opencv2/imgcodecs.hpp>
+
+#include "localize/localizer.h"
+#include "replay/replay_source.h"
+#include "replay/scan_dir.h"
+#include "replay/scan_recorder.h"
+#include "sim/renderer.h"
+#include "sim/scan_export.h"
+#include "sim/scene.h"
+
+using namespace alacs;
+
+namespace {
+
+std::string tempDir() {
+  char tmpl[] = "/tmp/alacs_replay_XXXXXX";
+  const char* d = ::mkdtemp(tmpl);
+  REQUIRE(d != nullptr);
+  return d;
+}
+
+void writeText(const std::string& path, const std::string& text) {
+  std::ofstream out(path);
+  out << text;
+}
+
+// A source that hands out a frame whose every pixel holds its sequence number.
+class CountingSource final : public ports::FrameSource {
+ public:
+  const char* name() const override { return "counting"; }
+
+ private:
+  Result<ports::CapturedFrame> doCapture(const ports::CaptureRequest& request,
+                                         const std::function<void()>& onExposureEnd) override {
+    if (onExposureEnd) onExposureEnd();
+    frame_ = cv::Mat(48, 64, CV_8UC3, cv::Scalar::all(static_cast<double>(10 + sequence_)));
+    ports::CapturedFrame f;
+    f.view = {frame_.data, frame_.cols, frame_.rows, frame_.step[0], image::PixelFormat::kBgr888};
+    f.info.sequence = sequence_++;
+    f.info.exposureStartNs = static_cast<TimeNs>(sequence_) * kNsPerMs;
+    f.info.exposureUs = request.exposureUs;
+    return f;
+  }
+  cv::Mat frame_;
+  uint64_t sequence_ = 0;
+};
+
+geometry::Calibration smallCalibration() {
+  geometry::Calibration cal = sim::defaultScene().truth;
+  cal.camera.widthPx = 64;
+  cal.camera.heightPx = 48;
+  cal.camera.fxPx = 75.0;
+  cal.camera.fyPx = 75.0;
+  cal.camera.cxPx = 31.5;
+  cal.camera.cyPx = 23.5;
+  return cal;
+}
+
+}  // namespace
+
+TEST_CASE("A manifest reads back as written", "[replay]") {
+  const std::string dir = tempDir();
+  replay::ScanManifest m;
+  m.scan.kind = "localize";
+  m.scan.source = "test";
+  m.scan.widthPx = 2048;
+  m.scan.heightPx = 1536;
+  m.scan.targetId = 7;
+  m.scan.roughMm = Eigen::Vector3d(12.5, -30.25, 1234.0);
+  m.scan.stopsMm = {60.0, 80.0, 100.0};
+  m.scan.roiPx = image::Roi{100, 200, 300, 400};
+  m.scan.note = "a \"quoted\" note";
+  replay::FrameRecord f;
+  f.file = "frames/frame_0000.png";
+  f.slideMm = 61.25;
+  f.slideStartMm = 60.5;
+  f.slideEndMm = 62.0;
+  f.timestampS = 12345.000001234;
+  f.exposureUs = 2500;
+  f.laserOn = false;
+  f.cropPx = image::Roi{10, 20, 30, 40};
+  f.truthFile = "truth/frame_0000.csv";
+  f.tag = "aimed";
+  m.frames.push_back(f);
+  f.index = 1;
+  f.file = "frames/frame_0001.png";
+  f.laserOn = true;
+  f.cropPx.reset();
+  f.slideStartMm = f.slideEndMm = std::nan("");
+  m.frames.push_back(f);
+  REQUIRE(replay::writeManifest(dir, m).isOk());
+  Result<replay::ScanManifest> r = replay::readManifest(dir);
+  REQUIRE(r.isOk());
+  CHECK(r->scan.kind == "localize");
+  CHECK(r->scan.source == "test");
+  CHECK(r->scan.targetId == 7);
+  REQUIRE(r->scan.roughMm);
+  CHECK((*r->scan.roughMm - *m.scan.roughMm).norm() < 1e-9);
+  CHECK(r->scan.stopsMm == m.scan.stopsMm);
+  REQUIRE(r->scan.roiPx);
+  CHECK(r->scan.roiPx->width == 300);
+  CHECK(r->scan.note == m.scan.note);
+  REQUIRE(r->frames.size() == 2);
+  CHECK(r->frames[0].slideMm == 61.25);
+  CHECK(r->frames[0].slideStartMm == 60.5);
+  CHECK(std::abs(r->frames[0].timestampS - 12345.000001234) < 1e-9);
+  CHECK(r->frames[0].exposureUs == 2500);
+  CHECK_FALSE(r->frames[0].laserOn);
+  REQUIRE(r->frames[0].cropPx);
+  CHECK(r->frames[0].cropPx->height == 40);
+  CHECK(r->frames[0].truthFile == "truth/frame_0000.csv");
+  CHECK(r->frames[0].tag == "aimed");
+  CHECK(r->frames[1].laserOn);
+  CHECK_FALSE(r->frames[1].cropPx);
+  CHECK(std::isnan(r->frames[1].slideStartMm));
+}
+
+TEST_CASE("A bad manifest is refused with the field named", "[replay]") {
+  const std::string dir = tempDir();
+  const std::string head = R"({"format": "alacs-scan/1", "scan": {"width_px": 64, "height_px": 48}, "frames": [)";
+  struct Case {
+    const char* frames;
+    const char* field;
+  } cases[] = {
+      {R"({"file": "frames/a.png", "timestamp_s": 0, "exposure_us": 10, "laser_on": true})", "frames[0].slide_mm"},
+      {R"({"file": "frames/a.png", "slide_mm": 1, "timestamp_s": 0, "exposure_us": 0, "laser_on": true})", "frames[0].exposure_us"},
+      {R"({"file": "../a.png", "slide_mm": 1, "timestamp_s": 0, "exposure_us": 10, "laser_on": true})", "frames[0].file"},
+      {R"({"file": "a.png", "slide_mm": 1, "timestamp_s": 0, "exposure_us": 10, "laser_on": true, "crop_px": [60, 0, 10, 10]})", "frames[0].crop_px"},
+      {R"({"file": "a.png", "slide_mm": 1, "timestamp_s": 0, "exposure_us": 10})", "frames[0].laser_on"},
+  };
+  for (const auto& c : cases) {
+    writeText(dir + "/manifest.json", head + c.frames + "]}");
+    Result<replay::ScanManifest> r = replay::readManifest(dir);
+    INFO(c.field);
+    REQUIRE_FALSE(r.isOk());
+    CHECK(r.status().code() == Error::kBadInput);
+    CHECK(r.status().reason().find(c.field) != std::string::npos);
+  }
+  writeText(dir + "/manifest.json", R"({"format": "alacs-scan/9", "scan": {}, "frames": []})");
+  CHECK(replay::readManifest(dir).status().reason().find("format") != std::string::npos);
+  CHECK(replay::readManifest(dir + "/none").status().code() == Error::kNotFound);
+}
+
+TEST_CASE("The replay source serves the nearest frame with the laser's state and reports its position", "[replay]") {
+  const std::string dir = tempDir();
+  const geometry::Calibration cal = smallCalibration();
+  replay::ScanInfo info;
+  info.widthPx = 64;
+  info.heightPx = 48;
+  Result<replay::ScanWriter> w = replay::ScanWriter::create(dir, info, cal);
+  REQUIRE(w.isOk());
+  const double positions[] = {10.0, 20.0, 30.0};
+  for (int i = 0; i < 3; ++i) {
+    cv::Mat img(48, 64, CV_8UC3, cv::Scalar::all(50.0 + i));
+    replay::FrameRecord rec;
+    rec.slideMm = positions[i];
+    rec.exposureUs = 1000 + i;
+    rec.laserOn = true;
+    REQUIRE(w->addFrame({img.data, img.cols, img.rows, img.step[0], image::PixelFormat::kBgr888}, rec).isOk());
+  }
+  // A laser-off frame stored as a crop: the rest of the frame replays as zero.
+  cv::Mat crop(10, 20, CV_8UC3, cv::Scalar(1, 2, 3));
+  replay::FrameRecord off;
+  off.slideMm = 20.0;
+  off.exposureUs = 500;
+  off.laserOn = false;
+  REQUIRE(w->addCrop(crop, image::Roi{5, 6, 20, 10}, off).isOk());
+  REQUIRE(w->finish().isOk());
+
+  VirtualClock clock;
+  bool laser = true;
+  double slide = 0.0;
+  Result<std::unique_ptr<replay::ReplaySource>> src =
+      replay::ReplaySource::open(dir, clock, [&] { return laser; }, [&] { return slide; });
+  REQUIRE(src.isOk());
+  ports::FrameSource& cam = **src;
+  int ends = 0;
+  slide = 21.0;
+  Result<ports::CapturedFrame> f = cam.capture({}, [&] { ++ends; });
+  REQUIRE(f.isOk());
+  CHECK(ends == 1);
+  CHECK(f->view.width == 64);
+  CHECK(f->view.data[0] == 51);  // the frame recorded at 20 mm
+  CHECK(f->info.exposureUs == 1001);
+  CHECK((*src)->lastSlideMm() == 20.0);
+  CHECK(std::abs((*src)->lastPositionErrorMm() - 1.0) < 1e-12);
+  slide = 100.0;
+  f = cam.capture({}, {});
+  REQUIRE(f.isOk());
+  CHECK(f->view.data[0] == 52);
+  CHECK((*src)->lastSlideMm() == 30.0);
+  laser = false;
+  f = cam.capture({}, {});
+  REQUIRE(f.isOk());
+  CHECK((*src)->lastSlideMm() == 20.0);
+  CHECK(f->view.data[0] == 0);                                // outside the crop
+  CHECK(f->view.row(6)[3 * 5 + 2] == 3);                      // inside it (B, G, R = 1, 2, 3)
+  CHECK(f->view.row(15)[3 * 24] == 1);
+  CHECK(f->view.row(16)[3 * 24] == 0);
+
+  // A scan without laser-off frames cannot serve a dark frame.
+  const std::string dir2 = tempDir();
+  Result<replay::ScanWriter> w2 = replay::ScanWriter::create(dir2, info, cal);
+  REQUIRE(w2.isOk());
+  cv::Mat img(48, 64, CV_8UC3, cv::Scalar::all(9));
+  replay::FrameRecord rec;
+  rec.exposureUs = 10;
+  REQUIRE(w2->addFrame({img.data, img.cols, img.rows, img.step[0], image::PixelFormat::kBgr888}, rec).isOk());
+  REQUIRE(w2->finish().isOk());
+  auto src2 = replay::ReplaySource::open(dir2, clock, [] { return false; }, [] { return 0.0; });
+  REQUIRE(src2.isOk());
+  CHECK((*src2)->capture({}, {}).status().code() == Error::kNotFound);
+}
+
+TEST_CASE("The recorder writes each scan as a replayable scan directory", "[replay]") {
+  const std::string root = tempDir();
+  replay::ScanRecorder rec(root, smallCalibration());
+  double slide = 5.0;
+  bool laser = true;
+  replay::RecordingSource cam(std::make_unique<CountingSource>(), rec, [&] { return slide; }, [&] { return laser; });
+  // Frames outside a scan are not recorded (and the camera still works).
+  REQUIRE(cam.capture({}, {}).isOk());
+  REQUIRE(rec.begin(3, Eigen::Vector3d(1, 2, 1000), {5.0, 25.0}, image::Roi{1, 2, 30, 20}).isOk());
+  for (double s : {5.0, 25.0}) {
+    slide = s;
+    REQUIRE(cam.capture({}, {}).isOk());
+  }
+  Result<std::string> dir = rec.end();
+  REQUIRE(dir.isOk());
+  CHECK(*dir == root + "/scan_0001");
+  Result<replay::ScanManifest> m = replay::readManifest(*dir);
+  REQUIRE(m.isOk());
+  CHECK(m->scan.source == "alacsd");
+  CHECK(m->scan.targetId == 3);
+  REQUIRE(m->frames.size() == 2);
+  CHECK(m->frames[1].slideMm == 25.0);
+  CHECK(m->frames[1].laserOn);
+  REQUIRE(replay::loadScanCalibration(*dir, *m).isOk());
+  Result<cv::Mat> img = replay::loadFrame(*dir, *m, m->frames[1]);
+  REQUIRE(img.isOk());
+  CHECK(img->at<cv::Vec3b>(0, 0)[0] == 12);  // the third capture (sequence 2)
+  CHECK(rec.end().status().code() == Error::kInvalidArgument);
+}
+
+TEST_CASE("An exported twin scan replays into exactly the live estimate", "[replay][sim]") {
+  sim::SimScene scene = sim::defaultScene();
+  const auto rays = std::make_shared<const sim::RayTable>(scene.truth.camera);
+  localize::Localizer loc(scene.truth, image::LleParams{}, localize::ScanParams{});
+  const Eigen::Vector3d rough = scene.apples[0].centerMm + Eigen::Vector3d(-9, 7, 14);
+  Result<localize::ScanPlan> plan = loc.plan(rough, 200.0);
+  REQUIRE(plan.isOk());
+  // Live: render each stop (only the plan's ROI and a margin: the localizer reads no more).
+  const cv::Rect region(plan->roi.x - 16, plan->roi.y - 16, plan->roi.width + 32, plan->roi.height + 32);
+  sim::Renderer renderer(scene, rays);
+  image::LleWorkspace ws;
+  std::vector<localize::LineObservation> live;
+  std::vector<sim::ExportFrame> frames;
+  for (size_t i = 0; i < plan->stopsMm.size(); ++i) {
+    sim::FrameRequest req;
+    req.slideStartMm = req.slideEndMm = plan->stopsMm[i];
+    req.frameIndex = i;
+    cv::Mat crop;
+    renderer.renderRegion(req, region, crop);
+    cv::Mat full = cv::Mat::zeros(scene.truth.camera.heightPx, scene.truth.camera.widthPx, CV_8UC3);
+    crop.copyTo(full(region));
+    auto obs = loc.observe({full.data, full.cols, full.rows, full.step[0], image::PixelFormat::kBgr888}, *plan,
+                           plan->stopsMm[i], ws);
+    REQUIRE(obs.isOk());
+    live.push_back(*obs);
+    frames.push_back({plan->stopsMm[i], plan->stopsMm[i], true, 0, 0.1 * static_cast<double>(i), "stop"});
+  }
+  Result<localize::AppleEstimate> liveEst = loc.estimate(*plan, live);
+  REQUIRE(liveEst.isOk());
+
+  // Export the same frames, replay them through the camera port, run the same code.
+  const std::string dir = tempDir() + "/scan";
+  replay::ScanInfo info;
+  info.roughMm = rough;
+  info.stopsMm = plan->stopsMm;
+  info.roiPx = plan->roi;
+  sim::ExportOptions opt;
+  opt.renderRegion = region;
+  REQUIRE(sim::exportScan(scene, rays, dir, info, frames, opt).isOk());
+  VirtualClock clock;
+  double slide = 0.0;
+  auto src = replay::ReplaySource::open(dir, clock, [] { return true; }, [&] { return slide; });
+  REQUIRE(src.isOk());
+  Result<geometry::Calibration> cal = replay::loadScanCalibration(dir, (*src)->manifest());
+  REQUIRE(cal.isOk());
+  localize::Localizer replayLoc(*cal, image::LleParams{}, localize::ScanParams{});
+  std::vector<localize::LineObservation> replayed;
+  for (double stop : plan->stopsMm) {
+    slide = stop + 0.003;  // the slide's step grid: not exactly the planned position
+    Result<ports::CapturedFrame> f = (*src)->capture({}, {});
+    REQUIRE(f.isOk());
+    auto obs = replayLoc.observe(f->view, *plan, (*src)->lastSlideMm(), ws);
+    REQUIRE(obs.isOk());
+    replayed.push_back(*obs);
+  }
+  Result<localize::AppleEstimate> est = replayLoc.estimate(*plan, replayed);
+  REQUIRE(est.isOk());
+  // The calibration file holds 12 significant digits: equal to a tenth of a micrometre.
+  CHECK((est->centerMm - liveEst->centerMm).norm() < 1e-4);
+  CHECK(est->diameterMm == Approx(liveEst->diameterMm).margin(1e-4));
+  CHECK(est->pointsUsed == liveEst->pointsUsed);
+  // And the truth travelled with it.
+  Result<sim::SimScene> truth = sim::loadScene(dir + "/truth/scene.json");
+  REQUIRE(truth.isOk());
+  CHECK((truth->apples[0].centerMm - scene.apples[0].centerMm).norm() < 1e-6);
+  CHECK((est->centerMm - truth->apples[0].centerMm).norm() < 5.0);
+}

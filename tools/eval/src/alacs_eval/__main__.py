@@ -1,0 +1,3 @@
+from alacs_eval.cli import main
+
+raise SystemExit(main())

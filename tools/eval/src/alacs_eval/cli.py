@@ -1,0 +1,61 @@
+"""alacs-eval: the paper's evaluation on the digital twin, in one command.
+
+    alacs-eval report            the full set (≥ 300 LLE cases, 120 scans per distance
+                                 and occlusion), writes docs/evaluation.md and
+                                 docs/figures/eval_*.png
+    alacs-eval report --small    the CI set (a few minutes), into build/eval-small
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+from alacs_eval import evaluate, report, twin
+
+ROOT = twin.ROOT
+
+
+def _report(a: argparse.Namespace) -> int:
+    work = Path(a.work) if a.work else ROOT / "build" / ("eval-small" if a.small else "eval")
+    doc = Path(a.doc) if a.doc else (work / "evaluation.md" if a.small else ROOT / "docs" / "evaluation.md")
+    figs = Path(a.figures) if a.figures else (work / "figures" if a.small else ROOT / "docs" / "figures")
+    cfg = evaluate.Config(work=work, twin=twin.find_twin(a.twin), jobs=a.jobs, small=a.small, seed=a.seed,
+                          calibration=a.calibration, quiet=a.quiet)
+    t0 = time.monotonic()
+    res = evaluate.run(cfg)
+    res["meta"]["total_s"] = time.monotonic() - t0
+    work.mkdir(parents=True, exist_ok=True)
+    (work / "results.json").write_text(json.dumps(res, indent=1, default=float))
+    paths = report.figures(res, figs, "eval_")
+    command = "tools/eval/run.sh report" + (" --small" if a.small else "")
+    doc.parent.mkdir(parents=True, exist_ok=True)
+    doc.write_text(report.markdown(res, paths, doc, command))
+    print(f"alacs-eval: {doc} and {len(paths)} figures in {figs} ({res['meta']['total_s']:.0f} s); "
+          f"numbers in {work / 'results.json'}")
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(prog="alacs-eval", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    sub = p.add_subparsers(dest="cmd", required=True)
+    r = sub.add_parser("report", help="generate the sets (or reuse them), run both methods, write the report")
+    r.add_argument("--small", action="store_true", help="the small CI set")
+    r.add_argument("--work", help="where the scans and results go (default build/eval or build/eval-small)")
+    r.add_argument("--doc", help="the Markdown report (default docs/evaluation.md; --small: WORK/evaluation.md)")
+    r.add_argument("--figures", help="the PNG plots (default docs/figures; --small: WORK/figures)")
+    r.add_argument("--twin", help="the alacs-twin binary (default $ALACS_TWIN or the newest build/*/tools/twin)")
+    r.add_argument("--jobs", type=int, default=2)
+    r.add_argument("--seed", type=int, default=1)
+    r.add_argument("--calibration", help="run both methods with this calibration instead of the scans' true one")
+    r.add_argument("--quiet", action="store_true", help="no progress bars")
+    r.set_defaults(func=_report)
+    a = p.parse_args(argv)
+    return a.func(a)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,297 @@
+"""The evaluation itself: generate (or reuse) the benchmark sets with the twin, run our
+pipeline (C++, through the replay source) and the paper's method (numpy) on the same
+scans, and compute the paper's figures for both."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import multiprocessing
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from tqdm import tqdm
+
+from alacs_eval import metrics, paper_method, twin
+from alacs_eval.camera import Calibration
+from alacs_eval.paper_lle import load as load_paper_lle
+from alacs_eval.scans import Scan, target_truth
+
+DEFAULT_COMBO = (4, 40)
+# The paper's Figure 8: step 2..14 at th 60 and at th 30; th 20..70 at step 4.
+SWEEP = ([(s, 60) for s in range(2, 15, 2)] + [(s, 30) for s in range(2, 15, 2)] +
+         [(4, t) for t in range(20, 71, 10)])
+DISTANCES = (1000, 1200, 1400, 1600)
+LLE_DISTANCES = (800, 1000, 1200, 1400, 1600)
+
+
+@dataclasses.dataclass
+class Config:
+    work: Path
+    twin: Path
+    jobs: int = 2
+    small: bool = False
+    seed: int = 1
+    calibration: str | None = None
+    quiet: bool = False
+
+    @property
+    def lle_count(self) -> int:
+        return 20 if self.small else 320
+
+    @property
+    def loc_per_cell(self) -> int:
+        return 3 if self.small else 120
+
+
+def combos() -> list[tuple[int, int]]:
+    out = [DEFAULT_COMBO]
+    for c in SWEEP:
+        if c not in out:
+            out.append(c)
+    return out
+
+
+# ---- workers (top level, for multiprocessing) -----------------------------------------
+
+_PAPER = None
+
+
+def _paper():
+    global _PAPER
+    if _PAPER is None:
+        _PAPER = load_paper_lle()[0]
+    return _PAPER
+
+
+def _paper_lle_case(task: tuple[str, list[tuple[int, int]]]) -> dict[str, Any]:
+    directory, combo_list = task
+    scan = Scan.load(directory)
+    frame = next(f for f in scan.frames if f.laser_on)
+    roi = scan.roi
+    rgb = scan.region(frame, roi)
+    truth = scan.truth_rows(frame, scan.target_id)
+    out: dict[str, Any] = {"scan": directory, "combos": {}}
+    for step, th in combo_list:
+        line = _paper()(rgb, step=step, th=th)
+        predict = None
+        if line.coeffs is not None:
+            predict = (lambda l: (lambda rows: l.column_at(rows - roi[1]) + roi[0]))(line)
+        out["combos"][f"{step},{th}"] = {
+            "disp": metrics.segment_displacements(truth, predict),
+            "rows": int(len(line.rows)),
+            "pixels": int(line.pixels),
+        }
+    return out
+
+
+def _paper_loc_case(task: tuple[str, str | None]) -> dict[str, Any]:
+    directory, cal_path = task
+    scan = Scan.load(directory)
+    cal = Calibration.load(Path(cal_path)) if cal_path else scan.calibration()
+    roi = scan.roi
+    expected = tuple(cal.project(scan.rough_mm[None, :])[0])
+    stops, aimed = [], []
+    for f in scan.frames:
+        if not f.laser_on:
+            continue
+        line = _paper()(scan.region(f, roi))
+        cand = paper_method.candidate(line, roi, f.slide_mm, expected)
+        (aimed if f.tag == "aimed" else stops).append(cand)
+    centre, radius, approach = target_truth(scan)
+    res: dict[str, Any] = {"scan": directory}
+    for name, cands in (("multi", stops), ("single", aimed if aimed else [])):
+        est = paper_method.localize(cands, cal)
+        if est is None:
+            res[name] = {"approach_err": math.nan, "centre_err": math.nan}
+        else:
+            res[name] = {"approach_err": float(np.linalg.norm(est[0] - approach)),
+                         "centre_err": float(np.linalg.norm(est[1] - centre))}
+    return res
+
+
+# ---- the run -------------------------------------------------------------------------
+
+def _ours_lle(results: dict[str, dict], truths: dict[str, np.ndarray]) -> dict[str, dict]:
+    out = {}
+    for d, r in results.items():
+        frames = r.get("frames", [])
+        f = frames[0] if frames else {}
+        predict = None
+        if f.get("valid") and "curve" in f:
+            curve = np.asarray([np.nan if v is None else v for v in f["curve"]], float)
+            first = int(f["curve_first_row"])
+
+            def predict(rows: np.ndarray, curve=curve, first=first) -> np.ndarray:
+                idx = np.round(rows).astype(int) - first
+                ok = (idx >= 0) & (idx < len(curve))
+                return np.where(ok, curve[np.clip(idx, 0, len(curve) - 1)], np.nan)
+
+        out[d] = {"disp": metrics.segment_displacements(truths[d], predict), "rows": len(f.get("rows", []))}
+    return out
+
+
+def run(cfg: Config) -> dict[str, Any]:
+    times: dict[str, float] = {}
+    t = time.monotonic()
+    gen_args = {"seed": cfg.seed, "jobs": cfg.jobs}
+    lle_cases = twin.generate(cfg.twin, cfg.work / "lle", "lle", {"count": cfg.lle_count, **gen_args},
+                              cfg.lle_count, "generating LLE scans", cfg.quiet)
+    n_loc = cfg.loc_per_cell * len(DISTANCES) * 2
+    loc_cases = twin.generate(cfg.twin, cfg.work / "loc", "loc", {"count": cfg.loc_per_cell, **gen_args}, n_loc,
+                              "generating localization scans", cfg.quiet)
+    times["generate"] = time.monotonic() - t
+
+    lle_dirs = [c["dir"] for c in lle_cases]
+    loc_dirs = [c["dir"] for c in loc_cases]
+    truths = {}
+    for d in lle_dirs:
+        s = Scan.load(d)
+        truths[d] = s.truth_rows(next(f for f in s.frames if f.laser_on), s.target_id)
+
+    # Ours, on the LLE set, for every bRCE setting.
+    t = time.monotonic()
+    ours_lle: dict[tuple[int, int], dict[str, dict]] = {}
+    for step, th in tqdm(combos(), desc="our LLE (bRCE settings)", disable=cfg.quiet, leave=False):
+        res = twin.process(cfg.twin, lle_dirs, cfg.jobs, f"step {step} th {th}", rows=True, step=step, threshold=th,
+                           calibration=cfg.calibration, quiet=True)
+        ours_lle[(step, th)] = _ours_lle(res, truths)
+    times["ours_lle"] = time.monotonic() - t
+
+    # The paper's LLE on the same frames and ROIs.
+    t = time.monotonic()
+    paper_lle_res: dict[str, dict] = {}
+    with multiprocessing.get_context("fork").Pool(cfg.jobs) as pool:
+        for r in tqdm(pool.imap_unordered(_paper_lle_case, [(d, combos()) for d in lle_dirs]), total=len(lle_dirs),
+                      desc="paper's LLE (numpy)", disable=cfg.quiet, leave=False):
+            paper_lle_res[r["scan"]] = r
+    times["paper_lle"] = time.monotonic() - t
+
+    # Localization: ours (C++) and the paper's method.
+    t = time.monotonic()
+    ours_loc = twin.process(cfg.twin, loc_dirs, cfg.jobs, "our localization", calibration=cfg.calibration,
+                            quiet=cfg.quiet)
+    times["ours_loc"] = time.monotonic() - t
+    t = time.monotonic()
+    paper_loc: dict[str, dict] = {}
+    with multiprocessing.get_context("fork").Pool(cfg.jobs) as pool:
+        for r in tqdm(pool.imap_unordered(_paper_loc_case, [(d, cfg.calibration) for d in loc_dirs]),
+                      total=len(loc_dirs), desc="paper's localization", disable=cfg.quiet, leave=False):
+            paper_loc[r["scan"]] = r
+    times["paper_loc"] = time.monotonic() - t
+
+    return assemble(cfg, lle_cases, loc_cases, ours_lle, paper_lle_res, ours_loc, paper_loc, times)
+
+
+def _seg_table(per_case: list[dict[int, float]]) -> dict[str, Any]:
+    return {str(s): dataclasses.asdict(metrics.summarize(c[s] for c in per_case)) for s in metrics.SEGMENTS}
+
+
+def assemble(cfg: Config, lle_cases: list[dict], loc_cases: list[dict], ours_lle: dict, paper_lle_res: dict,
+             ours_loc: dict, paper_loc: dict, times: dict[str, float]) -> dict[str, Any]:
+    key = f"{DEFAULT_COMBO[0]},{DEFAULT_COMBO[1]}"
+    lle_dirs = [c["dir"] for c in lle_cases]
+    ours_default = ours_lle[DEFAULT_COMBO]
+
+    def paper_disp(d: str, combo: str = key) -> dict[int, float]:
+        return {int(k): v for k, v in paper_lle_res[d]["combos"][combo]["disp"].items()}
+
+    res: dict[str, Any] = {
+        "meta": {
+            "small": cfg.small, "seed": cfg.seed, "lle_cases": len(lle_cases), "loc_cases": len(loc_cases),
+            "loc_per_cell": cfg.loc_per_cell, "paper_lle": load_paper_lle()[1], "times_s": times,
+            "calibration": cfg.calibration or "the scans' (true) calibration",
+        },
+        "lle": {
+            "ours": _seg_table([ours_default[d]["disp"] for d in lle_dirs]),
+            "paper": _seg_table([paper_disp(d) for d in lle_dirs]),
+        },
+    }
+    # LLE by condition (50 % segment), to see where each method struggles.
+    cond: dict[str, Any] = {}
+    for c in lle_cases:
+        k = f"{c['lighting']}, {'occluded' if c['occluded'] else 'clear'}"
+        cond.setdefault(k, {"ours": [], "paper": [], "lux": []})
+        cond[k]["ours"].append(ours_default[c["dir"]]["disp"][50])
+        cond[k]["paper"].append(paper_disp(c["dir"])[50])
+        cond[k]["lux"].append(c["lux"])
+    res["lle"]["by_condition"] = {
+        k: {"ours": dataclasses.asdict(metrics.summarize(v["ours"])),
+            "paper": dataclasses.asdict(metrics.summarize(v["paper"])),
+            "lux": [float(min(v["lux"])), float(max(v["lux"]))]}
+        for k, v in sorted(cond.items())}
+    by_dist: dict[str, Any] = {}
+    for c in lle_cases:
+        k = str(int(c["distance_mm"]))
+        by_dist.setdefault(k, {"ours": [], "paper": []})
+        by_dist[k]["ours"].append(ours_default[c["dir"]]["disp"][50])
+        by_dist[k]["paper"].append(paper_disp(c["dir"])[50])
+    res["lle"]["by_distance"] = {k: {m: dataclasses.asdict(metrics.summarize(v[m])) for m in ("ours", "paper")}
+                                 for k, v in sorted(by_dist.items(), key=lambda kv: int(kv[0]))}
+
+    # bRCE sweep.
+    sweep = []
+    for step, th in combos():
+        combo = f"{step},{th}"
+        entry: dict[str, Any] = {"step": step, "th": th}
+        for name, disp, rows in (
+            ("ours", [ours_lle[(step, th)][d]["disp"][80] for d in lle_dirs],
+             [ours_lle[(step, th)][d]["rows"] for d in lle_dirs]),
+            ("paper", [paper_disp(d, combo)[80] for d in lle_dirs],
+             [paper_lle_res[d]["combos"][combo]["rows"] for d in lle_dirs]),
+        ):
+            arr = np.asarray(disp, float)
+            entry[name] = {
+                "disp80": float(np.nanmean(arr)) if np.any(np.isfinite(arr)) else math.nan,
+                "median80": float(np.nanmedian(arr)) if np.any(np.isfinite(arr)) else math.nan,
+                "within2px": float(np.mean(np.where(np.isfinite(arr), arr, np.inf) < 2.0)),
+                "rows": float(np.mean(rows)),
+            }
+        entry["paper"]["pixels"] = float(np.mean([paper_lle_res[d]["combos"][combo]["pixels"] for d in lle_dirs]))
+        sweep.append(entry)
+    res["sweep"] = sweep
+
+    # Localization.
+    loc: dict[str, Any] = {"ours": {}, "paper": {}}
+    per_case = []
+    for c in loc_cases:
+        d = c["dir"]
+        centre, radius, approach = target_truth(Scan.load(d))
+        row = {"case": c["case"], "distance": int(c["distance_mm"]), "occluded": bool(c["occluded"]),
+               "occlusion_share": c["occlusion_share"]}
+        o = ours_loc.get(d, {})
+        for lines in ("single", "multi"):
+            e = o.get(lines, {})
+            if e.get("ok"):
+                row[f"ours_{lines}_approach"] = float(np.linalg.norm(np.asarray(e["approach_mm"]) - approach))
+                row[f"ours_{lines}_centre"] = float(np.linalg.norm(np.asarray(e["center_mm"]) - centre))
+                row[f"ours_{lines}_sphere"] = bool(e["sphere_fit"])
+            else:
+                row[f"ours_{lines}_approach"] = row[f"ours_{lines}_centre"] = math.nan
+            p = paper_loc[d][lines]
+            row[f"paper_{lines}_approach"] = p["approach_err"]
+            row[f"paper_{lines}_centre"] = p["centre_err"]
+        per_case.append(row)
+    for method in ("ours", "paper"):
+        for lines in ("single", "multi"):
+            for what in ("approach", "centre"):
+                for occ in (False, True):
+                    for dist in DISTANCES:
+                        errs = [r[f"{method}_{lines}_{what}"] for r in per_case
+                                if r["distance"] == dist and r["occluded"] == occ]
+                        loc[method].setdefault(lines, {}).setdefault(what, {}).setdefault(
+                            "occluded" if occ else "clear", {})[str(dist)] = dataclasses.asdict(metrics.loc_stats(errs))
+    loc["occlusion_share"] = {
+        "mean": float(np.mean([r["occlusion_share"] for r in per_case if r["occluded"]] or [math.nan])),
+        "min": float(np.min([r["occlusion_share"] for r in per_case if r["occluded"]] or [math.nan])),
+        "max": float(np.max([r["occlusion_share"] for r in per_case if r["occluded"]] or [math.nan])),
+    }
+    loc["sphere_fit_share"] = {
+        lines: float(np.mean([r.get(f"ours_{lines}_sphere", False) for r in per_case])) for lines in ("single", "multi")}
+    loc["observe_ms_per_frame"] = float(np.mean([r["observe_ms"] / max(1, len(r["frames"]))
+                                                 for r in ours_loc.values() if "observe_ms" in r]))
+    res["loc"] = loc
+    res["loc_cases"] = per_case
+    return res

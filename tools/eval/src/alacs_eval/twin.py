@@ -1,0 +1,81 @@
+"""Runs the C++ twin (tools/twin, `alacs-twin`): scan generation and the pipeline."""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import subprocess
+from pathlib import Path
+
+from tqdm import tqdm
+
+ROOT = Path(__file__).resolve().parents[4]
+
+
+def find_twin(explicit: str | None = None) -> Path:
+    """--twin, else $ALACS_TWIN, else the newest build/*/tools/twin/alacs-twin."""
+    for cand in (explicit, os.environ.get("ALACS_TWIN")):
+        if cand:
+            p = Path(cand)
+            if not p.exists():
+                raise FileNotFoundError(f"alacs-twin not found at {p}")
+            return p
+    found = sorted(ROOT.glob("build/*/tools/twin/alacs-twin"), key=lambda p: p.stat().st_mtime, reverse=True)
+    if not found:
+        raise FileNotFoundError("alacs-twin is not built: cmake --build build/<dir> --target alacs-twin, or pass --twin")
+    return found[0]
+
+
+def run_lines(cmd: list[str], total: int, desc: str, quiet: bool = False) -> list[dict]:
+    """Runs `cmd`, one JSON object per stdout line, with a progress bar."""
+    out: list[dict] = []
+    with subprocess.Popen(cmd, stdout=subprocess.PIPE, text=True, bufsize=1) as proc:
+        assert proc.stdout is not None
+        with tqdm(total=total, desc=desc, unit="scan", disable=quiet, leave=False) as bar:
+            for line in proc.stdout:
+                line = line.strip()
+                if line.startswith("{"):
+                    out.append(json.loads(line))
+                    bar.update(1)
+        rc = proc.wait()
+    if rc != 0:
+        raise RuntimeError(f"{' '.join(cmd[:3])} ... failed with status {rc}")
+    return out
+
+
+def generate(twin: Path, out: Path, set_name: str, args: dict[str, str], total: int, desc: str,
+             quiet: bool = False) -> list[dict]:
+    """A benchmark set, regenerated only when its arguments or the twin changed."""
+    signature = {"set": set_name, **args, "twin_mtime": int(twin.stat().st_mtime)}
+    sig_file, index = out / "args.json", out / "set.jsonl"
+    if sig_file.exists() and index.exists():
+        if json.loads(sig_file.read_text()) == signature:
+            cases = [json.loads(l) for l in index.read_text().splitlines() if l.strip()]
+            if len(cases) == total:
+                return cases
+    if out.exists():
+        shutil.rmtree(out)
+    out.mkdir(parents=True)
+    cmd = [str(twin), "generate", "--set", set_name, "--out", str(out)]
+    for k, v in args.items():
+        cmd += [f"--{k}", str(v)]
+    cases = run_lines(cmd, total, desc, quiet)
+    sig_file.write_text(json.dumps(signature))
+    order = {c["case"]: i for i, c in enumerate(json.loads(l) for l in index.read_text().splitlines() if l.strip())}
+    return sorted(cases, key=lambda c: order[c["case"]])
+
+
+def process(twin: Path, dirs: list[str], jobs: int, desc: str, rows: bool = False, step: int | None = None,
+            threshold: int | None = None, calibration: str | None = None, quiet: bool = False) -> dict[str, dict]:
+    cmd = [str(twin), "process", "--jobs", str(jobs)]
+    if rows:
+        cmd.append("--rows")
+    if step is not None:
+        cmd += ["--brce-step", str(step)]
+    if threshold is not None:
+        cmd += ["--brce-threshold", str(threshold)]
+    if calibration:
+        cmd += ["--calibration", calibration]
+    results = run_lines(cmd + dirs, len(dirs), desc, quiet)
+    return {r["scan"]: r for r in results}

@@ -1,0 +1,259 @@
+// alacs-twin calib: the scans a calibration needs, from the twin, with their truth.
+//   DIR/checkerboard/view_NN   one laser-off frame of a 10×7 checkerboard (40 mm squares)
+//                              in a pose spread over distance, tilt and image position:
+//                              the camera's intrinsics and distortion
+//   DIR/laser_plane/dist_NNNN  the same board, flat, at 0.8-1.6 m: one laser-off frame (its
+//                              pose) and laser-on frames at slide 0, 25, ..., 200 mm: the
+//                              laser plane at home, the slide axis and its scale
+// alacs-twin examples: the example frames of docs/simulation.md.
+#include <Eigen/Geometry>
+#include <cmath>
+#include <cstdio>
+#include <opencv2/imgcodecs.hpp>
+#include <opencv2/imgproc.hpp>
+
+#include "sim/orchard.h"
+#include "sim/scan_export.h"
+#include "twin.h"
+
+namespace alacs::twin {
+
+namespace {
+
+sim::SimScene boardScene(uint64_t seed) {
+  sim::SimScene s = sim::defaultScene();
+  s.seed = seed;
+  s.apples.clear();
+  s.sensor.bayer = true;
+  s.background.depthMm = 2600.0;
+  return s;
+}
+
+Eigen::Matrix3d tilt(double rxDeg, double ryDeg, double rzDeg) {
+  const double k = M_PI / 180.0;
+  return (Eigen::AngleAxisd(rzDeg * k, Eigen::Vector3d::UnitZ()) * Eigen::AngleAxisd(ryDeg * k, Eigen::Vector3d::UnitY()) *
+          Eigen::AngleAxisd(rxDeg * k, Eigen::Vector3d::UnitX()))
+      .toRotationMatrix();
+}
+
+// Places the board so that its centre is at `centre`, with rotation `r`.
+void placeBoard(sim::SimBoard& b, const Eigen::Matrix3d& r, const Eigen::Vector3d& centre) {
+  b.rotation = r;
+  b.originMm = centre - r * Eigen::Vector3d(0.5 * b.squaresX * b.squareMm, 0.5 * b.squaresY * b.squareMm, 0.0);
+}
+
+bool allCornersVisible(const sim::SimScene& s) {
+  for (const auto& c : sim::boardCorners(s)) {
+    if (!c.visible) return false;
+    if (c.pixel.x() < 20 || c.pixel.y() < 20 || c.pixel.x() > s.truth.camera.widthPx - 20 ||
+        c.pixel.y() > s.truth.camera.heightPx - 20)
+      return false;
+  }
+  return true;
+}
+
+// The ray of a pixel (undistorted), scaled to depth z.
+Eigen::Vector3d atPixel(const geometry::CameraIntrinsics& cam, double u, double v, double z) {
+  // Distortion is small: two fixed-point steps of the inverse are plenty for placement.
+  double x = (u - cam.cxPx) / cam.fxPx;
+  double y = (v - cam.cyPx) / cam.fyPx;
+  const double x0 = x, y0 = y;
+  for (int i = 0; i < 10; ++i) {
+    const Eigen::Vector2d p = sim::projectPx(cam, Eigen::Vector3d(x, y, 1.0));
+    x += x0 - (p.x() - cam.cxPx) / cam.fxPx;
+    y += y0 - (p.y() - cam.cyPx) / cam.fyPx;
+  }
+  return Eigen::Vector3d(x * z, y * z, z);
+}
+
+}  // namespace
+
+int calibrationMain(const Args& args) {
+  if (Status s = args.allow({"out", "seed", "views", "jobs", "positions"}); !s) {
+    std::fprintf(stderr, "alacs-twin calib: %s\n", s.reason().c_str());
+    return 2;
+  }
+  const std::string out = args.str("out");
+  if (out.empty()) {
+    std::fprintf(stderr, "alacs-twin calib: needs --out DIR\n");
+    return 2;
+  }
+  const uint64_t seed = static_cast<uint64_t>(args.integer("seed", 7));
+  const int views = static_cast<int>(args.integer("views", 24));
+  const int jobs = static_cast<int>(args.integer("jobs", 2));
+  const std::vector<double> positions = args.list("positions", {0, 25, 50, 75, 100, 125, 150, 175, 200});
+  const auto rays = std::make_shared<const sim::RayTable>(sim::defaultScene().truth.camera);
+
+  struct Job {
+    std::string dir;
+    sim::SimScene scene;
+    replay::ScanInfo info;
+    std::vector<sim::ExportFrame> frames;
+    std::string line;
+  };
+  std::vector<Job> work;
+  sim::CaseRng rng(seed);
+  // Checkerboard views: image positions on a 4×3 grid (the corners of the frame matter
+  // most for the distortion), distances 0.7-1.6 m, tilts up to 35°.
+  for (int v = 0; v < views; ++v) {
+    Job j;
+    char name[64];
+    std::snprintf(name, sizeof name, "/checkerboard/view_%02d", v);
+    j.dir = out + name;
+    for (int attempt = 0;; ++attempt) {
+      j.scene = boardScene(seed * 1000 + static_cast<uint64_t>(v));
+      sim::SimBoard b;
+      const auto& cam = j.scene.truth.camera;
+      const double u = cam.widthPx * (0.2 + 0.2 * (v % 4)) + rng.uniform(-80, 80);
+      const double w = cam.heightPx * (0.25 + 0.25 * ((v / 4) % 3)) + rng.uniform(-60, 60);
+      const double z = rng.uniform(700.0, 1600.0);
+      placeBoard(b, tilt(rng.uniform(-35, 35), rng.uniform(-35, 35), rng.uniform(-15, 15)), atPixel(cam, u, w, z));
+      j.scene.board = b;
+      if (allCornersVisible(j.scene) || attempt > 200) break;
+    }
+    j.scene.lighting.directDir = Eigen::Vector3d(rng.uniform(-0.4, 0.4), -0.6, -0.8).normalized();
+    j.scene.sensor.exposureUs = sim::autoExposureUs(j.scene);
+    j.info.kind = "checkerboard";
+    j.info.note = "10x7 squares of 40 mm (9x6 inner corners), laser off";
+    j.frames.push_back({0.0, 0.0, false, 0, 0.0, "board"});
+    work.push_back(j);
+  }
+  // Laser-plane target: the board at five distances, tilted a little, centred where the
+  // sheet crosses mid-stroke so that every slide position draws a line on it.
+  int d = 0;
+  for (double z : {800.0, 1000.0, 1200.0, 1400.0, 1600.0}) {
+    Job j;
+    char name[64];
+    std::snprintf(name, sizeof name, "/laser_plane/dist_%04d", static_cast<int>(z));
+    j.dir = out + name;
+    j.scene = boardScene(seed * 1000 + 500 + static_cast<uint64_t>(d++));
+    const auto& las = j.scene.truth.laser;
+    const Eigen::Vector3d& n = las.planeNormal;
+    const double y = rng.uniform(-60, 60);
+    const double x = (las.planeOffsetAt(100.0) - n.y() * y - n.z() * z) / n.x();
+    sim::SimBoard b;
+    placeBoard(b, tilt(rng.uniform(-15, 15), rng.uniform(-20, 20), rng.uniform(-5, 5)), Eigen::Vector3d(x, y, z));
+    j.scene.board = b;
+    j.scene.sensor.exposureUs = sim::autoExposureUs(j.scene);
+    j.info.kind = "laser_plane";
+    j.info.note = "frame 0: laser off (board pose); then laser on at each slide position, a quarter of the exposure";
+    j.info.stopsMm = positions;
+    j.frames.push_back({0.0, 0.0, false, 0, 0.0, "pose"});
+    double t = 0.25;
+    for (double s : positions) {
+      j.frames.push_back({s, s, true, std::max<int64_t>(20, j.scene.sensor.exposureUs / 4), t, "stop"});
+      t += 0.25;
+    }
+    work.push_back(j);
+  }
+  const Status st = parallelFor(
+      static_cast<int>(work.size()), jobs,
+      [&](int i) -> Status {
+        Job& j = work[static_cast<size_t>(i)];
+        sim::ExportOptions opt;
+        opt.firstFrameIndex = static_cast<uint64_t>(i) * 100;
+        if (Status s = sim::exportScan(j.scene, rays, j.dir, j.info, j.frames, opt); !s) return s;
+        j.line = "{\"scan\": \"" + j.dir + "\", \"kind\": \"" + j.info.kind + "\", \"frames\": " +
+                 std::to_string(j.frames.size()) + "}";
+        return Status::ok();
+      },
+      [&](int i) {
+        std::printf("%s\n", work[static_cast<size_t>(i)].line.c_str());
+        std::fflush(stdout);
+      });
+  if (!st) {
+    std::fprintf(stderr, "alacs-twin calib: %s\n", st.toString().c_str());
+    return 1;
+  }
+  return 0;
+}
+
+int examplesMain(const Args& args) {
+  if (Status s = args.allow({"out"}); !s) {
+    std::fprintf(stderr, "alacs-twin examples: %s\n", s.reason().c_str());
+    return 2;
+  }
+  const std::string out = args.str("out");
+  if (out.empty()) {
+    std::fprintf(stderr, "alacs-twin examples: needs --out DIR\n");
+    return 2;
+  }
+  const auto rays = std::make_shared<const sim::RayTable>(sim::defaultScene().truth.camera);
+  struct Example {
+    const char* name;
+    sim::LightingKind light;
+    bool occluded;
+    double distance;
+    uint64_t seed;
+    double smearMm;
+  };
+  const Example examples[] = {
+      {"sim_lab", sim::LightingKind::kLab, false, 1200, 11, 0.0},
+      {"sim_lab_occluded", sim::LightingKind::kLab, true, 1200, 12, 0.0},
+      {"sim_overcast", sim::LightingKind::kOvercast, false, 1200, 13, 0.0},
+      {"sim_direct", sim::LightingKind::kDirect, true, 1000, 14, 0.0},
+      {"sim_sun", sim::LightingKind::kFullSun, false, 1400, 15, 0.0},
+      {"sim_motion", sim::LightingKind::kLab, false, 1200, 16, 4.0},
+  };
+  for (const auto& ex : examples) {
+    sim::CaseSpec spec;
+    spec.distanceMm = ex.distance;
+    spec.occluded = ex.occluded;
+    spec.lighting = ex.light;
+    Result<sim::OrchardCase> oc = sim::makeOrchardCase(spec, ex.seed);
+    if (!oc) {
+      std::fprintf(stderr, "alacs-twin examples: %s\n", oc.status().toString().c_str());
+      return 1;
+    }
+    const sim::SimApple& t = *oc->scene.apple(oc->targetId);
+    const double s = oc->scene.truth.laser.slideForPoint(t.centerMm + 0.2 * t.radiusMm * oc->scene.truth.laser.planeNormal);
+    const Eigen::Vector2d c = sim::projectPx(oc->scene.truth.camera, t.centerMm);
+    const int half = static_cast<int>(2.6 * t.radiusMm * oc->scene.truth.camera.fxPx / t.centerMm.z());
+    const cv::Rect roi(static_cast<int>(c.x()) - half * 4 / 3, static_cast<int>(c.y()) - half, half * 8 / 3, 2 * half);
+    sim::Renderer r(oc->scene, rays);
+    sim::FrameRequest req;
+    req.slideStartMm = s - 0.5 * ex.smearMm;
+    req.slideEndMm = s + 0.5 * ex.smearMm;
+    req.exposureUs = oc->scene.sensor.exposureUs;
+    cv::Mat img;
+    r.renderRegion(req, roi, img);
+    const std::string path = out + "/" + ex.name + ".png";
+    if (!cv::imwrite(path, img)) {
+      std::fprintf(stderr, "alacs-twin examples: cannot write %s\n", path.c_str());
+      return 1;
+    }
+    // The truth beside the first one: every row's exact column, green where visible and
+    // lit, blue where hidden, yellow where the laser is shadowed or does not reach.
+    if (std::string(ex.name) == "sim_lab_occluded") {
+      cv::Mat big;
+      cv::resize(img, big, cv::Size(), 2.0, 2.0, cv::INTER_NEAREST);
+      for (const auto& row : sim::laserLineTruthAll(oc->scene, t, s)) {
+        const cv::Scalar colour = row.flags == 0 ? cv::Scalar(0, 255, 0)
+                                  : (row.flags & sim::kTruthHidden) ? cv::Scalar(255, 128, 0)
+                                                                    : cv::Scalar(0, 255, 255);
+        const cv::Point p(static_cast<int>(std::lround(2.0 * (row.column - roi.x) + 0.5)), 2 * (row.row - roi.y) + 1);
+        cv::circle(big, p + cv::Point(9, 0), 1, colour, cv::FILLED);
+      }
+      cv::imwrite(out + "/sim_truth_overlay.png", big);
+    }
+    std::printf("%s: %s, exposure %lld us\n", path.c_str(), oc->description.c_str(),
+                static_cast<long long>(oc->scene.sensor.exposureUs));
+  }
+  // The calibration board with the laser on it.
+  sim::SimScene s = boardScene(3);
+  sim::SimBoard b;
+  placeBoard(b, tilt(8, -15, 3), Eigen::Vector3d(80.0, 0.0, 1200.0));
+  s.board = b;
+  s.sensor.exposureUs = sim::autoExposureUs(s) / 4;
+  sim::Renderer r(s, rays);
+  sim::FrameRequest req;
+  req.slideStartMm = req.slideEndMm = 110.0;
+  cv::Mat img, small;
+  r.render(req, img);
+  cv::resize(img, small, cv::Size(), 0.35, 0.35, cv::INTER_AREA);
+  cv::imwrite(out + "/sim_board.png", small);
+  std::printf("%s/sim_board.png\n", out.c_str());
+  return 0;
+}
+
+}  // namespace alacs::twin

@@ -1,0 +1,199 @@
+// alacs-twin generate: benchmark scan directories.
+//   --set loc: per (distance, occlusion) cell, `count` five-stop scans planned from the
+//              RGB-D camera's rough position, as the paper's localization experiments.
+//   --set lle: `count` single frames with the laser somewhere on the target, over
+//              distances and the paper's outdoor light, as its LLE evaluation.
+#include <cmath>
+#include <cstdio>
+#include <sys/stat.h>
+
+#include "sim/orchard.h"
+#include "sim/scan_export.h"
+#include "twin.h"
+
+namespace alacs::twin {
+
+namespace {
+
+uint64_t mixSeed(uint64_t a, uint64_t b) {
+  uint64_t z = a * 0x9E3779B97F4A7C15ULL + b + 0x632BE59BD9B4E019ULL;
+  z = (z ^ (z >> 30)) * 0xBF58476D1CE4E5B9ULL;
+  z = (z ^ (z >> 27)) * 0x94D049BB133111EBULL;
+  return z ^ (z >> 31);
+}
+
+struct CaseJob {
+  std::string name;
+  sim::CaseSpec spec;
+  uint64_t seed = 0;
+  bool single = false;  // one frame (LLE set) instead of the planned stops
+};
+
+bool exists(const std::string& path) {
+  struct stat st {};
+  return ::stat(path.c_str(), &st) == 0;
+}
+
+}  // namespace
+
+int generateMain(const Args& args) {
+  if (Status s = args.allow({"set", "out", "count", "seed", "distance-mm", "occluded", "lighting", "bayer", "jobs",
+                             "motion-mm-s", "resume"});
+      !s) {
+    std::fprintf(stderr, "alacs-twin generate: %s\n", s.reason().c_str());
+    return 2;
+  }
+  const std::string set = args.str("set");
+  const std::string out = args.str("out");
+  if ((set != "loc" && set != "lle") || out.empty()) {
+    std::fprintf(stderr, "alacs-twin generate: needs --set loc|lle and --out DIR\n");
+    return 2;
+  }
+  const bool lle = set == "lle";
+  const int count = static_cast<int>(args.integer("count", lle ? 320 : 120));
+  const uint64_t seed = static_cast<uint64_t>(args.integer("seed", 1));
+  const std::vector<double> distances =
+      args.list("distance-mm", lle ? std::vector<double>{800, 1000, 1200, 1400, 1600} : std::vector<double>{1000, 1200, 1400, 1600});
+  const std::string occ = args.str("occluded", lle ? "mix" : "both");
+  const std::string lightingArg = args.str("lighting", lle ? "outdoor" : "lab");
+  const bool bayer = args.integer("bayer", 1) != 0;
+  const int jobs = static_cast<int>(args.integer("jobs", 2));
+  const double motionMmS = args.num("motion-mm-s", 0.0);
+  const bool resume = args.has("resume") && args.integer("resume", 1) != 0;
+  if (occ != "0" && occ != "1" && occ != "both" && occ != "mix") {
+    std::fprintf(stderr, "alacs-twin generate: --occluded must be 0, 1, both or mix\n");
+    return 2;
+  }
+  std::vector<sim::LightingKind> lights;
+  if (lightingArg == "outdoor") {
+    lights = {sim::LightingKind::kOvercast, sim::LightingKind::kDirect};
+  } else {
+    Result<sim::LightingKind> l = sim::parseLighting(lightingArg);
+    if (!l) {
+      std::fprintf(stderr, "alacs-twin generate: %s (or outdoor)\n", l.status().reason().c_str());
+      return 2;
+    }
+    lights = {*l};
+  }
+  if (Status s = replay::makeDirectories(out); !s) {
+    std::fprintf(stderr, "alacs-twin generate: %s\n", s.reason().c_str());
+    return 1;
+  }
+
+  std::vector<CaseJob> cases;
+  if (lle) {
+    // Distances, light and occlusion cycle so every mix is even.
+    for (int i = 0; i < count; ++i) {
+      CaseJob j;
+      char name[64];
+      std::snprintf(name, sizeof name, "lle_%04d", i);
+      j.name = name;
+      j.spec.distanceMm = distances[static_cast<size_t>(i) % distances.size()];
+      j.spec.lighting = lights[static_cast<size_t>(i / static_cast<int>(distances.size())) % lights.size()];
+      j.spec.occluded = occ == "1" || (occ == "mix" && (i / static_cast<int>(distances.size() * lights.size())) % 2 == 1);
+      j.spec.bayer = bayer;
+      j.seed = mixSeed(seed, 0x11EULL * 1000003ULL + static_cast<uint64_t>(i));
+      j.single = true;
+      cases.push_back(j);
+    }
+  } else {
+    std::vector<int> occs;
+    if (occ == "0" || occ == "both") occs.push_back(0);
+    if (occ == "1" || occ == "both") occs.push_back(1);
+    if (occ == "mix") occs = {0, 1};
+    for (double d : distances)
+      for (int o : occs)
+        for (int i = 0; i < count; ++i) {
+          CaseJob j;
+          char name[64];
+          std::snprintf(name, sizeof name, "d%04d_occ%d_%04d", static_cast<int>(d), o, i);
+          j.name = name;
+          j.spec.distanceMm = d;
+          j.spec.occluded = o == 1;
+          j.spec.lighting = lights[static_cast<size_t>(i) % lights.size()];
+          j.spec.bayer = bayer;
+          j.seed = mixSeed(seed, static_cast<uint64_t>(d) * 10 + static_cast<uint64_t>(o) + static_cast<uint64_t>(i) * 100003ULL);
+          cases.push_back(j);
+        }
+  }
+
+  const auto rays = std::make_shared<const sim::RayTable>(sim::defaultScene().truth.camera);
+  std::vector<std::string> lines(cases.size());
+  const Status st = parallelFor(
+      static_cast<int>(cases.size()), jobs,
+      [&](int i) -> Status {
+        const CaseJob& job = cases[static_cast<size_t>(i)];
+        const std::string dir = out + "/" + job.name;
+        Result<sim::OrchardCase> oc = sim::makeOrchardCase(job.spec, job.seed);
+        if (!oc) return Status(oc.status().code(), job.name + ": " + oc.status().reason());
+        const sim::SimScene& scene = oc->scene;
+        const sim::SimApple& target = *scene.apple(oc->targetId);
+        Result<RenderPlan> rp = renderPlan(scene.truth, oc->roughMm);
+        if (!rp) return Status(rp.status().code(), job.name + ": " + rp.status().reason());
+        replay::ScanInfo info;
+        info.kind = job.single ? "lle" : "localize";
+        info.targetId = oc->targetId;
+        info.roughMm = oc->roughMm;
+        info.roiPx = rp->plan.roi;
+        info.note = oc->description;
+        std::vector<sim::ExportFrame> frames;
+        const double exposureS = static_cast<double>(scene.sensor.exposureUs) * 1e-6;
+        const double smearMm = motionMmS * exposureS;
+        if (job.single) {
+          // The laser somewhere across the target's central 60 %.
+          sim::CaseRng rng(job.seed ^ 0x5EEDULL);
+          const double off = rng.uniform(-0.6, 0.6) * target.radiusMm;
+          const double s = scene.truth.laser.slideForPoint(target.centerMm + off * scene.truth.laser.planeNormal);
+          info.stopsMm = {s};
+          frames.push_back({s - 0.5 * smearMm, s + 0.5 * smearMm, true, 0, 0.0, "stop"});
+        } else {
+          info.stopsMm = rp->plan.stopsMm;
+          double t = 0.0;
+          for (double s : rp->plan.stopsMm) {
+            frames.push_back({s - 0.5 * smearMm, s + 0.5 * smearMm, true, 0, t, "stop"});
+            t += 0.25;  // a stop every 250 ms (move, settle, expose)
+          }
+          // The paper's single-line experiment: the laser aimed at the marker on the
+          // apple's face (the truth's approach point), not planned from the rough position.
+          const double aimed = scene.truth.laser.slideForPoint(sim::approachPoint(target));
+          if (aimed >= 0.0 && aimed <= 200.0) frames.push_back({aimed, aimed, true, 0, t, "aimed"});
+        }
+        if (!(resume && exists(dir + "/manifest.json"))) {
+          sim::ExportOptions opt;
+          opt.renderRegion = rp->region;
+          if (Status s = sim::exportScan(scene, rays, dir, info, frames, opt); !s)
+            return Status(s.code(), job.name + ": " + s.reason());
+        }
+        char buf[768];
+        std::snprintf(buf, sizeof buf,
+                      "{\"case\": \"%s\", \"dir\": \"%s\", \"set\": \"%s\", \"distance_mm\": %.0f, \"occluded\": %d, "
+                      "\"lighting\": \"%s\", \"lux\": %.0f, \"occlusion_share\": %.4f, \"exposure_us\": %lld, "
+                      "\"diameter_mm\": %.2f, \"neighbours\": %zu, \"leaves\": %zu, \"seed\": %llu}",
+                      job.name.c_str(), dir.c_str(), set.c_str(), job.spec.distanceMm, job.spec.occluded ? 1 : 0,
+                      sim::lightingName(job.spec.lighting), oc->lux, oc->occlusionShare,
+                      static_cast<long long>(scene.sensor.exposureUs), 2.0 * target.radiusMm, scene.apples.size() - 1,
+                      scene.leaves.size(), static_cast<unsigned long long>(job.seed));
+        lines[static_cast<size_t>(i)] = buf;
+        return Status::ok();
+      },
+      [&](int i) {
+        std::printf("%s\n", lines[static_cast<size_t>(i)].c_str());
+        std::fflush(stdout);
+      });
+  if (!st) {
+    std::fprintf(stderr, "alacs-twin generate: %s\n", st.toString().c_str());
+    return 1;
+  }
+  // The set's index, in case order.
+  const std::string indexPath = out + "/set.jsonl";
+  FILE* f = std::fopen(indexPath.c_str(), "w");
+  if (f == nullptr) {
+    std::fprintf(stderr, "alacs-twin generate: cannot write %s\n", indexPath.c_str());
+    return 1;
+  }
+  for (const auto& l : lines) std::fprintf(f, "%s\n", l.c_str());
+  std::fclose(f);
+  return 0;
+}
+
+}  // namespace alacs::twin

@@ -1,0 +1,197 @@
+// alacs-twin process: the pipeline on scan directories, exactly as the scan worker runs
+// it live: the localizer plans the stops from the scan's rough position, a ReplaySource
+// serves the frame recorded nearest each stop and its recorded position, the localizer
+// observes each frame and fuses the lines. One JSON line per scan on stdout:
+//   {"scan", "kind", "roi", "frames": [{"slide_mm", "valid", "rows"?, "curve"?}],
+//    "multi": estimate, "single": estimate (the stop nearest the rough position only)}
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <sstream>
+
+#include "replay/replay_source.h"
+#include "twin.h"
+
+namespace alacs::twin {
+
+namespace {
+
+std::string jsonSafe(std::string s) {
+  for (char& c : s)
+    if (c == '"' || c == '\\' || static_cast<unsigned char>(c) < 0x20) c = '\'';
+  return s;
+}
+
+std::string estimateJson(const Result<localize::AppleEstimate>& e) {
+  if (!e) return "{\"ok\": false, \"error\": \"" + std::string(errorName(e.status().code())) + "\"}";
+  std::ostringstream o;
+  o << "{\"ok\": true, \"center_mm\": " << jsonVec(e->centerMm) << ", \"approach_mm\": " << jsonVec(e->approachMm)
+    << ", \"diameter_mm\": " << jsonNum(e->diameterMm) << ", \"sigma_mm\": " << jsonNum(e->sigmaMm)
+    << ", \"confidence_pct\": " << jsonNum(e->confidencePct) << ", \"occlusion_pct\": " << jsonNum(e->occlusionPct)
+    << ", \"lines_used\": " << e->linesUsed << ", \"points_used\": " << e->pointsUsed
+    << ", \"sphere_fit\": " << (e->sphereFit ? "true" : "false") << "}";
+  return o.str();
+}
+
+}  // namespace
+
+int processMain(const Args& args) {
+  if (Status s = args.allow({"calibration", "brce-step", "brce-threshold", "rows", "jobs"}); !s) {
+    std::fprintf(stderr, "alacs-twin process: %s\n", s.reason().c_str());
+    return 2;
+  }
+  const std::vector<std::string>& dirs = args.positional();
+  if (dirs.empty()) {
+    std::fprintf(stderr, "alacs-twin process: give scan directories\n");
+    return 2;
+  }
+  std::optional<geometry::Calibration> override;
+  const std::string calPath = args.str("calibration");
+  if (!calPath.empty()) {
+    Result<geometry::Calibration> c = geometry::loadCalibration(calPath);
+    if (!c) {
+      std::fprintf(stderr, "alacs-twin process: %s\n", c.status().toString().c_str());
+      return 1;
+    }
+    override = *c;
+  }
+  image::LleParams lle;
+  lle.brceStep = static_cast<int>(args.integer("brce-step", lle.brceStep));
+  lle.brceThreshold = static_cast<int>(args.integer("brce-threshold", lle.brceThreshold));
+  if (Status s = lle.validate(); !s) {
+    std::fprintf(stderr, "alacs-twin process: %s\n", s.reason().c_str());
+    return 2;
+  }
+  const bool wantRows = args.has("rows");
+  const int jobs = static_cast<int>(args.integer("jobs", 2));
+  std::vector<std::string> lines(dirs.size());
+
+  const Status st = parallelFor(
+      static_cast<int>(dirs.size()), jobs,
+      [&](int i) -> Status {
+        const std::string& dir = dirs[static_cast<size_t>(i)];
+        VirtualClock clock;
+        double slide = 0.0;
+        Result<std::unique_ptr<replay::ReplaySource>> src =
+            replay::ReplaySource::open(dir, clock, [] { return true; }, [&] { return slide; });
+        std::ostringstream o;
+        o << "{\"scan\": \"" << dir << "\"";
+        if (!src) {
+          o << ", \"error\": \"" << jsonSafe(src.status().reason()) << "\"}";
+          lines[static_cast<size_t>(i)] = o.str();
+          return Status::ok();
+        }
+        const replay::ScanManifest& m = (*src)->manifest();
+        geometry::Calibration cal;
+        if (override) {
+          cal = *override;
+        } else {
+          Result<geometry::Calibration> c = replay::loadScanCalibration(dir, m);
+          if (!c) return Status(c.status().code(), dir + ": " + c.status().reason());
+          cal = *c;
+        }
+        const localize::Localizer loc(cal, lle, localize::ScanParams{});
+        o << ", \"kind\": \"" << m.scan.kind << "\"";
+        if (!m.scan.roughMm) {
+          o << ", \"error\": \"no rough position\"}";
+          lines[static_cast<size_t>(i)] = o.str();
+          return Status::ok();
+        }
+        Result<localize::ScanPlan> plan = loc.plan(*m.scan.roughMm, 200.0);
+        if (!plan) {
+          o << ", \"error\": \"plan: " << jsonSafe(plan.status().reason()) << "\"}";
+          lines[static_cast<size_t>(i)] = o.str();
+          return Status::ok();
+        }
+        // The LLE set has one frame: replay the recorded stop instead of the plan's five.
+        const std::vector<double> stops = m.scan.kind == "lle" ? m.scan.stopsMm : plan->stopsMm;
+        const double centreStop = cal.laser.slideForPoint(*m.scan.roughMm);
+        o << ", \"roi\": [" << plan->roi.x << ", " << plan->roi.y << ", " << plan->roi.width << ", "
+          << plan->roi.height << "], \"frames\": [";
+        image::LleWorkspace ws;
+        std::vector<localize::LineObservation> obs;
+        double observeMs = 0.0;
+        // One frame through the camera port and the localizer, as the scan worker does.
+        std::vector<std::string> frameJson;
+        auto run = [&](double at) -> Result<localize::LineObservation> {
+          slide = at;
+          Result<ports::CapturedFrame> f = (*src)->capture({}, {});
+          if (!f) {
+            frameJson.push_back("{\"slide_mm\": " + jsonNum(at) + ", \"valid\": false, \"error\": \"" + jsonSafe(f.status().reason()) + "\"}");
+            return f.status();
+          }
+          std::ostringstream fo;
+          const double recorded = (*src)->lastSlideMm();
+          const auto t0 = std::chrono::steady_clock::now();
+          Result<localize::LineObservation> ob = loc.observe(f->view, *plan, recorded, ws);
+          observeMs += std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
+          fo << "{\"slide_mm\": " << jsonNum(recorded) << ", \"frame\": " << (*src)->lastFrame()
+            << ", \"tag\": \"" << m.frames[static_cast<size_t>((*src)->lastFrame())].tag << "\"";
+          if (!ob) {
+            fo << ", \"valid\": false, \"error\": \"" << jsonSafe(ob.status().reason()) << "\"}";
+            frameJson.push_back(fo.str());
+            return ob;
+          }
+          const image::LaserLine& line = ob->line;
+          fo << ", \"valid\": " << (line.valid ? "true" : "false") << ", \"points\": " << ob->pointsMm.size();
+          if (wantRows) {
+            fo << ", \"rows\": [";
+            for (size_t r = 0; r < line.rows.size(); ++r)
+              fo << (r ? ", " : "") << "[" << line.rows[r].row << ", " << jsonNum(line.rows[r].column) << ", "
+                << (line.rows[r].inlier ? 1 : 0) << "]";
+            fo << "]";
+            if (line.valid) {
+              fo << ", \"curve_first_row\": " << plan->roi.y << ", \"curve\": [";
+              for (int r = 0; r < plan->roi.height; ++r) fo << (r ? ", " : "") << jsonNum(line.columnAt(plan->roi.y + r));
+              fo << "]";
+            }
+          }
+          fo << "}";
+          frameJson.push_back(fo.str());
+          return ob;
+        };
+        int aimed = -1;
+        for (size_t k = 0; k < m.frames.size(); ++k)
+          if (m.frames[k].tag == "aimed" && m.frames[k].laserOn) aimed = static_cast<int>(k);
+        for (size_t k = 0; k < stops.size(); ++k) {
+          Result<localize::LineObservation> ob = run(stops[k]);
+          if (ob) obs.push_back(std::move(*ob));
+        }
+        // The single line: the frame aimed at the marker if the scan has one, else the stop
+        // nearest the rough position.
+        std::optional<localize::LineObservation> single;
+        std::string singleSource = "centre_stop";
+        if (aimed >= 0) {
+          Result<localize::LineObservation> ob = run(m.frames[static_cast<size_t>(aimed)].slideMm);
+          if (ob) single = std::move(*ob);
+          singleSource = "aimed";
+        } else {
+          for (const auto& l : obs)
+            if (!single || std::abs(l.slideMm - centreStop) < std::abs(single->slideMm - centreStop)) single = l;
+        }
+        for (size_t k = 0; k < frameJson.size(); ++k) o << (k ? ", " : "") << frameJson[k];
+        o << "], \"observe_ms\": " << jsonNum(observeMs);
+        if (m.scan.kind != "lle") {
+          o << ", \"multi\": " << estimateJson(loc.estimate(*plan, obs));
+          o << ", \"single_source\": \"" << singleSource << "\"";
+          if (single) {
+            o << ", \"single_slide_mm\": " << jsonNum(single->slideMm);
+            o << ", \"single\": " << estimateJson(loc.estimate(*plan, {*single}));
+          }
+        }
+        o << "}";
+        lines[static_cast<size_t>(i)] = o.str();
+        return Status::ok();
+      },
+      [&](int i) {
+        std::printf("%s\n", lines[static_cast<size_t>(i)].c_str());
+        std::fflush(stdout);
+      });
+  if (!st) {
+    std::fprintf(stderr, "alacs-twin process: %s\n", st.toString().c_str());
+    return 1;
+  }
+  return 0;
+}
+
+}  // namespace alacs::twin

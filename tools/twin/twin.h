@@ -1,0 +1,64 @@
+// Shared helpers of the alacs-twin subcommands.
+#pragma once
+
+#include <Eigen/Core>
+#include <atomic>
+#include <cstdio>
+#include <functional>
+#include <map>
+#include <memory>
+#include <mutex>
+#include <opencv2/core.hpp>
+#include <string>
+#include <thread>
+#include <vector>
+
+#include "common/result.h"
+#include "localize/localizer.h"
+#include "sim/renderer.h"
+
+namespace alacs::twin {
+
+// --key value options after the subcommand; flags without a value are "1".
+class Args {
+ public:
+  Args(int argc, char** argv, int first);
+  bool has(const std::string& k) const { return values_.count(k) != 0; }
+  std::string str(const std::string& k, const std::string& fallback = "") const;
+  double num(const std::string& k, double fallback) const;
+  int64_t integer(const std::string& k, int64_t fallback) const;
+  std::vector<double> list(const std::string& k, const std::vector<double>& fallback) const;
+  const std::vector<std::string>& positional() const { return positional_; }
+  // Refuses options outside `known` (a typo is an error, not a silent default).
+  Status allow(const std::vector<std::string>& known) const;
+
+ private:
+  std::map<std::string, std::string> values_;
+  mutable std::map<std::string, bool> used_;
+  std::vector<std::string> positional_;
+};
+
+// Runs work(i) for i in [0, n) on `jobs` threads; `done(i)` is called under a lock after
+// each item (progress). Returns the first error.
+Status parallelFor(int n, int jobs, const std::function<Status(int)>& work, const std::function<void(int)>& done);
+
+// The ROI the pipeline will use for a target's rough position, and the region the twin
+// renders around it: the plan of a localizer whose ROI margin is 10 mm wider, plus 8 px.
+// Pixels outside are never read by the pipeline (its ROI is inside, and LLE reads
+// nothing outside its ROI), so rendering only them is exact, and ~15× cheaper.
+struct RenderPlan {
+  localize::ScanPlan plan;
+  cv::Rect region;
+};
+Result<RenderPlan> renderPlan(const geometry::Calibration& cal, const Eigen::Vector3d& roughMm, int stops = 5);
+
+std::string jsonVec(const Eigen::Vector3d& v);
+std::string jsonNum(double v);
+
+int generateMain(const Args& args);
+int calibrationMain(const Args& args);
+int processMain(const Args& args);
+int examplesMain(const Args& args);
+int renderMain(const Args& args);
+
+}  // namespace alacs::twin
