@@ -33,6 +33,7 @@ Status LleParams::validate() const {
   if (!(bridgePx >= 0.0 && bridgePx <= 256.0)) return bad(Error::kInvalidArgument, "bridgePx must be in 0..256");
   if (!(bridgePxPerRow >= 0.0 && bridgePxPerRow <= 16.0))
     return bad(Error::kInvalidArgument, "bridgePxPerRow must be in 0..16");
+  if (smoothOrder < 0 || smoothOrder > 2) return bad(Error::kInvalidArgument, "smoothOrder must be in 0..2");
   if (smoothRows < 0 || smoothRows > 32) return bad(Error::kInvalidArgument, "smoothRows must be in 0..32");
   if (kernels != LleKernels::kAuto && kernels != LleKernels::kScalar)
     return bad(Error::kInvalidArgument, "unknown kernel choice");

@@ -74,7 +74,8 @@ struct LleParams {
   double bridgePx = 3.0;     // two segments are one line when their ends, extrapolated to the
   double bridgePxPerRow = 0.08;  // middle of the gap between them, agree within bridgePx + this·gap
   bool keepOtherSegments = true;  // also report segments that are not the line (other surfaces)
-  int smoothRows = 6;        // a row's column: local quadratic through the centroids within ±this many rows (0: none) (0..32)
+  int smoothOrder = 1;       // of that local fit: 0 mean, 1 line, 2 quadratic
+  int smoothRows = 8;        // a row's column: local fit through the centroids within ±this many rows (0: none) (0..32)
   LleKernels kernels = LleKernels::kAuto;
 
   Status validate() const;

@@ -53,6 +53,8 @@ class Arena {
 // Sums of one run's red excess over the local background: the background is the straight
 // line between the red values `step` columns beyond each end of the run (the pixels bRCE
 // compared against). Every term is an integer: excess·span = R(x)·span − (rl·(xr−x) + rr·(x−xl)).
+// `area` and `excess` are of the excess itself; the centroid's weights are the excess
+// less 1/8 of the largest.
 struct RunSums {
   int64_t sumW = 0;   // Σ excess·span over pixels with positive excess
   int64_t sumXW = 0;  // Σ x · excess·span
@@ -75,12 +77,17 @@ inline RunSums runSums(const uint8_t* on, const uint8_t* off, int redOffset, int
   const int64_t rl = redAt(on, off, redOffset, xl);
   const int64_t rr = redAt(on, off, redOffset, xr);
   int64_t maxW = 0;
+  for (int x = xl + 1; x < xr; ++x)
+    maxW = std::max(maxW, redAt(on, off, redOffset, x) * static_cast<int64_t>(span) - (rl * (xr - x) + rr * (x - xl)));
+  // Weights: the excess above 1/8 of the peak's, so the tails, where speckle and the
+  // background estimate dominate, weigh less (measured on the twin: see docs/lle.md).
+  const int64_t floorW = maxW >> 3;
   for (int x = xl + 1; x < xr; ++x) {
-    const int64_t wq = redAt(on, off, redOffset, x) * static_cast<int64_t>(span) - (rl * (xr - x) + rr * (x - xl));
+    const int64_t wq =
+        redAt(on, off, redOffset, x) * static_cast<int64_t>(span) - (rl * (xr - x) + rr * (x - xl)) - floorW;
     if (wq <= 0) continue;
     s.sumW += wq;
     s.sumXW += wq * x;
-    maxW = std::max(maxW, wq);
   }
   for (int x = a; x <= b; ++x) s.saturated = s.saturated || on[3U * static_cast<size_t>(x) + static_cast<size_t>(redOffset)] == 255;
   s.area = static_cast<int32_t>(s.sumW / span);
@@ -125,7 +132,7 @@ struct FixedArith {
 
   // The least-squares quadratic through (u[i], c[i]) evaluated at u = 0 (Cramer's rule
   // over exact integer sums); linear, then the mean, when the points cannot support it.
-  static Col quadAtZero(const int* u, const Col* c, int n) {
+  static Col quadAtZero(const int* u, const Col* c, int n, int order) {
     Int128 s0 = 0, s1 = 0, s2 = 0, s3 = 0, s4 = 0, t0 = 0, t1 = 0, t2 = 0;
     for (int i = 0; i < n; ++i) {
       const Int128 x = u[i];
@@ -146,12 +153,12 @@ struct FixedArith {
       return static_cast<Col>(a >= 0 ? (a + b / 2) / b : -((-a + b / 2) / b));
     };
     const Int128 det = s0 * (s2 * s4 - s3 * s3) - s1 * (s1 * s4 - s3 * s2) + s2 * (s1 * s3 - s2 * s2);
-    if (n >= 3 && det != 0) {
+    if (order >= 2 && n >= 3 && det != 0) {
       const Int128 det0 = t0 * (s2 * s4 - s3 * s3) - s1 * (t1 * s4 - s3 * t2) + s2 * (t1 * s3 - s2 * t2);
       return div(det0, det);
     }
     const Int128 d2 = s0 * s2 - s1 * s1;
-    if (n >= 2 && d2 != 0) return div(t0 * s2 - s1 * t1, d2);
+    if (order >= 1 && n >= 2 && d2 != 0) return div(t0 * s2 - s1 * t1, d2);
     return div(t0, s0);
   }
 
@@ -200,7 +207,7 @@ struct FloatArith {
     return (sc * d + (n * src - sr * sc) * (static_cast<double>(n) * m - sr)) / (n * d);
   }
 
-  static Col quadAtZero(const int* u, const Col* c, int n) {
+  static Col quadAtZero(const int* u, const Col* c, int n, int order) {
     double s0 = 0, s1 = 0, s2 = 0, s3 = 0, s4 = 0, t0 = 0, t1 = 0, t2 = 0;
     for (int i = 0; i < n; ++i) {
       const double x = u[i];
@@ -214,10 +221,10 @@ struct FloatArith {
       t2 += x * x * c[i];
     }
     const double det = s0 * (s2 * s4 - s3 * s3) - s1 * (s1 * s4 - s3 * s2) + s2 * (s1 * s3 - s2 * s2);
-    if (n >= 3 && det != 0.0)
+    if (order >= 2 && n >= 3 && det != 0.0)
       return (t0 * (s2 * s4 - s3 * s3) - s1 * (t1 * s4 - s3 * t2) + s2 * (t1 * s3 - s2 * t2)) / det;
     const double d2 = s0 * s2 - s1 * s1;
-    if (n >= 2 && d2 != 0.0) return (t0 * s2 - s1 * t1) / d2;
+    if (order >= 1 && n >= 2 && d2 != 0.0) return (t0 * s2 - s1 * t1) / d2;
     return t0 / s0;
   }
 
@@ -658,7 +665,7 @@ void focusRobust(const ImageView& frame, const ImageView* laserOff, const Roi& r
         smoothCols[m] = outCol[j];
         if (++m == 64) break;
       }
-      const Col smooth = A::quadAtZero(endRows, smoothCols, m);
+      const Col smooth = A::quadAtZero(endRows, smoothCols, m, p.smoothOrder);
       RowSample& sm = out.rows[static_cast<size_t>(k)];
       sm.columnQ8 = A::toQ8(smooth);
       sm.column = static_cast<float>(A::toPx(smooth));
