@@ -79,9 +79,20 @@ void ScanWorker::run() {
       job = jobs_.front();
       jobs_.pop_front();
     }
-    WorkerEvent ev = job.kind == WorkerJob::Kind::kHome       ? doHome(job)
-                     : job.kind == WorkerJob::Kind::kScanAll ? doScanAll(job)
-                                                             : doLocalize(job);
+    WorkerEvent ev;
+    switch (job.kind) {
+      case WorkerJob::Kind::kHome: ev = doHome(job); break;
+      case WorkerJob::Kind::kScanAll: ev = doScanAll(job); break;
+      case WorkerJob::Kind::kLocalize: ev = doLocalize(job); break;
+      case WorkerJob::Kind::kMoveTo:
+        ev.job = job;
+        if (!homed_.load()) {
+          ev.status = Status(Error::kNotHomed, "slide not homed");
+        } else if ((ev.status = deps_.enable->set(true)); ev.status.isOk()) {
+          ev.status = moveTo(job.moveToMm, ev);
+        }
+        break;
+    }
     (void)deps_.laser->off();  // whatever happened, the laser ends the job off
     (void)deps_.enable->set(false);
     ev.doneNs = deps_.clock->now();
@@ -140,6 +151,16 @@ Status ScanWorker::moveOutcome(const motion::MoveReport& r, WorkerEvent& ev) {
 }
 
 namespace {
+// The slide position a frame belongs to: the replay source's recorded one when there is
+// one (alacsd --replay), else the position the worker knows.
+double recordedOr(const WorkerDeps& deps, double knownMm) {
+  if (!deps.frameSlideMm) return knownMm;
+  const double mm = deps.frameSlideMm();
+  return std::isfinite(mm) ? mm : knownMm;
+}
+}  // namespace
+
+namespace {
 void writeOverlay(const std::string& dir, const image::ImageView& frame, const localize::ScanPlan& plan,
                   const std::vector<localize::LineObservation>& lines) {
   if (frame.data == nullptr) return;
@@ -162,7 +183,7 @@ void writeOverlay(const std::string& dir, const image::ImageView& frame, const l
 }  // namespace
 
 Result<ports::CapturedFrame> ScanWorker::exposeStop(size_t stop, const ports::CaptureRequest& capture,
-                                                     WorkerEvent& ev) {
+                                                     WorkerEvent& ev, double* midSlideMm) {
   // Timeouts and corrupted frames are retried (laser on only for each attempt's
   // exposure), then become a fault with the last reason.
   Result<ports::CapturedFrame> frame = Status(Error::kInternal, "no capture attempted");
@@ -173,7 +194,13 @@ Result<ports::CapturedFrame> ScanWorker::exposeStop(size_t stop, const ports::Ca
       ev.resultStatus = protocol::ResultStatus::kFailed;
       return s;
     }
-    frame = deps_.camera->capture(capture, [this] { (void)deps_.laser->off(); });
+    const double startMm = positionMm();
+    double endMm = startMm;
+    frame = deps_.camera->capture(capture, [this, &endMm] {
+      (void)deps_.laser->off();
+      endMm = positionMm();
+    });
+    if (midSlideMm != nullptr) *midSlideMm = 0.5 * (startMm + endMm);
     (void)deps_.laser->off();
     if (frame) break;
     dropped_.fetch_add(1);
@@ -221,7 +248,7 @@ WorkerEvent ScanWorker::doScanAll(const WorkerJob& job) {
     }
     Result<ports::CapturedFrame> frame = exposeStop(i, capture, ev);
     if (!frame) return ev;
-    if (Status s = survey.addFrame(frame->view, positionMm(), ws_); !s)
+    if (Status s = survey.addFrame(frame->view, recordedOr(deps_, positionMm()), ws_); !s)
       ALACS_LOG_WARN("survey", "stop %zu: %s", i, s.toString().c_str());
     if (cancel_.load()) {
       ev.status = Status(Error::kFault, "scan stopped by command");
@@ -262,6 +289,7 @@ WorkerEvent ScanWorker::doLocalize(const WorkerJob& job) {
   const Status scanned = job.localize.mode == protocol::ScanMode::kContinuous ? sweepStops(plan, capture, ev)
                                                                              : stopAndGo(plan, capture, ev);
   // Whatever happened, let the frames already handed over finish before reporting.
+  const TimeNs motionDone = deps_.clock->now();
   std::vector<localize::LineObservation> lines = pipeline_.finish();
   if (!scanned) {
     ev.status = scanned;
@@ -270,6 +298,7 @@ WorkerEvent ScanWorker::doLocalize(const WorkerJob& job) {
   }
   if (!deps_.debugDir.empty()) writeOverlay(deps_.debugDir, pipeline_.lastFrame(), plan, lines);
   Result<localize::AppleEstimate> est = localizer.estimate(plan, lines);
+  ev.processingTailNs = deps_.clock->now() - motionDone;
   if (!est) {
     ev.status = Status::ok();  // the scan worked; there was no apple where we were told
     ev.resultStatus = protocol::ResultStatus::kNoObject;
@@ -287,7 +316,7 @@ Status ScanWorker::stopAndGo(const localize::ScanPlan& plan, const ports::Captur
     Result<ports::CapturedFrame> frame = exposeStop(i, capture, ev);
     if (!frame) return frame.status();
     // The image work of this stop runs while the slide moves to the next one.
-    pipeline_.push(frame->view, positionMm());
+    pipeline_.push(frame->view, recordedOr(deps_, positionMm()));
     if (cancel_.load()) {
       ev.resultStatus = protocol::ResultStatus::kAborted;
       return {Error::kFault, "scan stopped by command"};
@@ -324,14 +353,14 @@ Status ScanWorker::sweepStops(const localize::ScanPlan& plan, const ports::Captu
   for (size_t i = 0; i < stops.size() && status.isOk(); ++i) {
     const int64_t k = std::llabs(deps_.limits.stepsFor(stops[i]) - from);
     deps_.sleeper->sleepUntil(moveStart + (k > 0 ? move->stepTimeNs(k) : 0) - halfExposure);
-    const double startMm = positionMm();
-    Result<ports::CapturedFrame> frame = exposeStop(i, capture, ev);
+    double midMm = 0.0;
+    Result<ports::CapturedFrame> frame = exposeStop(i, capture, ev, &midMm);
     if (!frame) {
       status = frame.status();
       cancel_.store(true);  // stop the sweep: the scan has failed
       break;
     }
-    pipeline_.push(frame->view, 0.5 * (startMm + positionMm()));
+    pipeline_.push(frame->view, recordedOr(deps_, midMm));
     if (cancel_.load()) {
       ev.resultStatus = protocol::ResultStatus::kAborted;
       status = Status(Error::kFault, "scan stopped by command");

@@ -6,6 +6,7 @@
 #include <atomic>
 #include <condition_variable>
 #include <deque>
+#include <functional>
 #include <mutex>
 #include <optional>
 #include <string>
@@ -23,11 +24,12 @@
 namespace alacs::app {
 
 struct WorkerJob {
-  enum class Kind { kHome, kLocalize, kScanAll } kind = Kind::kHome;
+  enum class Kind { kHome, kLocalize, kScanAll, kMoveTo } kind = Kind::kHome;
   protocol::LocalizeCommand localize;
   localize::ScanPlan plan;  // made by the daemon when it accepted the command
   std::optional<survey::Survey> survey;  // scan-all: the survey to fill, and its stops
   std::vector<double> surveyStopsMm;
+  double moveToMm = 0.0;  // kMoveTo: park the slide here (tools, diagnostics)
   TimeNs commandTimeNs = 0;
 };
 
@@ -47,6 +49,7 @@ struct WorkerEvent {
   TimeNs doneNs = 0;
   TimeNs maxStepLatenessNs = 0;
   std::vector<ExposureWindow> exposures;  // of this job, in order
+  TimeNs processingTailNs = 0;  // image work left after the last frame (not overlapped with motion)
 };
 
 struct WorkerDeps {
@@ -61,6 +64,9 @@ struct WorkerDeps {
   int realtimePriority = 0;            // SCHED_FIFO priority of the worker (0: normal scheduling)
   int captureRetries = 2;              // further attempts after a failed frame, then a fault
   std::string debugDir;                // overlay PNGs go here when not empty
+  // alacsd --replay: the slide position the frame just captured was recorded at, used
+  // instead of the worker's own (unset or NaN: the worker's). Called on the worker thread.
+  std::function<double()> frameSlideMm;
 };
 
 class ScanWorker {
@@ -85,8 +91,11 @@ class ScanWorker {
   WorkerEvent doHome(const WorkerJob& job);
   WorkerEvent doLocalize(const WorkerJob& job);
   WorkerEvent doScanAll(const WorkerJob& job);
-  // Laser on, expose (with retries), laser off. On failure `ev` holds the fault.
-  Result<ports::CapturedFrame> exposeStop(size_t stop, const ports::CaptureRequest& capture, WorkerEvent& ev);
+  // Laser on, expose (with retries), laser off. On failure `ev` holds the fault. When
+  // `midSlideMm` is given it receives the slide's position at mid-exposure (the mean of
+  // the counted positions at exposure start and end).
+  Result<ports::CapturedFrame> exposeStop(size_t stop, const ports::CaptureRequest& capture, WorkerEvent& ev,
+                                          double* midSlideMm = nullptr);
   Status moveTo(double mm, WorkerEvent& ev);
   Status moveOutcome(const motion::MoveReport& r, WorkerEvent& ev);
   // The two ways through a localize plan's stops; both hand frames to pipeline_.

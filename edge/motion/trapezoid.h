@@ -11,8 +11,8 @@ namespace alacs::motion {
 
 struct SlideLimits {
   double stepsPerMm = 40.0;          // GT2 belt, 20-tooth pulley, 1/16 microstep
-  double maxSpeedMmPerS = 200.0;
-  double accelMmPerS2 = 2000.0;
+  double maxSpeedMmPerS = 300.0;         // NEMA 17 on a GT2 belt: well below pull-out at 12 kHz
+  double accelMmPerS2 = 3000.0;          // 0.3 g on a ~150 g carriage
   double strokeMm = 200.0;           // soft limits are [0, strokeMm]
   double homingSpeedMmPerS = 50.0;
   int64_t homingTimeoutMs = 6000;

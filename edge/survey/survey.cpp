@@ -69,20 +69,28 @@ std::vector<localize::AppleEstimate> Survey::finish() const {
                 static_cast<int64_t>(std::floor(p.z() / cell))};
     grid[key(cells[i][0], cells[i][1], cells[i][2])].push_back(i);
   }
+  // Only dense cells link: the few mixed pixels at a fruit's silhouette (half fruit, half
+  // what is behind) triangulate between surfaces and would chain neighbours together.
+  auto dense = [&](const std::vector<size_t>& members) { return members.size() >= params_.minCellPoints; };
   UnionFind uf(points_.size());
   for (const auto& [k, members] : grid) {
+    if (!dense(members)) continue;
     for (size_t j = 1; j < members.size(); ++j) uf.unite(members[0], members[j]);
   }
   for (size_t i = 0; i < points_.size(); ++i) {
+    const auto own = grid.find(key(cells[i][0], cells[i][1], cells[i][2]));
+    if (!dense(own->second)) continue;
     for (int dx = -1; dx <= 1; ++dx)
       for (int dy = -1; dy <= 1; ++dy)
         for (int dz = -1; dz <= 1; ++dz) {
           const auto it = grid.find(key(cells[i][0] + dx, cells[i][1] + dy, cells[i][2] + dz));
-          if (it != grid.end()) uf.unite(i, it->second.front());
+          if (it != grid.end() && dense(it->second)) uf.unite(i, it->second.front());
         }
   }
   std::unordered_map<size_t, std::vector<size_t>> clusters;
-  for (size_t i = 0; i < points_.size(); ++i) clusters[uf.find(i)].push_back(i);
+  for (size_t i = 0; i < points_.size(); ++i) {
+    if (dense(grid.find(key(cells[i][0], cells[i][1], cells[i][2]))->second)) clusters[uf.find(i)].push_back(i);
+  }
 
   const localize::Localizer fusion(cal_, lle_, scan_);
   std::vector<localize::AppleEstimate> found;

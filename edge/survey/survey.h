@@ -15,6 +15,7 @@ struct SurveyParams {
   double stopSpacingMm = 8.0;   // the sheet moves ~8 mm on the fruit between stops: ≥ 5 lines on an 80 mm apple
   double clusterCellMm = 12.0;  // points closer than about this belong together
   size_t minPoints = 60;        // smaller clusters are leaves, twigs or noise
+  size_t minCellPoints = 4;     // sparser grid cells (silhouette mixed pixels) link nothing
   double maxExtentMm = 130.0;   // larger clusters are foliage walls, not fruit
   double maxCenterSigmaMm = 3.0;  // a cluster whose sphere centre is this uncertain is not a fruit
   int maxObjects = 15;          // ALACS_ResultObject.ObjIndex is 4 bits

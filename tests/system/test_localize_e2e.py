@@ -87,3 +87,14 @@ def test_home_switch_reaches_the_status_frame(tmp_path, alacsd):
         gpio_sim.drive_input("HOME", 1)
     assert proc.returncode == 0, out
     assert gpio_sim.read_output("LASER") == 0
+
+
+@pytest.mark.parametrize("mode", ["STOP_AND_GO", "CONTINUOUS"])
+def test_both_scan_modes_give_the_same_result(tmp_path, alacsd, mode):
+    """Continuous scanning (frames exposed while the slide moves, positions at
+    mid-exposure) answers with the same messages and accuracy as stop-and-go."""
+    ex = exchange.run_exchange(tmp_path, alacsd, seed=11, mode=mode)
+    assert ex.alacsd_exit == 0, ex.alacsd_log
+    assert ex.result is not None and int(ex.result.status) == 0, ex.alacsd_log
+    assert ex.center_error_mm < 5.0 and ex.approach_error_mm < 5.0, (mode, ex.center_error_mm)
+    assert ex.result.objects[0].quality.lines_used >= 3

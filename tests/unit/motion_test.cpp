@@ -9,6 +9,8 @@ using namespace alacs::motion;
 
 TEST_CASE("Trapezoid step times rise monotonically within the speed limit", "[motion]") {
   SlideLimits lim;
+  lim.maxSpeedMmPerS = 200.0;
+  lim.accelMmPerS2 = 2000.0;
   auto move = planMove(lim, 0, lim.stepsFor(20.0));
   REQUIRE(move.isOk());
   REQUIRE(move->steps() == 800);

@@ -21,7 +21,7 @@ TEST_CASE("Scan-all finds every apple in view and nothing else", "[survey][sim]"
   }
   sim::Renderer renderer(scene);
   survey::SurveyParams sp;
-  sp.stopSpacingMm = 10.0;
+  sp.stopSpacingMm = 8.0;
   survey::Survey sv(scene.truth, image::LleParams{}, localize::ScanParams{}, sp);
   image::LleWorkspace ws;
   cv::Mat frame;
