@@ -1,5 +1,10 @@
+// LLE behaviour: bRCE (meaning and literal form), the paper's method, sub-pixel
+// centroids, continuity, the robust fit, laser-off subtraction, saturation, coverage,
+// and a clear error for every bad input.
 #include <catch2/catch.hpp>
 
+#include <climits>
+#include <cmath>
 #include <random>
 #include <vector>
 
@@ -8,25 +13,48 @@
 using namespace alacs::image;
 
 namespace {
+
 struct Rgb {
   int width, height;
   std::vector<uint8_t> px;
   Rgb(int w, int h, uint8_t fill = 0) : width(w), height(h), px(static_cast<size_t>(w * h * 3), fill) {}
-  void setRed(int x, int y, uint8_t v) { px[static_cast<size_t>((y * width + x) * 3)] = v; }
+  uint8_t& red(int x, int y) { return px[static_cast<size_t>((y * width + x) * 3)]; }
   ImageView view() const { return {px.data(), width, height, static_cast<size_t>(width * 3), PixelFormat::kRgb888}; }
 };
 
-// A vertical Gaussian line of `sigma` px centred at column(y) on a dim background.
+// Adds a Gaussian line of `sigma` px and `peak` DN centred at column(y) to the red channel.
+template <class F>
+void addLine(Rgb& img, F column, double sigma, double peak, int y0 = 0, int y1 = -1) {
+  if (y1 < 0) y1 = img.height;
+  for (int y = y0; y < y1; ++y)
+    for (int x = 0; x < img.width; ++x) {
+      const double d = x - column(y);
+      const double v = img.red(x, y) + peak * std::exp(-0.5 * d * d / (sigma * sigma));
+      img.red(x, y) = static_cast<uint8_t>(std::min(255.0, std::round(v)));
+    }
+}
+
 Rgb lineImage(int w, int h, double (*column)(int), double sigma, double peak, uint8_t bg) {
   Rgb img(w, h, bg);
-  for (int y = 0; y < h; ++y)
-    for (int x = 0; x < w; ++x) {
-      const double d = x - column(y);
-      const double v = bg + peak * std::exp(-0.5 * d * d / (sigma * sigma));
-      img.setRed(x, y, static_cast<uint8_t>(std::min(255.0, std::round(v))));
-    }
+  addLine(img, column, sigma, peak);
   return img;
 }
+
+LaserLine run(const Rgb& img, const LleParams& p = {}, const Roi* roi = nullptr, const ImageView* off = nullptr) {
+  LleWorkspace ws;
+  LaserLine line;
+  const Roi all{0, 0, img.width, img.height};
+  const alacs::Status s = extractLine(img.view(), roi ? *roi : all, p, ws, line, off);
+  REQUIRE(s.isOk());
+  return line;
+}
+
+int rowsWithStatus(const LaserLine& l, RowStatus s) {
+  int n = 0;
+  for (const auto& r : l.rows) n += r.status == s ? 1 : 0;
+  return n;
+}
+
 }  // namespace
 
 TEST_CASE("bRCE marks pixels brighter than both neighbours by more than th", "[lle][brce]") {
@@ -35,6 +63,10 @@ TEST_CASE("bRCE marks pixels brighter than both neighbours by more than th", "[l
   brceRow(red, 1, 9, 4, 40, BrceForm::kMeaning, mask);
   CHECK(mask[4] == 1);
   for (int i : {0, 1, 2, 3, 5, 6, 7, 8}) CHECK(mask[i] == 0);
+  // Exactly th above one neighbour is not enough; th + 1 is.
+  const uint8_t edge[] = {10, 0, 0, 0, 50, 0, 0, 0, 9};
+  brceRow(edge, 1, 9, 4, 40, BrceForm::kMeaning, mask);
+  CHECK(mask[4] == 0);
 }
 
 TEST_CASE("The literal Algorithm 1 wraps on uint8 and marks dark pixels instead", "[lle][brce]") {
@@ -43,6 +75,7 @@ TEST_CASE("The literal Algorithm 1 wraps on uint8 and marks dark pixels instead"
   // and on a dark dip for the printed one.
   const uint8_t bright[] = {10, 10, 10, 10, 100, 10, 10, 10, 10};
   const uint8_t dip[] = {100, 100, 100, 100, 10, 100, 100, 100, 100};
+  const uint8_t slightly[] = {10, 10, 10, 10, 11, 10, 10, 10, 10};
   uint8_t mask[9];
   brceRow(bright, 1, 9, 4, 40, BrceForm::kLiteral, mask);
   CHECK(mask[4] == 1);
@@ -50,34 +83,246 @@ TEST_CASE("The literal Algorithm 1 wraps on uint8 and marks dark pixels instead"
   CHECK(mask[4] == 1);
   brceRow(dip, 1, 9, 4, 40, BrceForm::kMeaning, mask);
   CHECK(mask[4] == 0);
+  // One DN above both neighbours wraps to 255 > th: the literal form fires on noise.
+  brceRow(slightly, 1, 9, 4, 40, BrceForm::kLiteral, mask);
+  CHECK(mask[4] == 1);
+  brceRow(slightly, 1, 9, 4, 40, BrceForm::kMeaning, mask);
+  CHECK(mask[4] == 0);
+}
+
+TEST_CASE("On a noisy background the literal form fires almost everywhere, the meaning only on the line",
+          "[lle][brce]") {
+  std::mt19937 rng(3);
+  Rgb img(200, 60, 0);
+  for (auto& v : img.px) v = static_cast<uint8_t>(60 + rng() % 7);
+  addLine(img, [](int) { return 40.3; }, 1.3, 120.0);
+  LleParams meaning;
+  meaning.method = LleMethod::kPaper;
+  LleParams literal = meaning;
+  literal.brceForm = BrceForm::kLiteral;
+  const LaserLine a = run(img, meaning);
+  const LaserLine b = run(img, literal);
+  REQUIRE(a.rows.size() == 60);
+  for (const auto& r : a.rows) CHECK(std::abs(r.column - 40.3F) < 0.6F);
+  // The literal form's row "centroids" are pulled towards the middle of the noise.
+  int far = 0;
+  for (const auto& r : b.rows) far += std::abs(r.column - 40.3F) > 5.0F ? 1 : 0;
+  CHECK(far > 50);
+}
+
+TEST_CASE("The paper's line focusing is the mean of the candidate columns", "[lle][paper]") {
+  // A flat-topped line: red 200 over columns 40..42, background 20; with step 4 the
+  // candidates are 40, 41, 42 (each is > th above both neighbours 4 columns away).
+  Rgb img(100, 30, 20);
+  for (int y = 0; y < 30; ++y)
+    for (int x = 40; x <= 42; ++x) img.red(x, y) = 200;
+  LleParams p;
+  p.method = LleMethod::kPaper;
+  const LaserLine l = run(img, p);
+  REQUIRE(l.rows.size() == 30);
+  for (const auto& r : l.rows) {
+    CHECK(r.column == 41.0F);
+    CHECK(r.status == RowStatus::kLine);
+  }
+  REQUIRE(l.valid);
+  CHECK(l.columnAt(15) == Approx(41.0).margin(1e-3));
+}
+
+TEST_CASE("The paper's mean is integer-biased; the centroid of the red excess is sub-pixel", "[lle][paper]") {
+  const Rgb img = lineImage(120, 100, [](int) { return 50.3; }, 1.3, 150, 30);
+  LleParams paper;
+  paper.method = LleMethod::kPaper;
+  const LaserLine a = run(img, paper);
+  const LaserLine b = run(img);
+  REQUIRE(a.rows.size() == 100);
+  REQUIRE(b.rows.size() == 100);
+  CHECK(std::abs(a.rows[50].column - 50.3F) > 0.2F);   // the candidates are 49..51: mean 50
+  CHECK(std::abs(b.rows[50].column - 50.3F) < 0.02F);
 }
 
 TEST_CASE("Sub-pixel centroid recovers a synthetic line's centre", "[lle]") {
   const Rgb img = lineImage(120, 200, [](int y) { return 50.3 + 0.02 * y; }, 1.3, 150, 30);
-  LleWorkspace ws;
-  auto line = extractLine(img.view(), {0, 0, 120, 200}, LleParams{}, ws);
-  REQUIRE(line.isOk());
-  REQUIRE(line->rows.size() == 200);
+  const LaserLine line = run(img);
+  REQUIRE(line.rows.size() == 200);
   double worst = 0;
-  for (const auto& r : line->rows) worst = std::max(worst, std::abs(static_cast<double>(r.column) - (50.3 + 0.02 * r.row)));
+  for (const auto& r : line.rows) {
+    CHECK(r.status == RowStatus::kLine);
+    CHECK(r.valid());
+    CHECK(r.confidence > 0.5F);
+    worst = std::max(worst, std::abs(static_cast<double>(r.column) - (50.3 + 0.02 * r.row)));
+    CHECK(r.column == static_cast<float>(r.columnQ8) / 256.0F);
+  }
   CHECK(worst < 0.05);
-  REQUIRE(line->valid);
-  CHECK(line->columnAt(100) == Approx(52.3).margin(0.02));
+  REQUIRE(line.valid);
+  CHECK(line.columnAt(100) == Approx(52.3).margin(0.02));
+  CHECK(line.coverage == 1.0);
+  CHECK(line.firstLineRow == 0);
+  CHECK(line.lastLineRow == 199);
+  REQUIRE(line.segments.size() == 1);
+  CHECK(line.segments[0].onLine);
 }
 
 TEST_CASE("ROI coordinates are reported in full-frame pixels", "[lle]") {
   const Rgb img = lineImage(200, 100, [](int) { return 140.0; }, 1.2, 150, 20);
-  LleWorkspace ws;
-  auto line = extractLine(img.view(), {100, 10, 80, 50}, LleParams{}, ws);
-  REQUIRE(line.isOk());
-  REQUIRE(!line->rows.empty());
-  CHECK(line->rows.front().row == 10);
-  CHECK(line->rows.front().column == Approx(140.0).margin(0.05));
+  const Roi roi{100, 10, 80, 50};
+  const LaserLine line = run(img, {}, &roi);
+  REQUIRE(!line.rows.empty());
+  CHECK(line.rows.front().row == 10);
+  CHECK(line.rows.back().row == 59);
+  CHECK(line.rows.front().column == Approx(140.0).margin(0.05));
+  CHECK(line.columnAt(30) == Approx(140.0).margin(0.05));
+}
+
+TEST_CASE("A brighter short glint does not take the line's rows", "[lle][continuity]") {
+  Rgb img = lineImage(160, 120, [](int) { return 50.0; }, 1.3, 120, 20);
+  addLine(img, [](int) { return 110.0; }, 1.3, 200, 40, 44);  // 4 rows: shorter than a segment
+  const LaserLine l = run(img);
+  for (int y = 0; y < 120; ++y) {
+    const RowSample* s = l.sampleAt(y);
+    REQUIRE(s != nullptr);
+    CHECK(s->status == RowStatus::kLine);
+    CHECK(std::abs(s->column - 50.0F) < 0.05F);
+  }
+  CHECK(l.rows.size() == 120);  // the glint is noise, not a segment
+}
+
+TEST_CASE("A second laser segment in the same rows is reported after the line", "[lle][continuity]") {
+  // The line on the fruit (long) and the laser on a leaf in front (shorter, brighter).
+  Rgb img = lineImage(200, 150, [](int y) { return 60.0 + 0.01 * y; }, 1.3, 110, 20);
+  addLine(img, [](int) { return 140.0; }, 1.2, 200, 30, 70);
+  const LaserLine l = run(img);
+  REQUIRE(l.valid);
+  for (int y = 30; y < 70; ++y) {
+    const RowSample* s = l.sampleAt(y);
+    REQUIRE(s != nullptr);
+    CHECK(s->status == RowStatus::kLine);  // the line first
+    CHECK(std::abs(s->column - static_cast<float>(60.0 + 0.01 * y)) < 0.05F);
+    CHECK((s + 1)->row == y);              // then the leaf's segment
+    CHECK((s + 1)->status == RowStatus::kSegment);
+    CHECK(std::abs((s + 1)->column - 140.0F) < 0.05F);
+  }
+  LleParams only;
+  only.keepOtherSegments = false;
+  CHECK(run(img, only).rows.size() == 150);
+}
+
+TEST_CASE("A leaf in front: the line continues across the gap, the leaf's laser is not the line",
+          "[lle][continuity][robust]") {
+  // Rows 80..119: the fruit is hidden; the laser falls on a leaf nearer the camera, which
+  // shifts it by 25 px (triangulation parallax).
+  Rgb img(200, 200, 20);
+  auto fruit = [](int y) { return 50.0 + 0.03 * y + 0.0002 * (y - 100) * (y - 100); };
+  addLine(img, fruit, 1.3, 120, 0, 80);
+  addLine(img, fruit, 1.3, 120, 120, 200);
+  addLine(img, [](int y) { return 78.0 + 0.03 * y; }, 1.3, 160, 80, 120);
+  const LaserLine l = run(img);
+  REQUIRE(l.valid);
+  CHECK(l.inliers == 160);
+  CHECK(l.firstLineRow == 0);
+  CHECK(l.lastLineRow == 199);
+  CHECK(l.coverage == Approx(0.8));
+  // The curve follows the fruit through the gap instead of being pulled to the leaf.
+  for (int y : {10, 60, 100, 140, 190}) CHECK(l.columnAt(y) == Approx(fruit(y)).margin(0.05));
+  int leafRows = 0;
+  for (const auto& r : l.rows) {
+    if (r.row >= 80 && r.row < 120) {
+      CHECK(r.status == RowStatus::kSegment);
+      CHECK_FALSE(l.segments[static_cast<size_t>(r.segment)].onLine);
+      ++leafRows;
+    } else {
+      CHECK(r.status == RowStatus::kLine);
+    }
+  }
+  CHECK(leafRows == 40);
+  REQUIRE(l.segments.size() == 3);
+  CHECK(l.segments[0].onLine);
+  CHECK_FALSE(l.segments[1].onLine);
+  CHECK(l.segments[2].onLine);
+}
+
+TEST_CASE("Rows the robust fit rejects are marked invalid; the fit is not pulled by them", "[lle][robust]") {
+  Rgb img(120, 100, 20);
+  auto col = [](int y) { return 40.0 + 0.05 * y; };
+  for (int y = 0; y < 100; ++y) {
+    const bool bad = y == 30 || y == 31 || y == 60;
+    addLine(img, [&](int yy) { return col(yy) + (bad ? 1.5 : 0.0); }, 1.2, 130, y, y + 1);
+  }
+  LleParams p;
+  p.outlierPx = 0.5;
+  p.smoothRows = 0;
+  const LaserLine l = run(img, p);
+  REQUIRE(l.valid);
+  CHECK(rowsWithStatus(l, RowStatus::kOutlier) == 3);
+  for (const auto& r : l.rows) {
+    const bool bad = r.row == 30 || r.row == 31 || r.row == 60;
+    CHECK(r.valid() == !bad);
+    if (bad) CHECK(r.confidence == 0.0F);
+  }
+  CHECK(l.inliers == 97);
+  CHECK(l.columnAt(30) == Approx(col(30)).margin(0.03));
+  CHECK(l.rmsResidualPx < 0.05);
+}
+
+TEST_CASE("Smoothing along the line averages row noise and keeps the row's own centroid", "[lle]") {
+  std::mt19937 rng(7);
+  std::normal_distribution<double> jitter(0.0, 0.3);
+  Rgb img(120, 200, 25);
+  std::vector<double> off(200);
+  for (int y = 0; y < 200; ++y) {
+    off[static_cast<size_t>(y)] = jitter(rng);
+    addLine(img, [&](int) { return 60.0 + 0.04 * y + off[static_cast<size_t>(y)]; }, 1.3, 140, y, y + 1);
+  }
+  LleParams raw;
+  raw.smoothRows = 0;
+  const LaserLine a = run(img, raw);
+  const LaserLine b = run(img);
+  double ea = 0, eb = 0;
+  int n = 0;
+  for (size_t i = 0; i < b.rows.size(); ++i) {
+    const double truth = 60.0 + 0.04 * b.rows[i].row;
+    ea += std::abs(a.rows[i].column - truth);
+    eb += std::abs(b.rows[i].column - truth);
+    CHECK(b.rows[i].centroidQ8 == a.rows[i].columnQ8);
+    ++n;
+  }
+  REQUIRE(n == 200);
+  CHECK(eb < 0.5 * ea);
+}
+
+TEST_CASE("Subtracting the laser-off frame removes ambient structure that bRCE would take for a line",
+          "[lle][ambient]") {
+  // Sunlit twigs: thin bright vertical stripes, in both frames; the laser only in one.
+  Rgb off(200, 120, 40);
+  for (int y = 0; y < 120; ++y)
+    for (int x : {30, 31, 150, 151}) off.red(x, y) = 200;
+  Rgb on = off;
+  addLine(on, [](int) { return 90.0; }, 1.3, 100);
+  const LaserLine plain = run(on);
+  const ImageView offView = off.view();
+  const LaserLine diff = run(on, {}, nullptr, &offView);
+  CHECK(plain.rows.size() > 120);  // the twigs are segments too
+  REQUIRE(diff.rows.size() == 120);
+  for (const auto& r : diff.rows) CHECK(std::abs(r.column - 90.0F) < 0.05F);
+}
+
+TEST_CASE("A clipped line core still gives its centre; it is flagged and trusted less", "[lle][saturation]") {
+  Rgb img = lineImage(120, 60, [](int) { return 60.4; }, 1.6, 600, 60);  // clipped over ~5 px
+  const LaserLine l = run(img);
+  REQUIRE(l.rows.size() == 60);
+  const Rgb dim = lineImage(120, 60, [](int) { return 60.4; }, 1.6, 150, 60);
+  const LaserLine d = run(dim);
+  for (size_t i = 0; i < l.rows.size(); ++i) {
+    CHECK(l.rows[i].saturated);
+    CHECK_FALSE(d.rows[i].saturated);
+    CHECK(std::abs(l.rows[i].column - 60.4F) < 0.05F);
+    CHECK(l.rows[i].confidence < d.rows[i].confidence);
+  }
 }
 
 TEST_CASE("Edge cases give a result or a clear error, never a crash", "[lle][edge]") {
   LleWorkspace ws;
   LleParams p;
+  LaserLine out;
   SECTION("width below 2*step") {
     Rgb img(6, 20, 50);
     auto line = extractLine(img.view(), {0, 0, 6, 20}, p, ws);
@@ -96,30 +341,103 @@ TEST_CASE("Edge cases give a result or a clear error, never a crash", "[lle][edg
       auto line = extractLine(img.view(), {0, 0, 64, 32}, p, ws);
       REQUIRE(line.isOk());
       CHECK(line->rows.empty());
+      CHECK_FALSE(line->valid);
+      CHECK(line->coverage == 0.0);
     }
   }
   SECTION("a line at the frame border") {
     const Rgb img = lineImage(64, 32, [](int) { return 1.0; }, 1.0, 150, 20);
     auto line = extractLine(img.view(), {0, 0, 64, 32}, p, ws);
     REQUIRE(line.isOk());
+    for (const auto& r : line->rows) CHECK(r.column >= 0.0F);
   }
-  SECTION("bad ROIs and parameters") {
-    Rgb img(64, 32, 0);
-    CHECK(extractLine(img.view(), {0, 0, 0, 10}, p, ws).status().code() == alacs::Error::kBadInput);
-    CHECK(extractLine(img.view(), {60, 0, 10, 10}, p, ws).status().code() == alacs::Error::kBadInput);
-    CHECK(extractLine(img.view(), {-1, 0, 10, 10}, p, ws).status().code() == alacs::Error::kBadInput);
-    ImageView empty;
-    CHECK(extractLine(empty, {0, 0, 1, 1}, p, ws).status().code() == alacs::Error::kBadInput);
-    LleParams bad;
-    bad.brceStep = 0;
-    CHECK(extractLine(img.view(), {0, 0, 10, 10}, bad, ws).status().code() == alacs::Error::kInvalidArgument);
+}
+
+TEST_CASE("Bad input gives a clear error", "[lle][edge]") {
+  LleWorkspace ws;
+  LaserLine out;
+  const LleParams p;
+  Rgb img(64, 32, 0);
+  auto code = [&](const ImageView& v, const Roi& r, const LleParams& q = LleParams{}, const ImageView* off = nullptr) {
+    const alacs::Status s = extractLine(v, r, q, ws, out, off);
+    if (!s) CHECK_FALSE(s.reason().empty());
+    return s.code();
+  };
+  using alacs::Error;
+  SECTION("ROIs") {
+    CHECK(code(img.view(), {0, 0, 0, 10}) == Error::kBadInput);
+    CHECK(code(img.view(), {0, 0, 10, -1}) == Error::kBadInput);
+    CHECK(code(img.view(), {60, 0, 10, 10}) == Error::kBadInput);
+    CHECK(code(img.view(), {-1, 0, 10, 10}) == Error::kBadInput);
+    CHECK(code(img.view(), {0, 30, 10, 10}) == Error::kBadInput);
+    CHECK(code(img.view(), {INT_MAX, 0, INT_MAX, 10}) == Error::kBadInput);
+    CHECK(code(img.view(), {0, 0, 64, 32}) == Error::kNone);
+  }
+  SECTION("frames") {
+    CHECK(code(ImageView{}, {0, 0, 1, 1}) == Error::kBadInput);
+    ImageView v = img.view();
+    v.strideBytes = 64 * 3 - 1;
+    CHECK(code(v, {0, 0, 1, 1}) == Error::kBadInput);
+    v = img.view();
+    v.format = static_cast<PixelFormat>(7);
+    CHECK(code(v, {0, 0, 1, 1}) == Error::kBadInput);
+    v = img.view();
+    v.width = kLleMaxSidePx + 1;
+    v.strideBytes = static_cast<size_t>(v.width) * 3U;
+    CHECK(code(v, {0, 0, 1, 1}) == Error::kBadInput);
+    v = img.view();
+    v.height = -5;
+    CHECK(code(v, {0, 0, 1, 1}) == Error::kBadInput);
+  }
+  SECTION("laser-off frame") {
+    Rgb other(63, 32, 0);
+    const ImageView o = other.view();
+    CHECK(code(img.view(), {0, 0, 8, 8}, p, &o) == Error::kBadInput);
+    ImageView bgr = img.view();
+    bgr.format = PixelFormat::kBgr888;
+    const ImageView same = img.view();
+    CHECK(code(bgr, {0, 0, 8, 8}, p, &same) == Error::kBadInput);
+    const ImageView empty;
+    CHECK(code(img.view(), {0, 0, 8, 8}, p, &empty) == Error::kBadInput);
+  }
+  SECTION("parameters out of range") {
+    auto bad = [&](auto set) {
+      LleParams q;
+      set(q);
+      CHECK(q.validate().code() == Error::kInvalidArgument);
+      CHECK(code(img.view(), {0, 0, 8, 8}, q) == Error::kInvalidArgument);
+      CHECK(extractLineReference(img.view(), {0, 0, 8, 8}, q, out).code() == Error::kInvalidArgument);
+    };
+    bad([](LleParams& q) { q.brceStep = 0; });
+    bad([](LleParams& q) { q.brceStep = 65; });
+    bad([](LleParams& q) { q.brceThreshold = -1; });
+    bad([](LleParams& q) { q.brceThreshold = 255; });
+    bad([](LleParams& q) { q.brceForm = static_cast<BrceForm>(9); });
+    bad([](LleParams& q) { q.method = static_cast<LleMethod>(9); });
+    bad([](LleParams& q) { q.noiseTheta = -1; });
+    bad([](LleParams& q) { q.noiseGamma = 0; });
+    bad([](LleParams& q) { q.polyOrder = 0; });
+    bad([](LleParams& q) { q.polyOrder = 7; });
+    bad([](LleParams& q) { q.outlierPx = 0.0; });
+    bad([](LleParams& q) { q.outlierPx = std::nan(""); });
+    bad([](LleParams& q) { q.minRows = 4; });
+    bad([](LleParams& q) { q.maxPeaksPerRow = 9; });
+    bad([](LleParams& q) { q.maxJumpPx = 0.0; });
+    bad([](LleParams& q) { q.maxGapRows = 65; });
+    bad([](LleParams& q) { q.minSegmentRows = 0; });
+    bad([](LleParams& q) { q.bridgePx = -1.0; });
+    bad([](LleParams& q) { q.bridgePxPerRow = INFINITY; });
+    bad([](LleParams& q) { q.smoothOrder = 3; });
+    bad([](LleParams& q) { q.smoothRows = 33; });
+    bad([](LleParams& q) { q.kernels = static_cast<LleKernels>(5); });
   }
 }
 
 TEST_CASE("Random images never crash the extractor", "[lle][edge]") {
   std::mt19937 rng(42);
   LleWorkspace ws;
-  for (int i = 0; i < 200; ++i) {
+  LaserLine out;
+  for (int i = 0; i < 300; ++i) {
     const int w = 1 + static_cast<int>(rng() % 97);
     const int h = 1 + static_cast<int>(rng() % 41);
     Rgb img(w, h);
@@ -128,7 +446,10 @@ TEST_CASE("Random images never crash the extractor", "[lle][edge]") {
     const int y = static_cast<int>(rng() % static_cast<unsigned>(h));
     LleParams p;
     p.brceStep = 1 + static_cast<int>(rng() % 8);
-    auto r = extractLine(img.view(), {x, y, w - x, h - y}, p, ws);
-    CHECK(r.isOk());
+    p.brceThreshold = static_cast<int>(rng() % 60);
+    p.minSegmentRows = 1 + static_cast<int>(rng() % 4);
+    p.method = rng() % 4 == 0 ? LleMethod::kPaper : LleMethod::kRobust;
+    CHECK(extractLine(img.view(), {x, y, w - x, h - y}, p, ws, out).isOk());
+    for (size_t k = 1; k < out.rows.size(); ++k) CHECK(out.rows[k - 1].row <= out.rows[k].row);
   }
 }

@@ -1,0 +1,209 @@
+// The SIMD path of LLE (OpenCV universal intrinsics: NEON on aarch64, SSE2 and AVX2 on
+// x86-64) against the scalar reference: bit-exact, kernel by kernel and end to end, on
+// random data and on the edge cases (odd widths, widths below 2·step, one-row ROIs,
+// all-saturated, all-dark, lines at the borders). Under tests/aarch64/run.sh this runs
+// the NEON kernels in qemu-aarch64.
+#include <catch2/catch.hpp>
+
+#include <cstring>
+#include <random>
+#include <string>
+#include <vector>
+
+#include "image/lle.h"
+#include "image/lle_internal.h"
+
+using namespace alacs::image;
+using detail::SimdKernels;
+
+namespace {
+
+std::vector<const SimdKernels*> simdPaths() {
+  std::vector<const SimdKernels*> v;
+  if (detail::simdKernelsBaseline() != nullptr) v.push_back(detail::simdKernelsBaseline());
+  if (detail::simdKernelsAvx2() != nullptr) v.push_back(detail::simdKernelsAvx2());
+  return v;
+}
+
+struct Frame {
+  int width, height;
+  std::vector<uint8_t> px;
+  Frame(int w, int h) : width(w), height(h), px(static_cast<size_t>(w) * static_cast<size_t>(h) * 3U) {}
+  uint8_t& red(int x, int y) { return px[(static_cast<size_t>(y) * static_cast<size_t>(width) + static_cast<size_t>(x)) * 3U]; }
+  ImageView view() const { return {px.data(), width, height, static_cast<size_t>(width) * 3U, PixelFormat::kRgb888}; }
+};
+
+void compareLines(const LaserLine& a, const LaserLine& b) {
+  REQUIRE(a.rows.size() == b.rows.size());
+  for (size_t i = 0; i < a.rows.size(); ++i) {
+    INFO("sample " << i << " row " << a.rows[i].row);
+    CHECK(a.rows[i].row == b.rows[i].row);
+    CHECK(a.rows[i].columnQ8 == b.rows[i].columnQ8);
+    CHECK(a.rows[i].centroidQ8 == b.rows[i].centroidQ8);
+    CHECK(a.rows[i].confidence == b.rows[i].confidence);
+    CHECK(a.rows[i].status == b.rows[i].status);
+    CHECK(a.rows[i].segment == b.rows[i].segment);
+    CHECK(a.rows[i].saturated == b.rows[i].saturated);
+  }
+  REQUIRE(a.segments.size() == b.segments.size());
+  for (size_t i = 0; i < a.segments.size(); ++i) {
+    CHECK(a.segments[i].firstRow == b.segments[i].firstRow);
+    CHECK(a.segments[i].lastRow == b.segments[i].lastRow);
+    CHECK(a.segments[i].rows == b.segments[i].rows);
+    CHECK(a.segments[i].onLine == b.segments[i].onLine);
+  }
+  CHECK(a.valid == b.valid);
+  CHECK(a.order == b.order);
+  CHECK(a.coeffs == b.coeffs);
+  CHECK(a.inliers == b.inliers);
+  CHECK(a.coverage == b.coverage);
+}
+
+// Runs the whole extraction with the scalar and with the SIMD kernels (both methods, both
+// bRCE forms, with and without a laser-off frame) and requires identical results.
+void compareEndToEnd(const Frame& f, const Roi& roi, LleParams p, const Frame* off = nullptr) {
+  LleWorkspace ws1, ws2;
+  LaserLine a, b;
+  const ImageView ov = off != nullptr ? off->view() : ImageView{};
+  for (LleMethod m : {LleMethod::kRobust, LleMethod::kPaper}) {
+    for (BrceForm form : {BrceForm::kMeaning, BrceForm::kLiteral}) {
+      p.method = m;
+      p.brceForm = form;
+      p.kernels = LleKernels::kScalar;
+      REQUIRE(extractLine(f.view(), roi, p, ws1, a, off ? &ov : nullptr).isOk());
+      p.kernels = LleKernels::kAuto;
+      REQUIRE(extractLine(f.view(), roi, p, ws2, b, off ? &ov : nullptr).isOk());
+      compareLines(a, b);
+    }
+  }
+}
+
+}  // namespace
+
+TEST_CASE("This build has SIMD kernels for LLE", "[lle][simd]") {
+  INFO("LLE kernels in use: " << lleSimdName());
+  // x86-64 always has SSE2 and aarch64 always has NEON: a scalar-only build there is a
+  // configuration error, not a slow machine.
+#if defined(__x86_64__) || defined(__aarch64__)
+  CHECK(detail::simdKernelsBaseline() != nullptr);
+  CHECK(std::string(lleSimdName()) != "scalar");
+#endif
+#if defined(__aarch64__)
+  CHECK(std::string(lleSimdName()) == "neon");
+#endif
+  WARN("LLE SIMD kernels: " << lleSimdName());
+}
+
+TEST_CASE("SIMD red extraction is bit-exact with the scalar kernel", "[lle][simd]") {
+  std::mt19937 rng(11);
+  for (const SimdKernels* k : simdPaths()) {
+    INFO("kernels " << k->name);
+    for (int w : {1, 2, 3, 15, 16, 17, 31, 32, 33, 63, 64, 65, 100, 127, 255, 1023, 2048, 2049}) {
+      std::vector<uint8_t> on(static_cast<size_t>(w) * 3U), off(on.size());
+      for (auto& v : on) v = static_cast<uint8_t>(rng());
+      for (auto& v : off) v = static_cast<uint8_t>(rng());
+      for (int redOffset : {0, 2}) {
+        for (bool useOff : {false, true}) {
+          std::vector<uint8_t> a(static_cast<size_t>(w) + 64, 0xAA), b(a.size(), 0xAA);
+          detail::redRowScalar(on.data(), useOff ? off.data() : nullptr, redOffset, w, a.data());
+          k->redRow(on.data(), useOff ? off.data() : nullptr, redOffset, w, b.data());
+          INFO("w " << w << " redOffset " << redOffset << " off " << useOff);
+          CHECK(a == b);  // including no write past w
+        }
+      }
+    }
+  }
+}
+
+TEST_CASE("SIMD bRCE, candidate bits and column counts are bit-exact with the scalar kernel", "[lle][simd]") {
+  std::mt19937 rng(12);
+  for (const SimdKernels* k : simdPaths()) {
+    INFO("kernels " << k->name);
+    for (int iter = 0; iter < 400; ++iter) {
+      const int w = iter < 130 ? iter + 1 : 1 + static_cast<int>(rng() % 2100);
+      const int wv = detail::paddedWidth(w);
+      const int step = iter % 7 == 0 ? 64 : 1 + static_cast<int>(rng() % 16);
+      const int th = std::vector<int>{0, 1, 40, 127, 200, 254}[static_cast<size_t>(rng() % 6)];
+      const BrceForm form = rng() % 2 ? BrceForm::kLiteral : BrceForm::kMeaning;
+      std::vector<uint8_t> buf(static_cast<size_t>(wv + 2 * detail::kRedPad), 0);
+      uint8_t* red = buf.data() + detail::kRedPad;
+      const int kind = static_cast<int>(rng() % 4);
+      for (int x = 0; x < w; ++x)
+        red[x] = kind == 0 ? static_cast<uint8_t>(rng())                       // noise
+                 : kind == 1 ? uint8_t{255}                                   // all saturated
+                 : kind == 2 ? uint8_t{0}                                     // all dark
+                             : static_cast<uint8_t>(x % 9 == 0 ? 250 : 20);   // lines, incl. x = 0
+      std::vector<uint8_t> valid(static_cast<size_t>(wv), 0);
+      for (int x = step; x < w - step; ++x) valid[static_cast<size_t>(x)] = 0xFF;
+      std::vector<uint16_t> ca(static_cast<size_t>(wv)), cb(ca.size());
+      for (size_t i = 0; i < ca.size(); ++i) ca[i] = cb[i] = static_cast<uint16_t>(rng() % 1000);
+      std::vector<uint64_t> ba(static_cast<size_t>(wv / 64), ~0ULL), bb(ba.size(), 0x5555ULL);
+      detail::brceRowScalar(red, w, wv, step, th, form, ca.data(), ba.data());
+      k->brceRow(red, valid.data(), wv, step, th, form, cb.data(), bb.data());
+      INFO("w " << w << " step " << step << " th " << th << " kind " << kind);
+      CHECK(ca == cb);
+      CHECK(ba == bb);
+    }
+  }
+}
+
+TEST_CASE("The whole extraction is bit-exact between the SIMD and the scalar kernels", "[lle][simd]") {
+  std::mt19937 rng(13);
+  LleParams p;
+  SECTION("random images, ROIs and parameters") {
+    for (int iter = 0; iter < 60; ++iter) {
+      const int w = 1 + static_cast<int>(rng() % 300);
+      const int h = 1 + static_cast<int>(rng() % 80);
+      Frame f(w, h);
+      for (auto& v : f.px) v = static_cast<uint8_t>(rng());
+      const int x = static_cast<int>(rng() % static_cast<unsigned>(w));
+      const int y = static_cast<int>(rng() % static_cast<unsigned>(h));
+      p.brceStep = 1 + static_cast<int>(rng() % 12);
+      p.brceThreshold = static_cast<int>(rng() % 80);
+      p.minSegmentRows = 1 + static_cast<int>(rng() % 5);
+      INFO("iteration " << iter << " " << w << "x" << h);
+      compareEndToEnd(f, {x, y, w - x, h - y}, p);
+    }
+  }
+  SECTION("lines on noise, with a laser-off frame") {
+    for (int iter = 0; iter < 20; ++iter) {
+      const int w = 33 + static_cast<int>(rng() % 500);
+      const int h = 20 + static_cast<int>(rng() % 100);
+      Frame off(w, h);
+      for (auto& v : off.px) v = static_cast<uint8_t>(30 + rng() % 40);
+      Frame on = off;
+      const double c0 = 5.0 + static_cast<double>(rng() % static_cast<unsigned>(w - 10));
+      for (int yy = 0; yy < h; ++yy)
+        for (int xx = 0; xx < w; ++xx) {
+          const double d = xx - (c0 + 0.1 * yy);
+          on.red(xx, yy) = static_cast<uint8_t>(std::min(255.0, on.red(xx, yy) + 180.0 * std::exp(-d * d / 3.0)));
+        }
+      compareEndToEnd(on, {0, 0, w, h}, p);
+      compareEndToEnd(on, {0, 0, w, h}, p, &off);
+    }
+  }
+  SECTION("edge cases") {
+    // Odd widths, widths below 2·step, one-row ROIs.
+    for (int w : {1, 3, 7, 8, 9, 17, 63, 65, 127, 129}) {
+      Frame f(w, 9);
+      for (auto& v : f.px) v = static_cast<uint8_t>(rng());
+      compareEndToEnd(f, {0, 0, w, 9}, p);
+      compareEndToEnd(f, {0, 4, w, 1}, p);
+    }
+    // All saturated, all dark.
+    for (uint8_t v : {uint8_t{255}, uint8_t{0}}) {
+      Frame f(131, 40);
+      std::fill(f.px.begin(), f.px.end(), v);
+      compareEndToEnd(f, {0, 0, 131, 40}, p);
+    }
+    // Lines at the borders: first and last column, first row only, a ROI edge.
+    for (int col : {0, 1, 4, 95, 98, 99}) {
+      Frame f(100, 30);
+      std::fill(f.px.begin(), f.px.end(), uint8_t{20});
+      for (int yy = 0; yy < 30; ++yy) f.red(col, yy) = 230;
+      compareEndToEnd(f, {0, 0, 100, 30}, p);
+      compareEndToEnd(f, {0, 0, 100, 1}, p);
+      compareEndToEnd(f, {col > 50 ? 50 : 0, 0, 50, 30}, p);
+    }
+  }
+}
