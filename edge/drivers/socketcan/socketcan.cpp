@@ -128,10 +128,12 @@ Status CyclicSender::keep(const ports::CanFrame& frame, TimeNs periodNs, TimeNs 
       return {Error::kIo, std::string("CAN_BCM TX_DELETE: ") + std::strerror(errno)};
     return Status::ok();
   }
-  const auto guard = static_cast<uint32_t>(std::max<TimeNs>(2, kGuardNs / periodNs + 1));
+  const auto guard = static_cast<uint32_t>(std::max<TimeNs>(3, kGuardNs / periodNs + 1));
   const bool sameFrame = running_ && frame.id == frame_.id && frame.dlc == frame_.dlc && frame.data == frame_.data;
-  // A job whose guard may have run out (we were frozen) is restarted, as is a new period.
-  const bool expired = running_ && now - refreshedNs_ >= static_cast<TimeNs>(guard - 1) * periodNs;
+  // A job whose guard has certainly run out (we were not run for that long: the kernel
+  // has stopped sending) is restarted, as is one with a new period. Not earlier: a
+  // restart sends at once and so shifts the phase.
+  const bool expired = running_ && now - refreshedNs_ > static_cast<TimeNs>(guard) * periodNs;
   Status s = Status::ok();
   if (!running_ || periodNs != periodNs_ || frame.id != frame_.id || expired) {
     s = setup(frame, periodNs, SETTIMER | STARTTIMER, guard);

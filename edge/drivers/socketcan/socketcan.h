@@ -36,7 +36,7 @@ class CyclicSender {
   // cycle now with one frame; new data alone is sent from the next cycle on, keeping the
   // phase. Call at least every guardNs / 2; cheap when nothing changed.
   Status keep(const ports::CanFrame& frame, TimeNs periodNs, TimeNs now);
-  static constexpr TimeNs kGuardNs = 500 * kNsPerMs;
+  static constexpr TimeNs kGuardNs = 1000 * kNsPerMs;  // and at least 3 periods
 
  private:
   explicit CyclicSender(int fd) : fd_(fd) {}
