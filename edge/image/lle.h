@@ -143,6 +143,7 @@ struct LleWorkspace {
   std::vector<uint8_t> red;          // one padded red row
   std::vector<uint8_t> validLanes;   // 0xFF where bRCE may fire
   std::vector<uint16_t> counts;      // per column candidate counts of the current band
+  std::vector<uint8_t> counts8;      // the same over the last < 256 rows
   std::vector<int32_t> prefix;       // prefix sums / clear coverage of a band
   std::vector<uint64_t> bits;        // candidate mask of the ROI, one bit per pixel
   std::vector<uint64_t> clearBits;   // columns cleared by noise removal in a band

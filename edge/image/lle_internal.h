@@ -30,10 +30,13 @@ constexpr int paddedWidth(int w) { return (w + 63) & ~63; }
 void redRowScalar(const uint8_t* on, const uint8_t* off, int redOffset, int w, uint8_t* red);
 
 // bRCE over x in [0, wv) of a padded red row (the scalar reference): a candidate is
-// x in [step, w - step) with the form's condition. Adds 1 to counts[x] per candidate and
-// writes the candidate bits, bit (x % 64) of bits[x / 64].
+// x in [step, w - step) with the form's condition. Adds 1 (modulo 256) to counts8[x] per
+// candidate, and writes the candidate bits, bit (x % 64) of bits[x / 64]. The caller
+// moves counts8 into wider counters at least every 255 rows (flushCounts).
 void brceRowScalar(const uint8_t* red, int w, int wv, int step, int threshold, BrceForm form,
-                   uint16_t* counts, uint64_t* bits);
+                   uint8_t* counts8, uint64_t* bits);
+// counts[x] += counts8[x], counts8[x] = 0, for x in [0, wv).
+void flushCounts(uint8_t* counts8, uint16_t* counts, int wv);
 
 // The SIMD kernels, with the contract of the scalar ones; bit-exact with them. brceRow
 // takes `validLanes` (0xFF for x in [step, w - step), 0 elsewhere, wv bytes) instead of w.
@@ -41,15 +44,16 @@ struct SimdKernels {
   const char* name;
   void (*redRow)(const uint8_t* on, const uint8_t* off, int redOffset, int w, uint8_t* red);
   void (*brceRow)(const uint8_t* red, const uint8_t* validLanes, int wv, int step, int threshold,
-                  BrceForm form, uint16_t* counts, uint64_t* bits);
+                  BrceForm form, uint8_t* counts8, uint64_t* bits);
 };
 
 // The best SIMD kernels this build and CPU can run, or nullptr (no SIMD in this build).
 const SimdKernels* simdKernels();
 // The baseline SIMD kernels (SSE2 / NEON), or nullptr; for tests that compare every path.
 const SimdKernels* simdKernelsBaseline();
-// The AVX2 kernels when built and supported by the CPU, else nullptr.
+// The AVX2 / AVX-512 kernels when built and supported by the CPU, else nullptr.
 const SimdKernels* simdKernelsAvx2();
+const SimdKernels* simdKernelsAvx512();
 
 // Stages 1-2 over the ROI: red extraction (minus the laser-off frame), bRCE, noise
 // removal. Leaves the candidate mask in ws.bits (wv/64 words per ROI row). Inputs are

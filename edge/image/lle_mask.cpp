@@ -40,7 +40,7 @@ void redRowScalar(const uint8_t* on, const uint8_t* off, int redOffset, int w, u
 }
 
 void brceRowScalar(const uint8_t* red, int w, int wv, int step, int threshold, BrceForm form,
-                   uint16_t* counts, uint64_t* bits) {
+                   uint8_t* counts8, uint64_t* bits) {
   std::fill(bits, bits + wv / 64, uint64_t{0});
   for (int x = step; x < w - step; ++x) {
     const int c = red[x];
@@ -53,9 +53,16 @@ void brceRowScalar(const uint8_t* red, int w, int wv, int step, int threshold, B
       hit = static_cast<uint8_t>(l - c) > threshold && static_cast<uint8_t>(r - c) > threshold;
     }
     if (hit) {
-      counts[x] = static_cast<uint16_t>(counts[x] + 1);
+      counts8[x] = static_cast<uint8_t>(counts8[x] + 1);
       bits[x / 64] |= uint64_t{1} << (x % 64);
     }
+  }
+}
+
+void flushCounts(uint8_t* counts8, uint16_t* counts, int wv) {
+  for (int x = 0; x < wv; ++x) {
+    counts[x] = static_cast<uint16_t>(counts[x] + counts8[x]);
+    counts8[x] = 0;
   }
 }
 
@@ -110,6 +117,7 @@ void candidateMask(const ImageView& frame, const ImageView* laserOff, const Roi&
   if (ws.red.size() < redSize) ws.red.resize(redSize);
   if (ws.validLanes.size() < static_cast<size_t>(wv)) ws.validLanes.resize(static_cast<size_t>(wv));
   if (ws.counts.size() < static_cast<size_t>(wv)) ws.counts.resize(static_cast<size_t>(wv));
+  if (ws.counts8.size() < static_cast<size_t>(wv)) ws.counts8.resize(static_cast<size_t>(wv));
   if (ws.prefix.size() < static_cast<size_t>(2 * (w + 1))) ws.prefix.resize(static_cast<size_t>(2 * (w + 1)));
   const size_t bitWords = static_cast<size_t>(words) * static_cast<size_t>(h);
   if (ws.bits.size() < bitWords) ws.bits.resize(bitWords);
@@ -132,18 +140,25 @@ void candidateMask(const ImageView& frame, const ImageView* laserOff, const Roi&
   const int bands = denoise ? h / bandRows : 0;
   const int redOff = redOffset(frame.format);
   std::fill(ws.counts.begin(), ws.counts.begin() + wv, uint16_t{0});
+  std::fill(ws.counts8.begin(), ws.counts8.begin() + wv, uint8_t{0});
+  int pending = 0;  // rows in counts8
   for (int y = 0; y < h; ++y) {
     const uint8_t* on = frame.row(roi.y + y) + static_cast<size_t>(roi.x) * 3U;
     const uint8_t* off = laserOff != nullptr ? laserOff->row(roi.y + y) + static_cast<size_t>(roi.x) * 3U : nullptr;
     uint64_t* bits = ws.bits.data() + static_cast<size_t>(y) * static_cast<size_t>(words);
     if (kernels != nullptr) {
       kernels->redRow(on, off, redOff, w, red);
-      kernels->brceRow(red, ws.validLanes.data(), wv, step, p.brceThreshold, p.brceForm, ws.counts.data(), bits);
+      kernels->brceRow(red, ws.validLanes.data(), wv, step, p.brceThreshold, p.brceForm, ws.counts8.data(), bits);
     } else {
       redRowScalar(on, off, redOff, w, red);
-      brceRowScalar(red, w, wv, step, p.brceThreshold, p.brceForm, ws.counts.data(), bits);
+      brceRowScalar(red, w, wv, step, p.brceThreshold, p.brceForm, ws.counts8.data(), bits);
     }
-    if (denoise && (y + 1) % bandRows == 0 && (y + 1) / bandRows <= bands) {
+    const bool bandEnds = denoise && (y + 1) % bandRows == 0 && (y + 1) / bandRows <= bands;
+    if (++pending == 255 || bandEnds) {
+      flushCounts(ws.counts8.data(), ws.counts.data(), wv);
+      pending = 0;
+    }
+    if (bandEnds) {
       clearBand(p, w, wv, y + 1 - bandRows, bandRows, ws);
       std::fill(ws.counts.begin(), ws.counts.begin() + wv, uint16_t{0});
     }

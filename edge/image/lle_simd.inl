@@ -1,7 +1,7 @@
 // The LLE row kernels in OpenCV's universal intrinsics: one source for NEON (aarch64),
-// SSE2 (x86-64 baseline) and AVX2 (x86-64, chosen at run time). Included by
-// lle_simd.cpp and lle_simd_avx2.cpp with LLE_SIMD_NS set to a namespace of their own,
-// so that the two instruction sets never share an inline function (ODR).
+// SSE2 (x86-64 baseline), AVX2 and AVX-512 (x86-64, chosen at run time). Included by
+// lle_simd.cpp, lle_simd_avx2.cpp and lle_simd_avx512.cpp with LLE_SIMD_NS set to a
+// namespace of their own, so that the instruction sets never share an inline function.
 //
 // Contract: the scalar kernels in lle_mask.cpp; the tests require bit-exact agreement.
 // The vector loop covers whole vectors; the red row is padded (kRedPad zero bytes each
@@ -18,10 +18,10 @@ namespace alacs::image::detail::LLE_SIMD_NS {
 namespace {
 
 using cv::v_uint8;
-using cv::v_uint16;
 
 constexpr int kLanes = v_uint8::nlanes;
 static_assert(64 % kLanes == 0, "a mask word holds whole vectors");
+constexpr uint64_t kLaneBits = kLanes == 64 ? ~uint64_t{0} : (uint64_t{1} << (kLanes % 64)) - 1;
 
 void redRow(const uint8_t* on, const uint8_t* off, int redOffset, int w, uint8_t* red) {
   int x = 0;
@@ -44,10 +44,10 @@ void redRow(const uint8_t* on, const uint8_t* off, int redOffset, int w, uint8_t
 }
 
 template <bool kLiteral>
-void brceRowT(const uint8_t* red, const uint8_t* validLanes, int wv, int step, int threshold,
-              uint16_t* counts, uint64_t* bits) {
+void brceRowT(const uint8_t* red, const uint8_t* validLanes, int wv, int step, int threshold, uint8_t* counts8,
+              uint64_t* bits) {
   const v_uint8 th = cv::vx_setall_u8(static_cast<uint8_t>(threshold));
-  const v_uint8 one = cv::vx_setall_u8(1);
+  const v_uint8 zero = cv::vx_setzero_u8();
   for (int x0 = 0; x0 < wv; x0 += 64) {
     uint64_t word = 0;
     for (int k = 0; k < 64; k += kLanes) {
@@ -60,26 +60,24 @@ void brceRowT(const uint8_t* red, const uint8_t* validLanes, int wv, int step, i
         // The printed form on uint8: (l - c) and (r - c) wrap modulo 256.
         m = (cv::v_sub_wrap(l, c) > th) & (cv::v_sub_wrap(r, c) > th);
       } else {
-        // c - l > th  <=>  c > sat(l + th): when l + th saturates at 255, neither holds.
-        m = (c > l + th) & (c > r + th);
+        // c - l > th  <=>  c -sat (l +sat th) != 0 (u8 + and - saturate): no unsigned compare.
+        m = ~(cv::v_min(c - (l + th), c - (r + th)) == zero);
       }
       m = m & cv::vx_load(validLanes + x);
-      v_uint16 lo, hi;
-      cv::v_expand(m & one, lo, hi);
-      cv::v_store(counts + x, cv::vx_load(counts + x) + lo);
-      cv::v_store(counts + x + kLanes / 2, cv::vx_load(counts + x + kLanes / 2) + hi);
-      word |= static_cast<uint64_t>(static_cast<uint32_t>(cv::v_signmask(m))) << k;
+      // m is 0xFF (-1) for a candidate: subtracting it counts one (modulo 256).
+      cv::v_store(counts8 + x, cv::v_sub_wrap(cv::vx_load(counts8 + x), m));
+      word |= (static_cast<uint64_t>(cv::v_signmask(cv::v_reinterpret_as_s8(m))) & kLaneBits) << k;
     }
     bits[x0 / 64] = word;
   }
 }
 
 void brceRow(const uint8_t* red, const uint8_t* validLanes, int wv, int step, int threshold, BrceForm form,
-             uint16_t* counts, uint64_t* bits) {
+             uint8_t* counts8, uint64_t* bits) {
   if (form == BrceForm::kLiteral)
-    brceRowT<true>(red, validLanes, wv, step, threshold, counts, bits);
+    brceRowT<true>(red, validLanes, wv, step, threshold, counts8, bits);
   else
-    brceRowT<false>(red, validLanes, wv, step, threshold, counts, bits);
+    brceRowT<false>(red, validLanes, wv, step, threshold, counts8, bits);
 }
 
 }  // namespace

@@ -1,5 +1,5 @@
-// The SIMD path of LLE (OpenCV universal intrinsics: NEON on aarch64, SSE2 and AVX2 on
-// x86-64) against the scalar reference: bit-exact, kernel by kernel and end to end, on
+// The SIMD path of LLE (OpenCV universal intrinsics: NEON on aarch64, SSE2, AVX2 and
+// AVX-512 on x86-64, each that the CPU runs) against the scalar reference: bit-exact, kernel by kernel and end to end, on
 // random data and on the edge cases (odd widths, widths below 2·step, one-row ROIs,
 // all-saturated, all-dark, lines at the borders). Under tests/aarch64/run.sh this runs
 // the NEON kernels in qemu-aarch64.
@@ -22,6 +22,7 @@ std::vector<const SimdKernels*> simdPaths() {
   std::vector<const SimdKernels*> v;
   if (detail::simdKernelsBaseline() != nullptr) v.push_back(detail::simdKernelsBaseline());
   if (detail::simdKernelsAvx2() != nullptr) v.push_back(detail::simdKernelsAvx2());
+  if (detail::simdKernelsAvx512() != nullptr) v.push_back(detail::simdKernelsAvx512());
   return v;
 }
 
@@ -116,6 +117,7 @@ TEST_CASE("SIMD red extraction is bit-exact with the scalar kernel", "[lle][simd
 }
 
 TEST_CASE("SIMD bRCE, candidate bits and column counts are bit-exact with the scalar kernel", "[lle][simd]") {
+  // (The column counters are u8, modulo 256; the caller widens them every 255 rows.)
   std::mt19937 rng(12);
   for (const SimdKernels* k : simdPaths()) {
     INFO("kernels " << k->name);
@@ -135,8 +137,8 @@ TEST_CASE("SIMD bRCE, candidate bits and column counts are bit-exact with the sc
                              : static_cast<uint8_t>(x % 9 == 0 ? 250 : 20);   // lines, incl. x = 0
       std::vector<uint8_t> valid(static_cast<size_t>(wv), 0);
       for (int x = step; x < w - step; ++x) valid[static_cast<size_t>(x)] = 0xFF;
-      std::vector<uint16_t> ca(static_cast<size_t>(wv)), cb(ca.size());
-      for (size_t i = 0; i < ca.size(); ++i) ca[i] = cb[i] = static_cast<uint16_t>(rng() % 1000);
+      std::vector<uint8_t> ca(static_cast<size_t>(wv)), cb(ca.size());
+      for (size_t i = 0; i < ca.size(); ++i) ca[i] = cb[i] = static_cast<uint8_t>(rng());  // wraps at 255
       std::vector<uint64_t> ba(static_cast<size_t>(wv / 64), ~0ULL), bb(ba.size(), 0x5555ULL);
       detail::brceRowScalar(red, w, wv, step, th, form, ca.data(), ba.data());
       k->brceRow(red, valid.data(), wv, step, th, form, cb.data(), bb.data());
