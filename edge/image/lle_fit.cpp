@@ -27,20 +27,20 @@ int64_t FitQ::tQ30(int row) const {
   return static_cast<int64_t>(divRound(static_cast<Int128>(num) * kOneQ30, span));
 }
 
-int32_t FitQ::evalQ8(int row) const {
+int32_t FitQ::evalQ16(int row) const {
   if (order < 0) return 0;
   const int64_t t = tQ30(row);
   int64_t pPrev = 0;
   int64_t pCur = kOneQ30;
-  Int128 acc = static_cast<Int128>(coef[0]) * pCur;  // Q16 · Q30 = Q46
+  Int128 acc = static_cast<Int128>(coef[0]) * pCur;  // Q24 · Q30 = Q54
   for (int k = 1; k <= order; ++k) {
     const int64_t pNext = nextP(t, alpha[k], k >= 2 ? beta[k] : 0, pCur, pPrev);
     acc += static_cast<Int128>(coef[k]) * pNext;
     pPrev = pCur;
     pCur = pNext;
   }
-  const Int128 q8 = (acc + (static_cast<Int128>(1) << 37)) >> 38;
-  return static_cast<int32_t>(std::clamp<Int128>(q8, INT32_MIN, INT32_MAX));
+  const Int128 q16 = (acc + (static_cast<Int128>(1) << 37)) >> 38;
+  return static_cast<int32_t>(std::clamp<Int128>(q16, INT32_MIN, INT32_MAX));
 }
 
 void FitQ::monomial(double* coeffs) const {
@@ -48,7 +48,7 @@ void FitQ::monomial(double* coeffs) const {
   for (int j = 0; j <= kMaxFitOrder; ++j) coeffs[j] = 0.0;
   if (order < 0) return;
   constexpr double kQ30 = 1073741824.0;
-  constexpr double kQ16 = 65536.0;
+  constexpr double kQ24 = 16777216.0;
   p[0][0] = 1.0;
   for (int k = 1; k <= order; ++k) {
     const double a = static_cast<double>(alpha[k]) / kQ30;
@@ -59,10 +59,10 @@ void FitQ::monomial(double* coeffs) const {
     }
   }
   for (int k = 0; k <= order; ++k)
-    for (int j = 0; j <= k; ++j) coeffs[j] += static_cast<double>(coef[k]) / kQ16 * p[k][j];
+    for (int j = 0; j <= k; ++j) coeffs[j] += static_cast<double>(coef[k]) / kQ24 * p[k][j];
 }
 
-bool fitPolyQ(const int32_t* rows, const int32_t* yQ8, const uint8_t* use, int n, int order, int first, int last,
+bool fitPolyQ(const int32_t* rows, const int32_t* yQ16, const uint8_t* use, int n, int order, int first, int last,
               int64_t* scratch, FitQ& out) {
   out = FitQ{};
   out.first = first;
@@ -86,16 +86,16 @@ bool fitPolyQ(const int32_t* rows, const int32_t* yQ8, const uint8_t* use, int n
   for (int k = 0;; ++k) {
     Int128 norm = 0;   // Σ p_k²      Q60
     Int128 tNorm = 0;  // Σ t·p_k²    Q60
-    Int128 yDot = 0;   // Σ y·p_k     Q38
+    Int128 yDot = 0;   // Σ y·p_k     Q46
     for (int i = 0; i < n; ++i) {
       if (use[i] == 0) continue;
       const Int128 p2 = static_cast<Int128>(pCur[i]) * pCur[i];
       norm += p2;
       tNorm += (p2 >> 30) * t[i];
-      yDot += static_cast<Int128>(yQ8[i]) * pCur[i];
+      yDot += static_cast<Int128>(yQ16[i]) * pCur[i];
     }
     if (norm < degenerate) break;
-    out.coef[k] = static_cast<int64_t>(divRound(yDot * (static_cast<Int128>(1) << 38), norm));  // Q16
+    out.coef[k] = static_cast<int64_t>(divRound(yDot * (static_cast<Int128>(1) << 38), norm));  // Q46+38-60 = Q24
     out.order = k;
     if (k == order) break;
     out.alpha[k + 1] = static_cast<int64_t>(divRound(tNorm * kOneQ30, norm));

@@ -95,13 +95,12 @@ inline RunSums runSums(const uint8_t* on, const uint8_t* off, int redOffset, int
   return s;
 }
 
-struct FixedArith {
-  static constexpr bool kFixed = true;
+// Decisions: columns as Q24.8 keys, computed the same way from the same integer sums in
+// both arithmetics, so both decide alike.
+struct KeyArith {
   using Col = int32_t;  // Q24.8
   static Col fromPx(double px) { return static_cast<Col>(std::lround(px * 256.0)); }
   static Col fromInt(int px) { return static_cast<Col>(px * 256); }
-  static double toPx(Col c) { return static_cast<double>(c) / 256.0; }
-  static int32_t toQ8(Col c) { return c; }
   static Col ratio(int64_t num, int64_t den) { return static_cast<Col>(roundDiv(num * 256, den)); }
   static Col absDiff(Col a, Col b) { return a > b ? a - b : b - a; }
   // lastCol + (lastCol - prevCol) · gap / dr
@@ -129,6 +128,34 @@ struct FixedArith {
     const Int128 q = num >= 0 ? (num + den / 2) / den : -((-num + den / 2) / den);
     return static_cast<Col>(q);
   }
+  // The robust fit's decisions: the fixed-point fit through the keys.
+  struct Fit {
+    FitQ q;
+    int64_t* scratch = nullptr;  // 3n
+    int32_t* data = nullptr;     // n
+    bool fit(const int32_t* rows, const Col* keys, const uint8_t* use, int n, int order, int first, int last) {
+      for (int i = 0; i < n; ++i) data[i] = keys[i] * 256;  // Q8 -> Q16, exact
+      return fitPolyQ(rows, data, use, n, order, first, last, scratch, q);
+    }
+    Col eval(int row) const { return static_cast<Col>(roundDiv(q.evalQ16(row), 256)); }
+  };
+};
+
+// The product's values: columns in Q16.16 (1/65536 px; a 16384-px frame fits int32), so
+// the fit and the smoothing see the centroids to 1/65536 px; reported in Q24.8.
+struct FixedArith {
+  static constexpr bool kFixed = true;
+  using Col = int32_t;  // Q16.16
+  static Col fromInt(int px) { return static_cast<Col>(px * 65536); }
+  static double toPx(Col c) { return static_cast<double>(c) / 65536.0; }
+  static int32_t toQ8(Col c) { return static_cast<int32_t>(roundDiv(c, 256)); }
+  // The reported column: the Q24.8 result, exactly.
+  static float toFloat(Col c) { return static_cast<float>(toQ8(c)) / 256.0F; }
+  static Col ratio(int64_t num, int64_t den) {
+    const Int128 a = static_cast<Int128>(num) * 65536;
+    return static_cast<Col>(a >= 0 ? (a + den / 2) / den : -((-a + den / 2) / den));
+  }
+  static Col absDiff(Col a, Col b) { return a > b ? a - b : b - a; }
 
   // The least-squares quadratic through (u[i], c[i]) evaluated at u = 0 (Cramer's rule
   // over exact integer sums); linear, then the mean, when the points cannot support it.
@@ -168,7 +195,7 @@ struct FixedArith {
     bool fit(const int32_t* rows, const Col* cols, const uint8_t* use, int n, int order, int first, int last) {
       return fitPolyQ(rows, cols, use, n, order, first, last, scratch, q);
     }
-    Col eval(int row) const { return q.evalQ8(row); }
+    Col eval(int row) const { return q.evalQ16(row); }
     void describe(LaserLine& line) const {
       line.order = q.order;
       double c[kMaxFitOrder + 1];
@@ -183,30 +210,12 @@ struct FixedArith {
 struct FloatArith {
   static constexpr bool kFixed = false;
   using Col = double;
-  static Col fromPx(double px) { return px; }
   static Col fromInt(int px) { return px; }
   static double toPx(Col c) { return c; }
   static int32_t toQ8(Col c) { return static_cast<int32_t>(std::lround(c * 256.0)); }
+  static float toFloat(Col c) { return static_cast<float>(c); }
   static Col ratio(int64_t num, int64_t den) { return static_cast<double>(num) / static_cast<double>(den); }
   static Col absDiff(Col a, Col b) { return std::abs(a - b); }
-  static Col extrapolate(Col last, Col prev, int gap, int dr) { return last + (last - prev) * gap / dr; }
-  static Col madLimit(Col mad) { return mad * static_cast<double>(kMadToLimitQ12) / 4096.0; }
-  static int fitTerm(Col res, Col limit) {
-    return 256 - static_cast<int>(std::min(128.0, res * 128.0 / std::max(1.0 / 256.0, limit)));
-  }
-  static Col lineAt(const int* r, const Col* c, int n, int m) {
-    double sr = 0, sc = 0, srr = 0, src = 0;
-    for (int i = 0; i < n; ++i) {
-      sr += r[i];
-      sc += c[i];
-      srr += static_cast<double>(r[i]) * r[i];
-      src += r[i] * c[i];
-    }
-    const double d = n * srr - sr * sr;
-    if (d == 0.0) return sc / n;
-    return (sc * d + (n * src - sr * sc) * (static_cast<double>(n) * m - sr)) / (n * d);
-  }
-
   static Col quadAtZero(const int* u, const Col* c, int n, int order) {
     double s0 = 0, s1 = 0, s2 = 0, s3 = 0, s4 = 0, t0 = 0, t1 = 0, t2 = 0;
     for (int i = 0; i < n; ++i) {
@@ -308,9 +317,9 @@ struct Chain {
 template <class A>
 void focusRobust(const ImageView& frame, const ImageView* laserOff, const Roi& roi, const LleParams& p,
                  LleWorkspace& ws, LaserLine& out) {
-  // Decisions use Q = FixedArith on the exact Q8 keys (shared by both arithmetics);
+  // Decisions use Q = KeyArith on the exact Q8 keys (shared by both arithmetics);
   // output values use A.
-  using Q = FixedArith;
+  using Q = KeyArith;
   using Col = typename A::Col;
   using Peak = focus::Peak<Col>;
   using Chain = focus::Chain;
@@ -336,6 +345,7 @@ void focusRobust(const ImageView& frame, const ImageView* laserOff, const Roi& r
   arena.reserve<int32_t>(uh);      // residuals (Q8)
   arena.reserve<int32_t>(uh);      // residuals for the median
   arena.reserve<int64_t>(3 * uh);  // fixed-point fit scratch
+  arena.reserve<int32_t>(uh);      // fixed-point fit data
   arena.reserve<int>(64);
   arena.reserve<int32_t>(64);
   arena.reserve<Col>(64);
@@ -356,6 +366,7 @@ void focusRobust(const ImageView& frame, const ImageView* laserOff, const Roi& r
   int32_t* residual = arena.take<int32_t>(uh);
   int32_t* sorted = arena.take<int32_t>(uh);
   int64_t* fitScratch = arena.take<int64_t>(3 * uh);
+  int32_t* fitData = arena.take<int32_t>(uh);
   int* endRows = arena.take<int>(64);
   int32_t* endKeys = arena.take<int32_t>(64);
   Col* smoothCols = arena.take<Col>(64);
@@ -547,6 +558,7 @@ void focusRobust(const ImageView& frame, const ImageView* laserOff, const Roi& r
   }
   Q::Fit decide;
   decide.scratch = fitScratch;
+  decide.data = fitData;
   const int32_t outlier = Q::fromPx(p.outlierPx);
   int32_t limit = outlier;
   bool fitted = false;
@@ -576,11 +588,8 @@ void focusRobust(const ImageView& frame, const ImageView* laserOff, const Roi& r
     }
   }
   typename A::Fit curve;
-  if constexpr (A::kFixed) {
-    curve = decide;
-  } else {
-    if (fitted) fitted = curve.fit(fitRows, fitCols, use, n, fitOrder, fitRows[0], fitRows[n - 1]);
-  }
+  if constexpr (A::kFixed) curve.scratch = fitScratch;
+  if (fitted) fitted = curve.fit(fitRows, fitCols, use, n, fitOrder, fitRows[0], fitRows[n - 1]);
 
   // Stage 5: the samples of each row: the line's first, then those of the other segments
   // (keepOtherSegments), stronger segments first.
@@ -596,7 +605,7 @@ void focusRobust(const ImageView& frame, const ImageView* laserOff, const Roi& r
     const Col col = pk.col + A::fromInt(roi.x);
     sm.centroidQ8 = A::toQ8(col);
     sm.columnQ8 = sm.centroidQ8;
-    sm.column = static_cast<float>(A::toPx(col));
+    sm.column = A::toFloat(col);
     sm.status = status;
     sm.inlier = status == RowStatus::kLine;
     sm.saturated = pk.saturated != 0;
@@ -668,7 +677,7 @@ void focusRobust(const ImageView& frame, const ImageView* laserOff, const Roi& r
       const Col smooth = A::quadAtZero(endRows, smoothCols, m, p.smoothOrder);
       RowSample& sm = out.rows[static_cast<size_t>(k)];
       sm.columnQ8 = A::toQ8(smooth);
-      sm.column = static_cast<float>(A::toPx(smooth));
+      sm.column = A::toFloat(smooth);
     }
   }
   if (fitted) {
@@ -726,7 +735,7 @@ void focusPaper(const Roi& roi, const LleParams& p, LleWorkspace& ws, LaserLine&
     sm.row = fitRows[i];
     sm.columnQ8 = A::toQ8(fitCols[i]);
     sm.centroidQ8 = sm.columnQ8;
-    sm.column = static_cast<float>(A::toPx(fitCols[i]));
+    sm.column = A::toFloat(fitCols[i]);
     sm.status = RowStatus::kLine;
     sm.inlier = true;
     sm.confidence = static_cast<float>(std::min(counts[i], 4)) / 4.0F;

@@ -2,13 +2,17 @@
 // the component's interface: callers use image/lle.h.
 //
 // Fixed-point formats (Qm.n: n fraction bits):
-//   red value, red excess          Q8.0  uint8 / int32 (exact)
-//   excess weight (excess·span)    int32, sums int64 (exact)
-//   column, residual, tolerance    Q24.8 int32 (1/256 px); sums int64
-//   fit: t = (row - centre)/half   Q2.30 int64
-//   fit: α, β (recurrence)         Q34.30 int64
-//   fit: orthogonal coefficients   Q48.16 int64; accumulations in __int128
-//   confidence                     Q0.8 (0..256)
+//   red value, red excess              Q8.0  uint8 / int32 (exact)
+//   excess weight (excess·span)        int32; sums int64 (exact)
+//   column keys, for every decision    Q24.8 int32 (1/256 px), rounded from the exact sums
+//   column values (centroid, smoothed, Q16.16 int32 (1/65536 px), rounded from the exact
+//     fitted)                            sums; smoothing sums in __int128
+//   reported column (RowSample)        Q24.8 int32 (columnQ8; column = columnQ8 / 256)
+//   residual, tolerances, MAD          Q24.8 int32
+//   fit: t = (row - centre)/half       Q2.30 int64
+//   fit: α, β (recurrence)             Q34.30 int64
+//   fit: orthogonal coefficients       Q40.24 int64; accumulations in __int128
+//   confidence                         Q0.8 (0..256)
 #pragma once
 
 #include <cstddef>

@@ -1,5 +1,5 @@
 // LLE in fixed point against its floating-point reference: the fixed-point curve fit
-// (Forsythe's orthogonal polynomials in Q30) against exact polynomials, and whole
+// (Forsythe's orthogonal polynomials, Q16 data, Q30 recurrence) against exact polynomials, and whole
 // extractions against extractLineReference within 1/64 px. (alacs_lle_eval makes the same
 // comparison on every case of the twin's benchmark.)
 #include <catch2/catch.hpp>
@@ -67,7 +67,7 @@ TEST_CASE("The fixed-point fit reproduces exact polynomials of every order", "[l
       for (int r = first; r <= last; ++r) {
         if (rng() % 5 == 0) continue;  // gaps
         rows.push_back(r);
-        y.push_back(static_cast<int32_t>(std::lround(truth(r) * 256.0)));
+        y.push_back(static_cast<int32_t>(std::lround(truth(r) * 65536.0)));
         use.push_back(1);
       }
       std::vector<int64_t> scratch(3 * rows.size());
@@ -77,8 +77,8 @@ TEST_CASE("The fixed-point fit reproduces exact polynomials of every order", "[l
       INFO("order " << order << " trial " << trial << " n " << rows.size());
       CHECK(fit.order == order);
       double worst = 0.0;
-      for (int r = first; r <= last; ++r) worst = std::max(worst, std::abs(fit.evalQ8(r) / 256.0 - truth(r)));
-      CHECK(worst <= 1.5 / 256.0);  // the data's own rounding (1/512) plus the result's
+      for (int r = first; r <= last; ++r) worst = std::max(worst, std::abs(fit.evalQ16(r) / 65536.0 - truth(r)));
+      CHECK(worst <= 4.0 / 65536.0);  // the data's own rounding (Q16) plus the result's
       // The monomial form (LaserLine::coeffs) gives the same curve. (Its high-order
       // coefficients themselves are ill-conditioned: the data's rounding moves them.)
       double mono[detail::kMaxFitOrder + 1];
@@ -88,9 +88,9 @@ TEST_CASE("The fixed-point fit reproduces exact polynomials of every order", "[l
         const double t = (2.0 * r - first - last) / (last - first);
         double v = 0.0;
         for (int k = order; k >= 0; --k) v = v * t + mono[k];
-        worstMono = std::max(worstMono, std::abs(v - fit.evalQ8(r) / 256.0));
+        worstMono = std::max(worstMono, std::abs(v - fit.evalQ16(r) / 65536.0));
       }
-      CHECK(worstMono <= 1.0 / 256.0);
+      CHECK(worstMono <= 1e-4);
     }
   }
 }
@@ -99,17 +99,17 @@ TEST_CASE("The fixed-point fit lowers its order when the points cannot support i
   std::vector<int64_t> scratch(30);
   detail::FitQ fit;
   const int32_t rows1[] = {10};
-  const int32_t y1[] = {256 * 5};
+  const int32_t y1[] = {65536 * 5};
   const uint8_t use1[] = {1};
   REQUIRE(detail::fitPolyQ(rows1, y1, use1, 1, 4, 10, 10, scratch.data(), fit));
   CHECK(fit.order == 0);
-  CHECK(fit.evalQ8(10) == 256 * 5);
+  CHECK(fit.evalQ16(10) == 65536 * 5);
   const int32_t rows2[] = {10, 20};
-  const int32_t y2[] = {256 * 5, 256 * 7};
+  const int32_t y2[] = {65536 * 5, 65536 * 7};
   const uint8_t use2[] = {1, 1};
   REQUIRE(detail::fitPolyQ(rows2, y2, use2, 2, 4, 10, 20, scratch.data(), fit));
   CHECK(fit.order == 1);
-  CHECK(fit.evalQ8(15) == 256 * 6);
+  CHECK(fit.evalQ16(15) == 65536 * 6);
   const uint8_t none[] = {0, 0};
   CHECK_FALSE(detail::fitPolyQ(rows2, y2, none, 2, 4, 10, 20, scratch.data(), fit));
 }
