@@ -21,10 +21,14 @@
 #define LLE_SIMD_NAME "avx512"
 #define LLE_SIMD_NS avx512
 // GCC 12 warns inside its own _mm512_alignr_epi32 (an intentionally undefined operand).
+#if defined(__GNUC__) && !defined(__clang__)
 #pragma GCC diagnostic push
 #pragma GCC diagnostic ignored "-Wmaybe-uninitialized"
+#endif
 #include "image/lle_simd.inl"
+#if defined(__GNUC__) && !defined(__clang__)
 #pragma GCC diagnostic pop
+#endif
 
 namespace alacs::image::detail {
 
