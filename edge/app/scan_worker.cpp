@@ -347,12 +347,25 @@ Status ScanWorker::sweepStops(const localize::ScanPlan& plan, const ports::Captu
   runner.trackPosition(&positionSteps_);
   const TimeNs moveStart = deps_.clock->now() + deps_.limits.dirSetupNs;
   motion::MoveReport report;
-  std::thread motion([&] { report = runner.run(*move, forward, cancel_); });
+  std::atomic<bool> moving{true};
+  std::thread motion([&] {
+    report = runner.run(*move, forward, cancel_);
+    moving.store(false);
+  });
   Status status = Status::ok();
   const TimeNs halfExposure = capture.exposureUs * kNsPerUs / 2;
+  // Half an exposure's travel at cruise speed, in steps: the exposure is centred on the stop.
+  const auto halfTravel = static_cast<int64_t>(deps_.limits.maxSpeedMmPerS * deps_.limits.stepsPerMm *
+                                               static_cast<double>(halfExposure) * 1e-9);
   for (size_t i = 0; i < stops.size() && status.isOk(); ++i) {
     const int64_t k = std::llabs(deps_.limits.stepsFor(stops[i]) - from);
+    // Sleep to the planned passing time, then follow the steps actually emitted: a motor
+    // running late (a loaded machine) must not make the frame early.
     deps_.sleeper->sleepUntil(moveStart + (k > 0 ? move->stepTimeNs(k) : 0) - halfExposure);
+    const int64_t target = deps_.limits.stepsFor(stops[i]) + (forward ? -halfTravel : halfTravel);
+    while (moving.load() && !cancel_.load() &&
+           (forward ? positionSteps_.load() < target : positionSteps_.load() > target))
+      deps_.sleeper->sleepUntil(deps_.clock->now() + 100 * kNsPerUs);
     double midMm = 0.0;
     Result<ports::CapturedFrame> frame = exposeStop(i, capture, ev, &midMm);
     if (!frame) {
