@@ -30,6 +30,8 @@
 #include "sim/scene.h"
 #include "sim/sim_camera.h"
 #include "sim/sim_slide.h"
+#include "replay/replay_source.h"
+#include "replay/scan_recorder.h"
 #include "ports/frame_source_fault.h"
 #ifdef ALACS_HAVE_GPIOD
 #include "drivers/gpiod/gpiod_lines.h"
@@ -62,6 +64,8 @@ struct Options {
   bool sim = false;
   double simStartMm = 37.0;
   std::string simFault;  // injected simulated hardware fault (tests): camera-timeout|camera-corrupt|home-stuck
+  std::string replayDir;  // --replay: a scan directory as the camera (slide and laser simulated)
+  std::string recordDir;  // --record: every scan written as a scan directory here
   log::Level level = log::Level::kInfo;
 };
 
@@ -79,13 +83,16 @@ void usage(FILE* out) {
                "  --sim-start-mm MM    where the simulated slide starts (default 37)\n"
                "  --sim-fault FAULT    inject a simulated hardware fault: camera-timeout,\n"
                "                       camera-corrupt or home-stuck (the home switch never closes)\n"
+               "  --replay DIR         replay a scan directory as the camera (docs/scan-format.md),\n"
+               "                       slide and laser simulated; its calibration unless --calibration\n"
+               "  --record DIR         write every scan as a scan directory DIR/scan_NNNN\n"
                "  --debug-dir DIR      write an overlay PNG of the lines found per scan\n"
                "  --log-level LEVEL    error|warning|info|debug\n"
                "  --version            print the version\n");
 }
 
 int parseOptions(int argc, char** argv, Options* o) {
-  enum { kConfig = 1, kCan, kNode, kGpio, kCal, kSim, kScene, kTruth, kStart, kDebug, kLevel, kVersion, kHelp, kFault };
+  enum { kConfig = 1, kCan, kNode, kGpio, kCal, kSim, kScene, kTruth, kStart, kDebug, kLevel, kVersion, kHelp, kFault, kReplay, kRecord };
   static const option kLong[] = {
       {"config", required_argument, nullptr, kConfig}, {"can", required_argument, nullptr, kCan},
       {"node-id", required_argument, nullptr, kNode},  {"gpio-chip", required_argument, nullptr, kGpio},
@@ -93,6 +100,7 @@ int parseOptions(int argc, char** argv, Options* o) {
       {"sim-scene", required_argument, nullptr, kScene}, {"sim-truth-out", required_argument, nullptr, kTruth},
       {"sim-start-mm", required_argument, nullptr, kStart}, {"debug-dir", required_argument, nullptr, kDebug},
       {"sim-fault", required_argument, nullptr, kFault},
+      {"replay", required_argument, nullptr, kReplay}, {"record", required_argument, nullptr, kRecord},
       {"log-level", required_argument, nullptr, kLevel}, {"version", no_argument, nullptr, kVersion},
       {"help", no_argument, nullptr, kHelp},           {nullptr, 0, nullptr, 0}};
   int c = 0;
@@ -112,6 +120,11 @@ int parseOptions(int argc, char** argv, Options* o) {
       case kCal: o->calibrationPath = optarg; break;
       case kSim: o->sim = true; break;
       case kScene: o->scenePath = optarg; break;
+      case kReplay:
+        o->replayDir = optarg;
+        o->sim = true;  // the slide and the laser line are simulated; the camera replays
+        break;
+      case kRecord: o->recordDir = optarg; break;
       case kTruth: o->truthOut = optarg; break;
       case kStart:
         o->simStartMm = std::strtod(optarg, &end);
@@ -145,6 +158,7 @@ int parseOptions(int argc, char** argv, Options* o) {
     std::fprintf(stderr, "alacsd: unexpected argument '%s'\n", argv[optind]);
     return 2;
   }
+  if (!o->replayDir.empty() && o->calibrationPath.empty()) o->calibrationPath = o->replayDir + "/calibration.json";
   if ((!o->scenePath.empty() || !o->simFault.empty()) && !o->sim) {
     std::fprintf(stderr, "alacsd: --sim-scene and --sim-fault need --sim\n");
     return 2;
@@ -196,6 +210,8 @@ class Daemon {
   ports::DigitalIn* realHome_ = nullptr;
   std::unique_ptr<ports::FrameSource> camera_;
   std::unique_ptr<ports::FaultInjectingFrameSource> faultyCamera_;
+  replay::ReplaySource* replay_ = nullptr;          // --replay: the camera (owned by camera_)
+  std::unique_ptr<replay::ScanRecorder> recorder_;  // --record
   std::unique_ptr<ports::AnyOfDigitalIn> endSwitch_;
   ports::FakeDigitalIn stuckOpenHome_{false};
   std::unique_ptr<LaserGuard> laser_;
@@ -327,6 +343,24 @@ Status Daemon::setUp() {
     return {Error::kUnsupported, "this build has no libcamera driver; use --sim"};
 #endif
   }
+  if (!opts_.replayDir.empty()) {
+    // The recorded frames replace the rendered ones: the worker moves the simulated slide
+    // to its stops and the source serves the frame recorded nearest each (docs/scan-format.md).
+    ports::FakeDigitalOut* laserLine = simLaser_.get();
+    sim::SimSlide* slide = simSlide_.get();
+    Result<std::unique_ptr<replay::ReplaySource>> rs = replay::ReplaySource::open(
+        opts_.replayDir, clock_, [laserLine] { return laserLine->level(); }, [slide] { return slide->positionMm(); });
+    if (!rs) return rs.status();
+    replay_ = rs->get();
+    camera_ = std::move(*rs);
+    ALACS_LOG_INFO("replay", "camera: %zu frames of %s", replay_->manifest().frames.size(), opts_.replayDir.c_str());
+  }
+  if (!opts_.recordDir.empty()) {
+    recorder_ = std::make_unique<replay::ScanRecorder>(opts_.recordDir, calibration_.value_or(scene.truth));
+    camera_ = std::make_unique<replay::RecordingSource>(
+        std::move(camera_), *recorder_, [this] { return worker_ ? worker_->positionMm() : 0.0; },
+        [this] { return laser_ != nullptr && laser_->isOn(); });
+  }
   if (opts_.simFault == "camera-timeout" || opts_.simFault == "camera-corrupt") {
     faultyCamera_ = std::make_unique<ports::FaultInjectingFrameSource>(*camera_);
     faultyCamera_->setFault(opts_.simFault == "camera-timeout" ? ports::CameraFault::kTimeout
@@ -350,6 +384,7 @@ Status Daemon::setUp() {
   deps.capture.exposureUs = cfg_.exposureUs;
   deps.capture.timeoutMs = cfg_.frameTimeoutMs;
   deps.debugDir = opts_.debugDir;
+  if (replay_ != nullptr) deps.frameSlideMm = [r = replay_] { return r->lastSlideMm(); };
   const geometry::Calibration cal = calibration_.value_or(scene.truth);
   worker_ = std::make_unique<ScanWorker>(deps, localize::Localizer(cal, cfg_.lle, cfg_.scan), eventFd_);
   return Status::ok();
@@ -497,6 +532,10 @@ void Daemon::onCommand(const protocol::Command& c, TimeNs now) {
       WorkerJob job;
       job.kind = WorkerJob::Kind::kLocalize;
       job.localize = c.localize;
+      if (recorder_) {
+        if (Status s = recorder_->begin(c.localize.targetId, c.localize.roughMm, plan->stopsMm, plan->roi); !s)
+          ALACS_LOG_WARN("record", "%s", s.toString().c_str());
+      }
       job.plan = std::move(*plan);
       job.commandTimeNs = now;
       worker_->submit(job);
@@ -586,6 +625,9 @@ void Daemon::onWorkerEvent(const WorkerEvent& ev, TimeNs now) {
   h.objectCount = static_cast<uint8_t>(objects.size());
   if (!opts_.debugDir.empty() && simLaser_) writeLaserTimeline(ev);
   // LOCALIZE is answered by its ACK and then this one result (docs/can-protocol.md).
+  if (recorder_ && ev.job.kind == WorkerJob::Kind::kLocalize) {
+    if (Result<std::string> dir = recorder_->end(); dir) ALACS_LOG_INFO("record", "scan written to %s", dir->c_str());
+  }
   node_->publishResult(h, objects);
   activeCommand_.reset();
 }

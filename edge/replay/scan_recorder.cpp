@@ -34,7 +34,7 @@ Status ScanRecorder::begin(int targetId, const Eigen::Vector3d& roughMm, const s
 }
 
 Status ScanRecorder::frame(const image::ImageView& view, double slideMm, TimeNs exposureStartNs, int64_t exposureUs,
-                           bool laserOn) {
+                           bool laserOn, const image::Roi& window) {
   std::lock_guard<std::mutex> lock(mu_);
   if (!writer_) return {Error::kInvalidArgument, "no scan is being recorded"};
   FrameRecord r;
@@ -42,6 +42,7 @@ Status ScanRecorder::frame(const image::ImageView& view, double slideMm, TimeNs 
   r.timestampS = static_cast<double>(exposureStartNs) / static_cast<double>(kNsPerS);
   r.exposureUs = exposureUs;
   r.laserOn = laserOn;
+  if (!window.empty()) return writer_->addFrame(view, r, window);
   return writer_->addFrame(view, r);
 }
 
@@ -75,7 +76,10 @@ Result<ports::CapturedFrame> RecordingSource::doCapture(const ports::CaptureRequ
   const double position = slideMm_();
   Result<ports::CapturedFrame> f = inner_->capture(request, onExposureEnd);
   if (f && recorder_.recording()) {
-    if (Status s = recorder_.frame(f->view, position, f->info.exposureStartNs, f->info.exposureUs, laser); !s)
+    // A windowed readout is valid only inside its window: record that part.
+    if (Status s = recorder_.frame(f->view, position, f->info.exposureStartNs, f->info.exposureUs, laser,
+                                   request.window);
+        !s)
       ALACS_LOG_WARN("record", "frame not recorded: %s", s.toString().c_str());
   }
   return f;

@@ -25,10 +25,11 @@ class ScanRecorder {
   // Opens the next scan directory; an unfinished one is finished first. Errors: kIo.
   Status begin(int targetId, const Eigen::Vector3d& roughMm, const std::vector<double>& stopsMm,
                const image::Roi& roi);
-  // Writes one frame (full frame) into the open scan. Errors: kInvalidArgument when no
-  // scan is open; kIo.
+  // Writes one frame into the open scan: the full frame, or only `window` when the camera
+  // delivered only that (a windowed readout). Errors: kInvalidArgument when no scan is
+  // open; kIo.
   Status frame(const image::ImageView& view, double slideMm, TimeNs exposureStartNs, int64_t exposureUs,
-               bool laserOn);
+               bool laserOn, const image::Roi& window = {});
   // Writes the manifest and closes the scan; returns its directory. Errors: kInvalidArgument
   // when no scan is open; kIo.
   Result<std::string> end();

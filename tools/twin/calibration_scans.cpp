@@ -1,8 +1,8 @@
 // alacs-twin calib: the scans a calibration needs, from the twin, with their truth.
-//   DIR/checkerboard/view_NN   one laser-off frame of a 10×7 checkerboard (40 mm squares)
+//   DIR/checkerboard_NN        one laser-off frame of a 10×7 checkerboard (40 mm squares)
 //                              in a pose spread over distance, tilt and image position:
 //                              the camera's intrinsics and distortion
-//   DIR/laser_plane/dist_NNNN  the same board, flat, at 0.8-1.6 m: one laser-off frame (its
+//   DIR/laser_plane_NNNN       the same board, flat, at 0.8-1.6 m: one laser-off frame (its
 //                              pose) and laser-on frames at slide 0, 25, ..., 200 mm: the
 //                              laser plane at home, the slide axis and its scale
 // alacs-twin examples: the example frames of docs/simulation.md.
@@ -98,7 +98,7 @@ int calibrationMain(const Args& args) {
   for (int v = 0; v < views; ++v) {
     Job j;
     char name[64];
-    std::snprintf(name, sizeof name, "/checkerboard/view_%02d", v);
+    std::snprintf(name, sizeof name, "/checkerboard_%02d", v);
     j.dir = out + name;
     for (int attempt = 0;; ++attempt) {
       j.scene = boardScene(seed * 1000 + static_cast<uint64_t>(v));
@@ -124,7 +124,7 @@ int calibrationMain(const Args& args) {
   for (double z : {800.0, 1000.0, 1200.0, 1400.0, 1600.0}) {
     Job j;
     char name[64];
-    std::snprintf(name, sizeof name, "/laser_plane/dist_%04d", static_cast<int>(z));
+    std::snprintf(name, sizeof name, "/laser_plane_%04d", static_cast<int>(z));
     j.dir = out + name;
     j.scene = boardScene(seed * 1000 + 500 + static_cast<uint64_t>(d++));
     const auto& las = j.scene.truth.laser;
@@ -222,19 +222,23 @@ int examplesMain(const Args& args) {
       std::fprintf(stderr, "alacs-twin examples: cannot write %s\n", path.c_str());
       return 1;
     }
-    // The truth beside the first one: every row's exact column, green where visible and
-    // lit, blue where hidden, yellow where the laser is shadowed or does not reach.
+    // The truth of one frame: left the frame, right the same with every row's exact
+    // column drawn (green visible and lit, orange hidden from the camera, yellow where the
+    // laser is shadowed or does not reach), both enlarged 2×.
     if (std::string(ex.name) == "sim_lab_occluded") {
       cv::Mat big;
       cv::resize(img, big, cv::Size(), 2.0, 2.0, cv::INTER_NEAREST);
+      cv::Mat marked = big.clone();
       for (const auto& row : sim::laserLineTruthAll(oc->scene, t, s)) {
         const cv::Scalar colour = row.flags == 0 ? cv::Scalar(0, 255, 0)
-                                  : (row.flags & sim::kTruthHidden) ? cv::Scalar(255, 128, 0)
+                                  : (row.flags & sim::kTruthHidden) ? cv::Scalar(0, 128, 255)
                                                                     : cv::Scalar(0, 255, 255);
         const cv::Point p(static_cast<int>(std::lround(2.0 * (row.column - roi.x) + 0.5)), 2 * (row.row - roi.y) + 1);
-        cv::circle(big, p + cv::Point(9, 0), 1, colour, cv::FILLED);
+        cv::circle(marked, p, 1, colour, cv::FILLED);
       }
-      cv::imwrite(out + "/sim_truth_overlay.png", big);
+      cv::Mat both;
+      cv::hconcat(big, marked, both);
+      cv::imwrite(out + "/sim_truth_overlay.png", both);
     }
     std::printf("%s: %s, exposure %lld us\n", path.c_str(), oc->description.c_str(),
                 static_cast<long long>(oc->scene.sensor.exposureUs));
@@ -244,7 +248,7 @@ int examplesMain(const Args& args) {
   sim::SimBoard b;
   placeBoard(b, tilt(8, -15, 3), Eigen::Vector3d(80.0, 0.0, 1200.0));
   s.board = b;
-  s.sensor.exposureUs = sim::autoExposureUs(s) / 4;
+  s.sensor.exposureUs = sim::autoExposureUs(s) / 2;
   sim::Renderer r(s, rays);
   sim::FrameRequest req;
   req.slideStartMm = req.slideEndMm = 110.0;

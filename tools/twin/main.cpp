@@ -21,7 +21,7 @@ void usage(FILE* out) {
                "           [--jobs N] [--motion-mm-s V]\n"
                "      benchmark scan directories DIR/case_NNNN (one JSON line per case on stdout)\n"
                "  calib --out DIR [--seed S] [--views N] [--jobs N]\n"
-               "      calibration scans: DIR/checkerboard/view_NN (laser off), DIR/laser_plane/dist_NNNN\n"
+               "      calibration scans: DIR/checkerboard_NN (laser off), DIR/laser_plane_NNNN\n"
                "  process [--calibration FILE] [--brce-step N] [--brce-threshold N] [--rows] [--jobs N] DIR...\n"
                "      runs the pipeline (replay source + localizer) on scan directories; one JSON line each\n"
                "  examples --out DIR\n"

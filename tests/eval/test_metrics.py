@@ -1,0 +1,84 @@
+"""The evaluation's metrics and camera model against hand-made cases."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from alacs_eval import metrics, paper_method
+from alacs_eval.camera import Calibration
+from alacs_eval.paper_lle_fallback import PaperLine
+
+TRUTH_DTYPE = [("row", int), ("column", float), ("x", float), ("y", float), ("z", float), ("flags", int)]
+
+
+def truth(rows, cols, flags=None) -> np.ndarray:
+    flags = flags if flags is not None else [0] * len(rows)
+    return np.array([(r, c, 0, 0, 0, f) for r, c, f in zip(rows, cols, flags)], dtype=TRUTH_DTYPE)
+
+
+def test_segments_are_central_shares_of_the_visible_rows():
+    rows = np.arange(100, 201)  # span 100 rows, centre 150
+    t = truth(rows, np.full(len(rows), 50.0))
+    # Predict 1 px off near the centre, 10 px off at the ends: the 10 % segment sees only 1 px.
+    d = metrics.segment_displacements(t, lambda r: 50.0 + np.where(np.abs(r - 150) <= 20, 1.0, 10.0))
+    assert d[10] == pytest.approx(1.0)
+    assert d[40] == pytest.approx(1.0)
+    assert d[80] > 3.0
+    assert metrics.segment_displacements(t, None)[50] != metrics.segment_displacements(t, None)[50]  # NaN
+
+
+def test_hidden_rows_do_not_count_and_shorten_the_line():
+    rows = np.arange(0, 100)
+    flags = [0] * 60 + [1] * 40  # the lower 40 rows hidden by a leaf
+    t = truth(rows, np.zeros(100), flags)
+    # The visible line spans rows 0-59: its 10 % centre is around row 29.5.
+    d = metrics.segment_displacements(t, lambda r: np.where(np.abs(r - 29.5) <= 3, 0.0, 100.0), segments=(10,))
+    assert d[10] == 0.0
+
+
+def test_loc_stats_count_missing_results_as_failures():
+    s = metrics.loc_stats([1.0, 3.0, 25.0, math.nan])
+    assert s.mean == pytest.approx(29.0 / 3)
+    assert s.success == pytest.approx(0.5)
+    assert s.no_result == 1
+
+
+def calibration() -> Calibration:
+    n = np.array([0.985, -0.02, 0.165])
+    n /= np.linalg.norm(n)
+    return Calibration(2048, 1536, 2400.0, 2402.0, 1026.3, 765.8, (-0.08, 0.12, 5e-4, -3e-4, 0.0), n, 102.0,
+                       np.array([1.0, 0.012, 0.004]) / np.linalg.norm([1.0, 0.012, 0.004]), 1.003)
+
+
+def test_undistort_inverts_project_and_triangulation_lands_on_the_plane():
+    cal = calibration()
+    rng = np.random.default_rng(2)
+    pts = np.column_stack([rng.uniform(-500, 500, 50), rng.uniform(-400, 400, 50), rng.uniform(800, 1800, 50)])
+    px = cal.project(pts)
+    xn = cal.undistort(px)
+    assert np.allclose(xn, pts[:, :2] / pts[:, 2:3], atol=1e-10)
+    slide = 80.0
+    on_plane = cal.triangulate(px, slide)
+    assert np.allclose(on_plane @ cal.normal, cal.plane_offset(slide))
+
+
+def test_paper_candidate_prefers_long_lines_near_the_expected_centre():
+    cal = calibration()
+    long_far = PaperLine(np.arange(0, 200.0), np.full(200, 10.0), np.array([0, 0, 0, 0, 10.0]), 200)
+    short_near = PaperLine(np.arange(0, 40.0), np.full(40, 100.0), np.array([0, 0, 0, 0, 100.0]), 40)
+    roi = (900, 600, 300, 300)
+    expected = (1000.0, 620.0)
+    a = paper_method.candidate(long_far, roi, 50.0, expected)
+    b = paper_method.candidate(short_near, roi, 70.0, expected)
+    assert a.n == 200 and b.n == 40
+    assert a.middle_px == (910.0, 700.0)
+    # P = N - 2 Δd: 200 - 2·hypot(90, 80) ≈ -40.8 against 40 - 2·0 = 40.
+    assert b.score > a.score
+    est = paper_method.localize([a, b, None], cal)
+    assert est is not None
+    face, centre = est
+    assert abs(face @ cal.normal - cal.plane_offset(70.0)) < 1e-6
+    assert np.linalg.norm(centre - face) == pytest.approx(paper_method.NOMINAL_RADIUS_MM)
