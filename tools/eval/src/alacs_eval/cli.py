@@ -24,7 +24,8 @@ def _report(a: argparse.Namespace) -> int:
     doc = Path(a.doc) if a.doc else (work / "evaluation.md" if a.small else ROOT / "docs" / "evaluation.md")
     figs = Path(a.figures) if a.figures else (work / "figures" if a.small else ROOT / "docs" / "figures")
     cfg = evaluate.Config(work=work, twin=twin.find_twin(a.twin), jobs=a.jobs, small=a.small, seed=a.seed,
-                          calibration=a.calibration, quiet=a.quiet)
+                          calibration=a.calibration, quiet=a.quiet,
+                          estimate_calibration=not a.small and not a.no_calibration and not a.calibration)
     t0 = time.monotonic()
     res = evaluate.run(cfg)
     res["meta"]["total_s"] = time.monotonic() - t0
@@ -51,6 +52,8 @@ def main(argv: list[str] | None = None) -> int:
     r.add_argument("--jobs", type=int, default=2)
     r.add_argument("--seed", type=int, default=1)
     r.add_argument("--calibration", help="run both methods with this calibration instead of the scans' true one")
+    r.add_argument("--no-calibration", action="store_true",
+                   help="skip the run with a calibration estimated from the twin's calibration scans")
     r.add_argument("--quiet", action="store_true", help="no progress bars")
     r.set_defaults(func=_report)
     a = p.parse_args(argv)

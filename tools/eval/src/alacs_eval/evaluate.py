@@ -36,6 +36,7 @@ class Config:
     seed: int = 1
     calibration: str | None = None
     quiet: bool = False
+    estimate_calibration: bool = False  # also run localization with a calibration estimated from twin scans
 
     @property
     def lle_count(self) -> int:
@@ -182,7 +183,62 @@ def run(cfg: Config) -> dict[str, Any]:
             paper_loc[r["scan"]] = r
     times["paper_loc"] = time.monotonic() - t
 
-    return assemble(cfg, lle_cases, loc_cases, ours_lle, paper_lle_res, ours_loc, paper_loc, times)
+    res = assemble(cfg, lle_cases, loc_cases, ours_lle, paper_lle_res, ours_loc, paper_loc, times)
+    if cfg.estimate_calibration:
+        res["estimated_calibration"] = _with_estimated_calibration(cfg, loc_cases, times)
+    return res
+
+
+def _calibration_errors(est: Calibration, true: Calibration) -> dict[str, float]:
+    angle = math.degrees(math.acos(min(1.0, abs(float(est.normal @ true.normal)))))
+    return {"fx_px": est.fx - true.fx, "fy_px": est.fy - true.fy, "cx_px": est.cx - true.cx, "cy_px": est.cy - true.cy,
+            "k1": est.dist[0] - true.dist[0], "normal_mrad": 1000.0 * math.radians(angle),
+            "offset_mm": est.offset_mm - true.offset_mm, "scale": est.slide_scale - true.slide_scale}
+
+
+def _with_estimated_calibration(cfg: Config, loc_cases: list[dict], times: dict[str, float]) -> dict[str, Any]:
+    """Calibration scans from the twin, issue 5's alacs_calibrate on them, and both
+    methods' localization again with what it estimated instead of the truth."""
+    tool = twin.find_calibrate(cfg.twin)
+    if tool is None:
+        return {"ran": False, "why": "alacs_calibrate is not built next to alacs-twin"}
+    t = time.monotonic()
+    scans = cfg.work / "calib"
+    twin.calibration_scans(cfg.twin, scans, cfg.seed + 100, cfg.jobs, cfg.quiet)
+    est_path = cfg.work / "estimated_calibration.json"
+    ok, log = twin.calibrate(tool, scans, est_path)
+    times["calibration"] = time.monotonic() - t
+    if not ok:
+        return {"ran": False, "why": "alacs_calibrate refused or failed", "log": log[-2000:]}
+    loc_dirs = [c["dir"] for c in loc_cases]
+    ours = twin.process(cfg.twin, loc_dirs, cfg.jobs, "our localization (estimated calibration)",
+                        calibration=str(est_path), quiet=cfg.quiet)
+    paper: dict[str, dict] = {}
+    with multiprocessing.get_context("fork").Pool(cfg.jobs) as pool:
+        for r in tqdm(pool.imap_unordered(_paper_loc_case, [(d, str(est_path)) for d in loc_dirs]), total=len(loc_dirs),
+                      desc="paper's localization (estimated calibration)", disable=cfg.quiet, leave=False):
+            paper[r["scan"]] = r
+    true_cal = Scan.load(loc_dirs[0]).calibration()
+    out: dict[str, Any] = {"ran": True, "file": str(est_path),
+                           "errors": _calibration_errors(Calibration.load(est_path), true_cal), "loc": {}}
+    for method, results in (("ours", ours), ("paper", paper)):
+        for lines in ("single", "multi"):
+            for occ in (False, True):
+                for dist in DISTANCES:
+                    errs = []
+                    for c in loc_cases:
+                        if int(c["distance_mm"]) != dist or bool(c["occluded"]) != occ:
+                            continue
+                        centre, radius, approach = target_truth(Scan.load(c["dir"]))
+                        if method == "ours":
+                            e = results.get(c["dir"], {}).get(lines, {})
+                            errs.append(float(np.linalg.norm(np.asarray(e["approach_mm"]) - approach)) if e.get("ok")
+                                        else math.nan)
+                        else:
+                            errs.append(results[c["dir"]][lines]["approach_err"])
+                    out["loc"].setdefault(method, {}).setdefault(lines, {}).setdefault(
+                        "occluded" if occ else "clear", {})[str(dist)] = dataclasses.asdict(metrics.loc_stats(errs))
+    return out
 
 
 def _seg_table(per_case: list[dict[int, float]]) -> dict[str, Any]:

@@ -254,4 +254,30 @@ def markdown(res: dict[str, Any], figs: dict[str, Path], doc: Path, command: str
                 st = res["loc"][name][lines]["approach"][occ]
                 L.append(f"| {name} | {lines} | {occ} | " + " | ".join(_pct(st[str(d)]["success"]) for d in DISTANCES) + " |")
     L.append(f"\n![success]({rel['success']})\n")
+
+    ec = res.get("estimated_calibration")
+    if ec is not None:
+        L.append("## With an estimated calibration\n")
+        if not ec.get("ran"):
+            L.append(f"Not run: {ec.get('why')}.\n")
+        else:
+            e = ec["errors"]
+            L.append("The localization set again, both methods, with the calibration that issue 5's "
+                     "`alacs_calibrate` estimated from the twin's calibration scans (`alacs-twin calib`: 24 "
+                     "checkerboard views, the board at 0.8-1.6 m with the laser at 9 slide positions) instead "
+                     "of the true one. Its errors against the truth: "
+                     f"fx {e['fx_px']:+.2f} px, fy {e['fy_px']:+.2f} px, cx {e['cx_px']:+.2f} px, cy {e['cy_px']:+.2f} px, "
+                     f"k1 {e['k1']:+.4f}, plane normal {e['normal_mrad']:.2f} mrad, offset {e['offset_mm']:+.2f} mm, "
+                     f"slide scale {e['scale']:+.5f}.\n")
+            L.append("Face-point error, mean ± std (mm), and the share within 20 mm:\n")
+            L.append("| method | lines | occlusion | " + " | ".join(f"{d / 1000:.1f} m" for d in DISTANCES) + " |")
+            L.append("| --- " * (len(DISTANCES) + 3) + "|")
+            for name in ("ours", "paper"):
+                for lines in ("single", "multi"):
+                    for occ in ("clear", "occluded"):
+                        st = ec["loc"][name][lines][occ]
+                        L.append(f"| {name} | {lines} | {occ} | " + " | ".join(
+                            f"{_f(st[str(d)]['mean'], 1)} ± {_f(st[str(d)]['std'], 1)} ({_pct(st[str(d)]['success'])})"
+                            for d in DISTANCES) + " |")
+            L.append("")
     return "\n".join(L) + "\n"

@@ -79,3 +79,29 @@ def process(twin: Path, dirs: list[str], jobs: int, desc: str, rows: bool = Fals
         cmd += ["--calibration", calibration]
     results = run_lines(cmd + dirs, len(dirs), desc, quiet)
     return {r["scan"]: r for r in results}
+
+
+def find_calibrate(twin_path: Path) -> Path | None:
+    """alacs_calibrate (issue 5's tool) in the same build as alacs-twin, if built."""
+    cand = twin_path.parent.parent / "calibrate" / "alacs_calibrate"
+    return cand if cand.exists() else None
+
+
+def calibration_scans(twin: Path, out: Path, seed: int, jobs: int, quiet: bool = False) -> None:
+    """The twin's calibration scans (checkerboard views, laser-plane placements), cached."""
+    signature = {"seed": seed, "twin_mtime": int(twin.stat().st_mtime)}
+    sig_file = out / "args.json"
+    if sig_file.exists() and json.loads(sig_file.read_text()) == signature:
+        return
+    if out.exists():
+        shutil.rmtree(out)
+    out.mkdir(parents=True)
+    run_lines([str(twin), "calib", "--out", str(out), "--seed", str(seed), "--jobs", str(jobs)], 29,
+              "generating calibration scans", quiet)
+    sig_file.write_text(json.dumps(signature))
+
+
+def calibrate(tool: Path, scans: Path, out: Path) -> tuple[bool, str]:
+    """Runs alacs_calibrate on the scans; (accepted by its gate, its report)."""
+    proc = subprocess.run([str(tool), "--scans", str(scans), "--out", str(out)], capture_output=True, text=True)
+    return proc.returncode == 0 and out.exists(), proc.stdout + proc.stderr
