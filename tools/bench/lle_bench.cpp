@@ -130,8 +130,8 @@ bool writeNpy(const std::string& path, const cv::Mat& bgr) {
 // Median milliseconds of the numpy paper_lle on `npy` (a subprocess), or < 0.
 double numpyMillis(const std::string& python, const std::string& npy, const image::Roi* roi, int repeat) {
   const fs::path pkg = fs::path(ALACS_SOURCE_DIR) / "tools" / "paper_lle";
-  std::string cmd = "env -u OPENBLAS_CORETYPE -u OPENBLAS_L2_SIZE OPENBLAS_NUM_THREADS=1 OMP_NUM_THREADS=1 PYTHONPATH='" +
-                    pkg.string() + "' taskset -c 0 '" + python + "' -m paper_lle --time '" + npy + "' --repeat " +
+  std::string cmd = "env -u OPENBLAS_CORETYPE -u OPENBLAS_L2_SIZE OPENBLAS_NUM_THREADS=1 OMP_NUM_THREADS=1 taskset -c 0 '" +
+                    python + "' '" + (pkg / "paper_lle.py").string() + "' --time '" + npy + "' --repeat " +
                     std::to_string(repeat);
   if (roi != nullptr)
     cmd += " --roi " + std::to_string(roi->x) + "," + std::to_string(roi->y) + "," + std::to_string(roi->width) + "," +
@@ -251,7 +251,7 @@ int main(int argc, char** argv) {
     std::printf("  %-44s %8.3f ms  -> LLE is %.1f x faster\n", "paper's method, numpy reference (paper_lle)", numpyMs,
                 numpyMs / lle.median);
   else if (runPython)
-    std::printf("  %-44s (could not run %s -m paper_lle)\n", "paper's method, numpy reference", python.c_str());
+    std::printf("  %-44s (could not run %s tools/paper_lle/paper_lle.py)\n", "paper's method, numpy reference", python.c_str());
   std::printf("per-frame latency, full frame: median %.3f ms, p99 %.3f ms; ROI: median %.3f ms, p99 %.3f ms\n", lle.median,
               lle.p99, roiStats.median, roiStats.p99);
   std::printf("ratio LLE / memcpy = %.2f (target <= 2: %s)\n", lle.median / mem.median,

@@ -1,5 +1,0 @@
-import sys
-
-from paper_lle.cli import main
-
-sys.exit(main())
