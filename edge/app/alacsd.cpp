@@ -256,11 +256,13 @@ Status Daemon::setUp() {
     }
   }
 
-  // CAN: kernel filters pass NMT and the node's own id block (every function code + N):
+  // CAN: kernel filters pass NMT and the node's own id block (every function code + N)
+  // but its heartbeat id, which the kernel sends for us (CAN_BCM) and would loop back:
   // frames for other nodes never wake the loop; unknown ids of our block are counted.
   const auto node = static_cast<uint8_t>(cfg_.nodeId);
-  Result<std::unique_ptr<drivers::SocketCan>> can =
-      drivers::SocketCan::open(cfg_.canInterface, {{0x000, 0x7FF}, {node, 0x07F}});
+  Result<std::unique_ptr<drivers::SocketCan>> can = drivers::SocketCan::open(
+      cfg_.canInterface,
+      {{0x000, 0x7FF}, {node, 0x47F}, {0x400U + node, 0x67F}, {0x600U + node, 0x77F}, {0x780U + node, 0x7FF}});
   if (!can) return can.status();
   can_ = std::move(*can);
   protocol::NodeConfig nc;

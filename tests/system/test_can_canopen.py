@@ -188,6 +188,9 @@ def test_emcy_per_fault_and_cleared(sensor: Alacsd, network: canopen.Network) ->
     node.nmt.wait_for_bootup(timeout=20)
     bus = network.bus
     db = ac.load_database(sensor.node_id)
+    # Homed and idle first: CLEAR_FAULT does not clear while homing still runs.
+    with can.Bus(interface="socketcan", channel=IFACE) as watch:
+        wait_idle_homed(watch, sensor.node_id)
     # STOP raises STOP_REQUESTED: EMCY 0x1000 (generic), error register bit 0.
     bus.send(ac.encode_command(db, "STOP", 3))
     emcy = _emcy(node, 0x1000)
