@@ -34,6 +34,41 @@ bool algebraicSphere(const std::vector<Eigen::Vector3d>& pts, const std::vector<
   return true;
 }
 
+// The circle through a piece of one line: its plane (PCA), then an algebraic circle in it.
+bool circleOf(const std::vector<Eigen::Vector3d>& pts, const std::vector<size_t>& idx, Eigen::Vector3d* centre,
+              double* radius, Eigen::Vector3d* normal) {
+  if (idx.size() < 8) return false;
+  Eigen::Vector3d mean = Eigen::Vector3d::Zero();
+  for (size_t i : idx) mean += pts[i];
+  mean /= static_cast<double>(idx.size());
+  Eigen::Matrix3d cov = Eigen::Matrix3d::Zero();
+  for (size_t i : idx) cov += (pts[i] - mean) * (pts[i] - mean).transpose();
+  const Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> eig(cov);
+  if (eig.info() != Eigen::Success) return false;
+  // An arc spans a plane: two clearly non-zero extents.
+  if (!(eig.eigenvalues()(1) > 1e-6 * eig.eigenvalues()(2))) return false;
+  const Eigen::Vector3d u = eig.eigenvectors().col(2);
+  const Eigen::Vector3d v = eig.eigenvectors().col(1);
+  Eigen::MatrixXd a(static_cast<Eigen::Index>(idx.size()), 3);
+  Eigen::VectorXd b(static_cast<Eigen::Index>(idx.size()));
+  for (size_t k = 0; k < idx.size(); ++k) {
+    const Eigen::Vector3d q = pts[idx[k]] - mean;
+    const double x = q.dot(u);
+    const double y = q.dot(v);
+    a.row(static_cast<Eigen::Index>(k)) << x, y, 1.0;
+    b(static_cast<Eigen::Index>(k)) = -(x * x + y * y);
+  }
+  const Eigen::Vector3d s = a.colPivHouseholderQr().solve(b);
+  const double cx = -0.5 * s(0);
+  const double cy = -0.5 * s(1);
+  const double r2 = cx * cx + cy * cy - s(2);
+  if (!(r2 > 0.0) || !std::isfinite(r2)) return false;
+  *centre = mean + cx * u + cy * v;
+  *radius = std::sqrt(r2);
+  *normal = eig.eigenvectors().col(0);
+  return true;
+}
+
 struct Rng {
   uint64_t state;
   size_t below(size_t n) {
@@ -116,8 +151,12 @@ class Scorer {
       s *= std::exp(-0.5 * z * z);
     }
     if (p_.priorCenterSigmaMm > 0.0) {
-      const double d2 = (c - p_.priorCenterMm).squaredNorm();
-      s *= std::exp(-0.5 * d2 / (p_.priorCenterSigmaMm * p_.priorCenterSigmaMm));
+      // Flat within 1.5σ of the rough position, then Gaussian: a target the rough position
+      // missed by a typical error must not lose to a sphere that merely sits nearer to it
+      // while explaining less; a neighbour an apple's width away still loses.
+      const double sc = p_.priorCenterSigmaMm;
+      const double excess = std::max(0.0, (c - p_.priorCenterMm).norm() - 1.5 * sc);
+      s *= std::exp(-0.5 * excess * excess / (sc * sc));
     }
     return s;
   }
@@ -165,6 +204,13 @@ GaussNewton refine(const std::vector<Eigen::Vector3d>& pts, const std::vector<bo
       out.jtj(3, 3) += wPrior;
       jtr(3) += wPrior * (radius - p.priorRadiusMm);
     }
+    if (p.priorCenterSigmaMm > 0.0) {
+      // The rough position, as weak: it fixes only what the lines leave open (the side and
+      // offset of the centre when one line is all there is).
+      const double wPrior = 1.0 / (p.priorCenterSigmaMm * p.priorCenterSigmaMm);
+      out.jtj.topLeftCorner<3, 3>() += wPrior * Eigen::Matrix3d::Identity();
+      jtr.head<3>() += wPrior * (c - p.priorCenterMm);
+    }
     const Eigen::Vector4d step = out.jtj.ldlt().solve(-jtr);
     if (!step.allFinite()) return out;
     c += step.head<3>();
@@ -177,34 +223,48 @@ GaussNewton refine(const std::vector<Eigen::Vector3d>& pts, const std::vector<bo
   return out;
 }
 
-Result<SphereFit> fit(const std::vector<Eigen::Vector3d>& pts, const std::vector<int>* lineIds,
-                      const std::vector<int>* groupIds, const SphereFitParams& p) {
-  const size_t n = pts.size();
-  if (n < p.minPoints) return Status(Error::kBadInput, "too few points for a sphere fit: " + std::to_string(n));
-  Eigen::Vector3d mean = Eigen::Vector3d::Zero();
-  for (const auto& q : pts) mean += q;
-  mean /= static_cast<double>(n);
-  if (!mean.allFinite()) return Status(Error::kBadInput, "non-finite points in the sphere fit");
-  const Pieces pieces = makePieces(n, lineIds, groupIds);
-  const Scorer scorer(pts, pieces, p);
+struct Hypothesis {
+  Eigen::Vector3d c = Eigen::Vector3d::Zero();
+  double r = 0.0;
+  double score = 0.0;
+};
 
-  Eigen::Vector3d best = Eigen::Vector3d::Zero();
-  double bestR = 0.0;
-  double bestScore = 0.0;
+// Hypotheses from lines together (pairs of pieces on different lines, random samples
+// across lines) or, with `singleLine`, from each piece alone with the radius prior.
+Hypothesis search(const std::vector<Eigen::Vector3d>& pts, const Pieces& pieces, const Scorer& scorer,
+                  const Eigen::Vector3d& mean, const SphereFitParams& p, bool singleLine) {
+  Hypothesis best;
+  auto offer = [&](const Eigen::Vector3d& c, double r, const Eigen::Vector3d& surface) {
+    // The fruit lies behind its visible surface, as seen from the camera.
+    if (c.norm() < surface.norm()) return;
+    const double s = scorer.score(c, r);
+    if (s > best.score) best = {c, r, s};
+  };
   auto consider = [&](const std::vector<size_t>& idx) {
     Eigen::Vector3d c;
     double r = 0.0;
-    if (!algebraicSphere(pts, idx, mean, &c, &r)) return;
-    // The fruit lies behind its visible surface, as seen from the camera.
-    if (c.norm() < pts[idx.front()].norm()) return;
-    const double s = scorer.score(c, r);
-    if (s > bestScore) {
-      bestScore = s;
-      best = c;
-      bestR = r;
-    }
+    if (algebraicSphere(pts, idx, mean, &c, &r)) offer(c, r, pts[idx.front()]);
   };
-  // Every pair of pieces on different lines.
+  if (singleLine) {
+    // A piece alone is an arc of the circle where the laser plane cuts the fruit: the
+    // centre lies sqrt(R0² − ρ²) off that plane, on either side.
+    // Every sphere through the circle explains the piece equally well: the priors choose
+    // the offset (the radius prior and, for the side and size of the offset, the rough
+    // position). A grid of offsets, so the refinement starts near the best.
+    if (!(p.priorRadiusMm > 0.0)) return best;
+    for (const auto& piece : pieces.members) {
+      Eigen::Vector3d c0;
+      Eigen::Vector3d normal;
+      double rho = 0.0;
+      if (!circleOf(pts, piece, &c0, &rho, &normal)) continue;
+      for (int k = -24; k <= 24; ++k) {
+        const double delta = 2.0 * k;  // mm
+        const double r = std::sqrt(rho * rho + delta * delta);
+        offer(c0 + delta * normal, r, pts[piece.front()]);
+      }
+    }
+    return best;
+  }
   std::vector<size_t> idx;
   for (size_t a = 0; a < pieces.members.size(); ++a) {
     for (size_t b = a + 1; b < pieces.members.size(); ++b) {
@@ -216,6 +276,7 @@ Result<SphereFit> fit(const std::vector<Eigen::Vector3d>& pts, const std::vector
   }
   // Random four-point samples: two points from each of two lines, or any four points
   // when the lines are not known.
+  const size_t n = pts.size();
   Rng rng{0x9E3779B97F4A7C15ULL ^ (p.seed * 0xBF58476D1CE4E5B9ULL) ^ n};
   std::vector<size_t> sample(4);
   for (int it = 0; it < p.ransacIterations; ++it) {
@@ -232,22 +293,19 @@ Result<SphereFit> fit(const std::vector<Eigen::Vector3d>& pts, const std::vector
     }
     consider(sample);
   }
-  if (!(bestScore > 0.0)) {
-    // No hypothesis: the algebraic fit of everything, or the prior radius behind the mean.
-    std::vector<size_t> all(n);
-    for (size_t i = 0; i < n; ++i) all[i] = i;
-    if (!algebraicSphere(pts, all, mean, &best, &bestR) || bestR < p.minRadiusMm || bestR > p.maxRadiusMm) {
-      bestR = p.priorRadiusMm > 0.0 ? p.priorRadiusMm : 0.5 * (p.minRadiusMm + p.maxRadiusMm);
-      best = mean + bestR * mean.normalized();
-    }
-  }
+  return best;
+}
 
-  // Refinement over the pieces the sphere explains; twice, since the refined sphere can
-  // explain a piece the hypothesis only grazed.
+// Refines a hypothesis over the pieces it explains and measures the result.
+Result<SphereFit> finish(const std::vector<Eigen::Vector3d>& pts, const std::vector<int>* lineIds,
+                         const Pieces& pieces, const Hypothesis& h, const SphereFitParams& p) {
+  const size_t n = pts.size();
+  // Twice more after the first pass: the refined sphere can explain a piece the
+  // hypothesis only grazed, or stop explaining one.
   std::vector<bool> use(n, false);
   GaussNewton gn;
-  gn.c = best;
-  gn.radius = bestR;
+  gn.c = h.c;
+  gn.radius = h.r;
   const double band = std::max(p.outlierMm, 2.0 * p.ransacBandMm);
   for (int round = 0; round < 3; ++round) {
     std::fill(use.begin(), use.end(), false);
@@ -279,26 +337,190 @@ Result<SphereFit> fit(const std::vector<Eigen::Vector3d>& pts, const std::vector
     }
   }
   if (out.inliers < p.minPoints) return Status(Error::kBadInput, "too few inliers for a sphere fit");
-  std::vector<bool> lineUsed(pieces.byLine.size() + 1, false);
-  for (size_t g = 0; g < pieces.members.size(); ++g) {
+  for (const auto& piece : pieces.members) {
     size_t count = 0;
-    for (size_t i : pieces.members[g]) count += out.inlier[i] ? 1U : 0U;
+    for (size_t i : piece) count += out.inlier[i] ? 1U : 0U;
     if (count >= 4) ++out.groupsUsed;
   }
-  {
-    std::vector<int> lines;
-    for (size_t i = 0; i < n; ++i)
-      if (out.inlier[i]) lines.push_back(lineIds != nullptr ? (*lineIds)[i] : 0);
-    std::sort(lines.begin(), lines.end());
-    out.linesUsed = static_cast<int>(std::unique(lines.begin(), lines.end()) - lines.begin());
-  }
+  std::vector<int> lines;
+  for (size_t i = 0; i < n; ++i)
+    if (out.inlier[i]) lines.push_back(lineIds != nullptr ? (*lineIds)[i] : 0);
+  std::sort(lines.begin(), lines.end());
+  out.linesUsed = static_cast<int>(std::unique(lines.begin(), lines.end()) - lines.begin());
   out.rmsMm = std::sqrt(sumSq / static_cast<double>(out.inliers));
   const double variance = sumSq / std::max(1.0, static_cast<double>(out.inliers) - 4.0);
   out.covariance = gn.jtj.inverse() * variance;
-  if (!out.covariance.allFinite()) return Status(Error::kBadInput, "sphere fit is degenerate (one line?)");
+  if (!out.covariance.allFinite()) return Status(Error::kBadInput, "sphere fit is degenerate");
   out.centerSigmaMm = std::sqrt(std::max(0.0, out.covariance.topLeftCorner<3, 3>().trace()));
   out.radiusSigmaMm = std::sqrt(std::max(0.0, out.covariance(3, 3)));
   return out;
+}
+
+// One line: the points fix a circle in the laser plane and nothing else; every sphere
+// through that circle fits them equally. The priors (radius, rough position) choose the
+// centre's offset δ from the plane: c = c0 + δ·n, R = sqrt(ρ² + δ²), δ at the minimum of
+//   (R(δ) − R0)²/σR² + |c(δ) − rough|²/σc²,
+// its variance from that function's curvature. (Gauss–Newton on the sphere itself would
+// wander along the valley of equally good spheres, driven by the noise.)
+Result<SphereFit> finishOneLine(const std::vector<Eigen::Vector3d>& pts, const Pieces& pieces, const Hypothesis& h,
+                                const SphereFitParams& p) {
+  const size_t n = pts.size();
+  // The points the hypothesis explains: pieces it explains for the most part.
+  const double band = std::max(p.outlierMm, 2.0 * p.ransacBandMm);
+  std::vector<size_t> idx;
+  int line = -1;
+  size_t bestCount = 0;
+  for (size_t g = 0; g < pieces.members.size(); ++g) {
+    size_t count = 0;
+    for (size_t i : pieces.members[g]) count += std::abs((pts[i] - h.c).norm() - h.r) <= band ? 1U : 0U;
+    if (count > bestCount) {
+      bestCount = count;
+      line = pieces.line[g];
+    }
+  }
+  for (size_t g = 0; g < pieces.members.size(); ++g) {
+    if (pieces.line[g] != line) continue;
+    size_t count = 0;
+    for (size_t i : pieces.members[g]) count += std::abs((pts[i] - h.c).norm() - h.r) <= band ? 1U : 0U;
+    if (static_cast<double>(count) >= 0.5 * static_cast<double>(pieces.members[g].size()))
+      idx.insert(idx.end(), pieces.members[g].begin(), pieces.members[g].end());
+  }
+  if (idx.size() < p.minPoints) return Status(Error::kBadInput, "too few points on the one line");
+  // Plane and in-plane frame.
+  Eigen::Vector3d mean = Eigen::Vector3d::Zero();
+  for (size_t i : idx) mean += pts[i];
+  mean /= static_cast<double>(idx.size());
+  Eigen::Matrix3d scatter = Eigen::Matrix3d::Zero();
+  for (size_t i : idx) scatter += (pts[i] - mean) * (pts[i] - mean).transpose();
+  const Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> eig(scatter);
+  const Eigen::Vector3d normal = eig.eigenvectors().col(0);
+  const Eigen::Vector3d u = eig.eigenvectors().col(2);
+  const Eigen::Vector3d v = eig.eigenvectors().col(1);
+  // Geometric circle fit (Huber Gauss–Newton on |q − m| − ρ), from the hypothesis' circle.
+  Eigen::Vector3d m3 = h.c - normal.dot(h.c - mean) * normal;
+  Eigen::Vector3d x(u.dot(m3 - mean), v.dot(m3 - mean), std::sqrt(std::max(1.0, h.r * h.r - std::pow(normal.dot(h.c - mean), 2))));
+  Eigen::Matrix3d jtj = Eigen::Matrix3d::Identity();
+  double sumSq = 0.0;
+  size_t used = 0;
+  for (int it = 0; it < p.iterations; ++it) {
+    jtj.setZero();
+    Eigen::Vector3d jtr = Eigen::Vector3d::Zero();
+    sumSq = 0.0;
+    used = 0;
+    for (size_t i : idx) {
+      const Eigen::Vector2d q(u.dot(pts[i] - mean), v.dot(pts[i] - mean));
+      const Eigen::Vector2d d = q - x.head<2>();
+      const double dist = d.norm();
+      if (dist < 1e-9) continue;
+      const double r = dist - x(2);
+      if (std::abs(r) > p.outlierMm) continue;
+      const double w = std::abs(r) <= p.huberMm ? 1.0 : p.huberMm / std::abs(r);
+      const Eigen::Vector3d j(-d.x() / dist, -d.y() / dist, -1.0);
+      jtj += w * j * j.transpose();
+      jtr += w * j * r;
+      sumSq += r * r;
+      ++used;
+    }
+    if (used < p.minPoints) return Status(Error::kBadInput, "circle fit lost its points");
+    const Eigen::Vector3d step = jtj.ldlt().solve(-jtr);
+    if (!step.allFinite()) return Status(Error::kBadInput, "circle fit diverged");
+    x += step;
+    if (step.norm() < 1e-7) break;
+  }
+  const Eigen::Vector3d c0 = mean + x(0) * u + x(1) * v;
+  const double rho = std::abs(x(2));
+  const double sr = p.priorRadiusSigmaMm;
+  const double sc = p.priorCenterSigmaMm > 0.0 ? p.priorCenterSigmaMm : 1e6;
+  auto cost = [&](double delta) {
+    const double r = std::sqrt(rho * rho + delta * delta);
+    const Eigen::Vector3d c = c0 + delta * normal;
+    return (r - p.priorRadiusMm) * (r - p.priorRadiusMm) / (sr * sr) + (c - p.priorCenterMm).squaredNorm() / (sc * sc);
+  };
+  // The centre lies behind the visible arc: farther from the camera than its points.
+  const double arcRange = mean.norm();
+  double bestDelta = 0.0;
+  double bestCost = 1e300;
+  for (double delta = -p.maxRadiusMm; delta <= p.maxRadiusMm; delta += 0.25) {
+    const Eigen::Vector3d c = c0 + delta * normal;
+    const double r = std::sqrt(rho * rho + delta * delta);
+    if (c.norm() < arcRange || r < p.minRadiusMm || r > p.maxRadiusMm) continue;
+    const double f = cost(delta);
+    if (f < bestCost) {
+      bestCost = f;
+      bestDelta = delta;
+    }
+  }
+  if (!(bestCost < 1e300)) return Status(Error::kOutOfRange, "no fruit-sized sphere through the one line");
+  // Curvature: f is −2·log posterior, so var(δ) = 2 / f''.
+  const double hStep = 0.5;
+  const double f2 = (cost(bestDelta + hStep) - 2.0 * cost(bestDelta) + cost(bestDelta - hStep)) / (hStep * hStep);
+  const double varDelta = f2 > 1e-9 ? 2.0 / f2 : p.maxRadiusMm * p.maxRadiusMm;
+  SphereFit out;
+  out.centerMm = c0 + bestDelta * normal;
+  out.radiusMm = std::sqrt(rho * rho + bestDelta * bestDelta);
+  out.inlier.assign(n, false);
+  double inSq = 0.0;
+  for (size_t i : idx) {
+    const double r = (pts[i] - out.centerMm).norm() - out.radiusMm;
+    if (std::abs(r) <= p.outlierMm) {
+      out.inlier[i] = true;
+      ++out.inliers;
+      inSq += r * r;
+    }
+  }
+  if (out.inliers < p.minPoints) return Status(Error::kBadInput, "too few inliers on the one line");
+  out.rmsMm = std::sqrt(inSq / static_cast<double>(out.inliers));
+  out.groupsUsed = 1;
+  out.linesUsed = 1;
+  // Covariance of (c, R): the circle's (in-plane centre and ρ) and δ's, through
+  // c = c0 + δ·n, R = sqrt(ρ² + δ²).
+  const double variance = sumSq / std::max(1.0, static_cast<double>(used) - 3.0);
+  const Eigen::Matrix3d covCircle = jtj.inverse() * variance;
+  Eigen::Matrix4d covIn = Eigen::Matrix4d::Zero();  // (x0, y0, ρ, δ)
+  covIn.topLeftCorner<3, 3>() = covCircle;
+  covIn(3, 3) = varDelta;
+  Eigen::Matrix4d j = Eigen::Matrix4d::Zero();
+  j.block<3, 1>(0, 0) = u;
+  j.block<3, 1>(0, 1) = v;
+  j.block<3, 1>(0, 3) = normal;
+  j(3, 2) = rho / out.radiusMm;
+  j(3, 3) = bestDelta / out.radiusMm;
+  out.covariance = j * covIn * j.transpose();
+  out.centerSigmaMm = std::sqrt(std::max(0.0, out.covariance.topLeftCorner<3, 3>().trace()));
+  out.radiusSigmaMm = std::sqrt(std::max(0.0, out.covariance(3, 3)));
+  return out;
+}
+
+Result<SphereFit> fit(const std::vector<Eigen::Vector3d>& pts, const std::vector<int>* lineIds,
+                      const std::vector<int>* groupIds, const SphereFitParams& p) {
+  const size_t n = pts.size();
+  if (n < p.minPoints) return Status(Error::kBadInput, "too few points for a sphere fit: " + std::to_string(n));
+  Eigen::Vector3d mean = Eigen::Vector3d::Zero();
+  for (const auto& q : pts) mean += q;
+  mean /= static_cast<double>(n);
+  if (!mean.allFinite()) return Status(Error::kBadInput, "non-finite points in the sphere fit");
+  const Pieces pieces = makePieces(n, lineIds, groupIds);
+  const Scorer scorer(pts, pieces, p);
+  // Lines together first; when that cannot make a sphere on two lines or more, what one
+  // line and the priors can say.
+  Result<SphereFit> multi = Status(Error::kBadInput, "no sphere across the lines");
+  const Hypothesis h = search(pts, pieces, scorer, mean, p, false);
+  if (h.score > 0.0) multi = finish(pts, lineIds, pieces, h, p);
+  if (lineIds == nullptr) return multi;
+  if (multi && multi->linesUsed < 2) multi = Status(Error::kBadInput, "the sphere explains one line only");
+  const Hypothesis one = search(pts, pieces, scorer, mean, p, true);
+  Result<SphereFit> single = Status(Error::kBadInput, "no sphere through one line");
+  if (one.score > 0.0) single = finishOneLine(pts, pieces, one, p);
+  // Both refined results compete on the same score: a sphere across two objects' lines
+  // far from the rough position must not beat one line of the target near it.
+  if (multi && single) {
+    const double sm = scorer.score(multi->centerMm, multi->radiusMm);
+    const double ss = scorer.score(single->centerMm, single->radiusMm);
+    return sm >= ss ? multi : single;
+  }
+  if (multi) return multi;
+  if (single) return single;
+  return multi;
 }
 
 }  // namespace

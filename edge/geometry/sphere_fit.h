@@ -33,7 +33,7 @@ struct SphereFitParams {
   Eigen::Vector3d priorCenterMm = Eigen::Vector3d::Zero();
   double coherentShare = 0.6;   // a piece counts fully when this share of it is explained
   int ransacIterations = 300;
-  int iterations = 30;
+  int iterations = 50;
   size_t minPoints = 12;
   uint64_t seed = 1;
 };

@@ -33,6 +33,8 @@ Status ScanParams::validate() const {
   if (!(priorRadiusMm >= 20.0 && priorRadiusMm <= 80.0)) return {Error::kInvalidArgument, "scan.prior_radius_mm must be in 20..80"};
   if (!(priorRadiusSigmaMm > 0.5 && priorRadiusSigmaMm <= 100.0))
     return {Error::kInvalidArgument, "scan.prior_radius_sigma_mm must be in 0.5..100"};
+  if (!(minRadiusMm >= 10.0 && maxRadiusMm > minRadiusMm && maxRadiusMm <= 100.0))
+    return {Error::kInvalidArgument, "scan.min_radius_mm/max_radius_mm must satisfy 10 <= min < max <= 100"};
   if (!(roughSigmaMm >= 0.0 && roughSigmaMm <= 500.0)) return {Error::kInvalidArgument, "scan.rough_sigma_mm must be in 0..500"};
   return Status::ok();
 }
@@ -222,10 +224,14 @@ Result<AppleEstimate> Localizer::estimate(const ScanPlan& plan, const std::vecto
   geometry::SphereFitParams sp;
   sp.priorRadiusMm = scan_.priorRadiusMm;
   sp.priorRadiusSigmaMm = scan_.priorRadiusSigmaMm;
+  sp.minRadiusMm = scan_.minRadiusMm;
+  sp.maxRadiusMm = scan_.maxRadiusMm;
   sp.priorCenterMm = plan.roughMm;
   sp.priorCenterSigmaMm = scan_.roughSigmaMm;
   Result<geometry::SphereFit> fit = geometry::fitSphere(all, lineIds, pieceIds, sp);
-  // Lines whose points reached the fit: one line alone leaves the sphere to the prior.
+  // Lines whose points reached the fit. One line alone leaves the sphere's offset from
+  // that line's plane to the priors: still better than the paper's line middle, but
+  // partial.
   std::vector<int> inliersPerLine(lines.size(), 0);
   if (fit) {
     for (size_t i = 0; i < all.size(); ++i)
@@ -233,10 +239,10 @@ Result<AppleEstimate> Localizer::estimate(const ScanPlan& plan, const std::vecto
   }
   const auto linesWithInliers = static_cast<int>(
       std::count_if(inliersPerLine.begin(), inliersPerLine.end(), [](int n) { return n >= 8; }));
-  if (!fit || linesWithInliers < 2) return estimateSingleLine(plan, lines);
+  if (!fit || linesWithInliers < 1) return estimateSingleLine(plan, lines);
 
   AppleEstimate est;
-  est.sphereFit = true;
+  est.sphereFit = linesWithInliers >= 2;
   est.linesUsed = linesWithInliers;
   est.pointsUsed = static_cast<int>(fit->inliers);
   est.centerMm = fit->centerMm;

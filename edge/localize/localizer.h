@@ -35,9 +35,13 @@ struct ScanParams {
   // candidates and, weakly, steadies the fit when the lines fix little (a small cap).
   double priorRadiusMm = 40.0;
   double priorRadiusSigmaMm = 6.0;
-  // How far the rough position may be from the true centre (1σ, 3D-ish): among spheres
-  // the lines support, the one near the rough position is the target, not its neighbour.
-  double roughSigmaMm = 25.0;
+  double minRadiusMm = 27.5;      // what counts as an apple: 55–105 mm across
+  double maxRadiusMm = 52.5;
+  // The rough position's error, 1σ per axis (the RealSense D435i's, paper Table 2:
+  // 16–21.5 mm mean 3D error at 1.0–1.6 m). Among the spheres the lines support, the one
+  // near the rough position is the target, not its neighbour; with one line only, it
+  // helps place the centre.
+  double roughSigmaMm = 15.0;
   Status validate() const;
 };
 
