@@ -53,8 +53,10 @@ std::string jsonString(const std::string& s) {
 }
 
 std::string roiJson(const image::Roi& r) {
-  return "[" + std::to_string(r.x) + ", " + std::to_string(r.y) + ", " + std::to_string(r.width) + ", " +
-         std::to_string(r.height) + "]";
+  // snprintf, not string concatenation: GCC 12 at -O3 warns (-Wrestrict) on the latter.
+  char buf[64];
+  std::snprintf(buf, sizeof buf, "[%d, %d, %d, %d]", r.x, r.y, r.width, r.height);
+  return buf;
 }
 
 std::string num(double v, const char* fmt = "%.10g") {

@@ -38,11 +38,9 @@ Args::Args(int argc, char** argv, int first) {
     const std::string a = argv[i];
     if (a.rfind("--", 0) == 0) {
       const std::string key = a.substr(2);
-      if (i + 1 < argc && std::strncmp(argv[i + 1], "--", 2) != 0) {
-        values_[key] = argv[++i];
-      } else {
-        values_[key] = "1";
-      }
+      // Constructed, not assigned from a char*: GCC 12 -O3 warns (-Wrestrict) on the latter.
+      const bool hasValue = i + 1 < argc && std::strncmp(argv[i + 1], "--", 2) != 0;
+      values_[key] = hasValue ? std::string(argv[++i]) : std::string("1");
     } else {
       positional_.push_back(a);
     }
@@ -152,7 +150,14 @@ std::string jsonNum(double v) {
 }
 
 std::string jsonVec(const Eigen::Vector3d& v) {
-  return "[" + jsonNum(v.x()) + ", " + jsonNum(v.y()) + ", " + jsonNum(v.z()) + "]";
+  std::string s = "[";  // appended, not concatenated: GCC 12 -O3 warns (-Wrestrict) on "x" + string
+  s += jsonNum(v.x());
+  s += ", ";
+  s += jsonNum(v.y());
+  s += ", ";
+  s += jsonNum(v.z());
+  s += "]";
+  return s;
 }
 
 int renderMain(const Args& args) {

@@ -30,8 +30,11 @@ def _report(a: argparse.Namespace) -> int:
     res = evaluate.run(cfg)
     res["meta"]["total_s"] = time.monotonic() - t0
     work.mkdir(parents=True, exist_ok=True)
+    examples = res.pop("_examples", [])
     (work / "results.json").write_text(json.dumps(res, indent=1, default=float))
     paths = report.figures(res, figs, "eval_")
+    if examples:
+        paths["examples"] = report.examples_figure(examples, figs / "eval_lle_examples.png")
     command = "tools/eval/run.sh report" + (" --small" if a.small else "")
     doc.parent.mkdir(parents=True, exist_ok=True)
     doc.write_text(report.markdown(res, paths, doc, command))

@@ -155,10 +155,13 @@ def run(cfg: Config) -> dict[str, Any]:
     # Ours, on the LLE set, for every bRCE setting.
     t = time.monotonic()
     ours_lle: dict[tuple[int, int], dict[str, dict]] = {}
+    raw_default: dict[str, dict] = {}
     for step, th in tqdm(combos(), desc="our LLE (bRCE settings)", disable=cfg.quiet, leave=False):
         res = twin.process(cfg.twin, lle_dirs, cfg.jobs, f"step {step} th {th}", rows=True, step=step, threshold=th,
                            calibration=cfg.calibration, quiet=True)
         ours_lle[(step, th)] = _ours_lle(res, truths)
+        if (step, th) == DEFAULT_COMBO:
+            raw_default = res
     times["ours_lle"] = time.monotonic() - t
 
     # The paper's LLE on the same frames and ROIs.
@@ -184,9 +187,36 @@ def run(cfg: Config) -> dict[str, Any]:
     times["paper_loc"] = time.monotonic() - t
 
     res = assemble(cfg, lle_cases, loc_cases, ours_lle, paper_lle_res, ours_loc, paper_loc, times)
+    res["_examples"] = _examples(lle_cases, raw_default)
     if cfg.estimate_calibration:
         res["estimated_calibration"] = _with_estimated_calibration(cfg, loc_cases, times)
     return res
+
+
+def _examples(lle_cases: list[dict], raw: dict[str, dict]) -> list[dict[str, Any]]:
+    """One LLE case per condition, with the truth and both methods' curves, for a figure."""
+    seen, distances, out = set(), set(), []
+    for c in lle_cases:
+        key = (c["lighting"], bool(c["occluded"]))
+        if key in seen or c["distance_mm"] in distances:
+            continue
+        seen.add(key)
+        distances.add(c["distance_mm"])
+        scan = Scan.load(c["dir"])
+        frame = next(f for f in scan.frames if f.laser_on)
+        roi = scan.roi
+        rgb = scan.region(frame, roi)
+        truth = metrics.visible_rows(scan.truth_rows(frame, scan.target_id))
+        f = raw.get(c["dir"], {}).get("frames", [{}])[0]
+        ours = None
+        if f.get("valid") and "curve" in f:
+            ours = (int(f["curve_first_row"]), np.asarray([np.nan if v is None else v for v in f["curve"]], float))
+        line = _paper()(rgb)
+        out.append({"title": f"{c['lighting']} {c['lux']:.0f} lux, {'occluded' if c['occluded'] else 'clear'}, "
+                             f"{c['distance_mm'] / 1000:.1f} m", "rgb": rgb, "roi": roi, "truth": truth, "ours": ours,
+                    "paper_rows": line.rows, "paper_cols": line.columns,
+                    "paper_curve": None if line.coeffs is None else line.coeffs})
+    return out
 
 
 def _calibration_errors(est: Calibration, true: Calibration) -> dict[str, float]:

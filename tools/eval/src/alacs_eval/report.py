@@ -134,6 +134,37 @@ def figures(res: dict[str, Any], fig_dir: Path, prefix: str) -> dict[str, Path]:
     return out
 
 
+def examples_figure(examples: list[dict[str, Any]], path: Path) -> Path:
+    """Crops of LLE cases with the truth, our curve and the paper's."""
+    n = len(examples)
+    fig, axes = plt.subplots(1, n, figsize=(3.2 * n, 3.6))
+    axes = np.atleast_1d(axes)
+    for ax, ex in zip(axes, examples):
+        x0, y0 = ex["roi"][0], ex["roi"][1]
+        ax.imshow(ex["rgb"])
+        t = ex["truth"]
+        if len(t):
+            ax.plot(t["column"] - x0 + 6, t["row"] - y0, ",", color="lime", ms=1)
+        if ex["ours"] is not None:
+            first, curve = ex["ours"]
+            rows = np.arange(len(curve)) + first
+            if len(t):
+                keep = (rows >= t["row"].min()) & (rows <= t["row"].max())
+                ax.plot(curve[keep] - x0 + 12, rows[keep] - y0, "-", color="#4fa3ff", lw=0.8)
+        if ex["paper_curve"] is not None and len(t):
+            rr = np.arange(t["row"].min(), t["row"].max() + 1) - y0
+            ax.plot(np.polyval(ex["paper_curve"], rr) + 18, rr, "-", color="#ff5050", lw=0.8)
+        ax.set_xlim(0, ex["rgb"].shape[1])
+        ax.set_ylim(ex["rgb"].shape[0], 0)
+        ax.set_title(ex["title"], fontsize=7)
+        ax.set_axis_off()
+    fig.suptitle("truth (green), ours (blue), paper's LLE (red) — drawn 6, 12 and 18 px right of where they are", fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=130)
+    plt.close(fig)
+    return path
+
+
 def markdown(res: dict[str, Any], figs: dict[str, Path], doc: Path, command: str) -> str:
     rel = {k: os.path.relpath(v, doc.parent) for k, v in figs.items()}
     m = res["meta"]
@@ -163,7 +194,8 @@ def markdown(res: dict[str, Any], figs: dict[str, Path], doc: Path, command: str
              "the same ROI (the plan's, from the rough position).")
     L.append(f"- **Calibration:** {m['calibration']}.")
     t = m["times_s"]
-    L.append(f"- **Run time:** generation {t['generate']:.0f} s, our LLE over all bRCE settings {t['ours_lle']:.0f} s, "
+    cal_time = f", calibration scans and alacs_calibrate {t['calibration']:.0f} s" if "calibration" in t else ""
+    L.append(f"- **Run time{' (total ' + format(m['total_s'], '.0f') + ' s)' if 'total_s' in m else ''}:** generation {t['generate']:.0f} s{cal_time}, our LLE over all bRCE settings {t['ours_lle']:.0f} s, "
              f"paper's LLE {t['paper_lle']:.0f} s, our localization {t['ours_loc']:.0f} s, the paper's "
              f"{t['paper_loc']:.0f} s; our per-frame observe (LLE + triangulation) "
              f"{_f(res['loc']['observe_ms_per_frame'], 1)} ms on this host.\n")
@@ -184,6 +216,8 @@ def markdown(res: dict[str, Any], figs: dict[str, Path], doc: Path, command: str
     miss_p = res["lle"]["paper"]["80"]["missing"]
     L.append(f"\nNo line (no curve fitted, or none in the segment): ours {miss_o}, paper's {miss_p} of {m['lle_cases']}.\n")
     L.append(f"![LLE displacement]({rel['lle']})\n")
+    if "examples" in rel:
+        L.append(f"![LLE examples]({rel['examples']})\n")
     L.append("By condition (50 % segment, mean / median px, cases):\n")
     L.append("| condition | lux | ours mean | ours median | paper mean | paper median | n |")
     L.append("| --- | --- | --- | --- | --- | --- | --- |")
