@@ -28,6 +28,8 @@
 #include "sim/renderer.h"
 #include "sim/scan_export.h"
 #include "sim/scene.h"
+#include "sim/truth.h"
+#include "geometry/triangulation.h"
 
 using namespace alacs;
 
@@ -39,6 +41,7 @@ void usage(FILE* out) {
                "       alacs_geometry_eval localize --calibration FILE [--cases N] [--distances MM,MM,...]\n"
                "                           [--clear] [--lighting lab|overcast|direct|sun] [--seed S]\n"
                "                           [--report FILE.md] [--csv FILE.csv] [--min-cases N]\n"
+               "                           [--stops N] [--spacing-mm MM] [--only CASE (debug one case)]\n"
                "\n"
                "  localize exits 0 when every target of issue 5 is met, 4 when one is not, 1 on errors.\n");
 }
@@ -215,7 +218,7 @@ image::ImageView viewOf(const cv::Mat& m) { return {m.data, m.cols, m.rows, m.st
 
 int localizeEval(const std::string& calPath, int cases, const std::vector<double>& distances, bool occluded,
                  sim::LightingKind lighting, uint64_t seed, const std::string& reportPath, const std::string& csvPath,
-                 int minCases, int only, bool debug) {
+                 int minCases, int only, bool debug, int stops, double spacingMm) {
   Result<geometry::Calibration> cal = geometry::loadCalibration(calPath);
   if (!cal) {
     std::fprintf(stderr, "calibration: %s\n", cal.status().toString().c_str());
@@ -224,7 +227,13 @@ int localizeEval(const std::string& calPath, int cases, const std::vector<double
   if (cal->quality.fromTruth) std::printf("WARNING: %s is the simulator's truth, not an estimate\n", calPath.c_str());
   const sim::SimScene base = sim::defaultScene();
   auto rays = std::make_shared<const sim::RayTable>(base.truth.camera);
-  const localize::ScanParams scan;
+  localize::ScanParams scan;
+  scan.stops = stops;
+  scan.stopSpacingMm = spacingMm;
+  if (Status st = scan.validate(); !st) {
+    std::fprintf(stderr, "%s\n", st.toString().c_str());
+    return 2;
+  }
   const localize::Localizer loc(*cal, image::LleParams{}, scan);
   const double strokeMm = 200.0;
   std::vector<CaseResult> results;
@@ -287,7 +296,32 @@ int localizeEval(const std::string& calPath, int cases, const std::vector<double
             }
             std::printf("  stop %.1f: %zu rows, %zu points: %d on the target, %d on neighbours, %d elsewhere\n",
                         l.slideMm, l.line.rows.size(), l.pointsMm.size(), onTarget, onOther, rest);
+            // Where the rows that did not make points went, and what the truth says of this stop.
+            const geometry::Calibration& truth = oc->scene.truth;
+            std::vector<geometry::PixelPoint> px;
+            for (const auto& rw : l.line.rows) px.push_back({static_cast<double>(rw.column), static_cast<double>(rw.row)});
+            const auto xn = geometry::undistortPixels(cal->camera, px);
+            std::map<int, int> byRange;
+            for (size_t i = 0; i < xn.size(); ++i) {
+              const auto t = geometry::triangulate(cal->laser, l.slideMm, xn[i], geometry::WorkingRange{0, 5000, 0.0});
+              if (!t.valid) { ++byRange[-1]; continue; }
+              ++byRange[static_cast<int>((t.pointMm - plan->roughMm).norm() / 50.0)];
+            }
+            std::printf("    rows by distance from the rough position (50 mm bins):");
+            for (const auto& [bin, count] : byRange) std::printf(" %d:%d", bin, count);
+            const auto lineTruth = sim::laserLineTruthAll(oc->scene, target, l.slideMm);
+            int visible = 0;
+            for (const auto& t : lineTruth) visible += t.visibleLit() ? 1 : 0;
+            std::printf("; truth: %zu target rows, %d visible and lit\n", lineTruth.size(), visible);
+            (void)truth;
           }
+        }
+        if (debug) {
+          std::ofstream dump("/tmp/geom_case_points.txt");
+          dump.precision(10);
+          dump << plan->roughMm.transpose() << "\n";
+          for (size_t li = 0; li < lines.size(); ++li)
+            for (const auto& q : lines[li].pointsMm) dump << li << " " << q.transpose() << "\n";
         }
         r.candidates = loc.paperCandidates(*plan, lines);
         Result<localize::AppleEstimate> est = loc.estimate(*plan, lines);
@@ -396,6 +430,7 @@ int localizeEval(const std::string& calPath, int cases, const std::vector<double
   md << ").\n";
   md << "\nCalibration: `" << calPath << "` (" << (cal->quality.fromTruth ? "the twin's TRUTH" : "estimated") << ", gate "
      << (cal->quality.gate == geometry::CalibrationQuality::Gate::kPassed ? "passed" : "not passed") << ").\n";
+  md << "Scan: " << scan.stops << " stops " << scan.stopSpacingMm << " mm apart.\n";
   md << "Condition: " << (occluded ? "with occlusion (leaves hide 15–50 % of the target)" : "without occlusion")
      << ", lighting " << sim::lightingName(lighting) << ", seed " << seed << ".\n";
   const std::string text = md.str();
@@ -452,7 +487,8 @@ int main(int argc, char** argv) {
     }
     return localizeEval(opt["calibration"], std::atoi(get("cases", "120").c_str()), distances, !clear, *lighting,
                         seed, get("report", ""), get("csv", ""), std::atoi(get("min-cases", "120").c_str()),
-                        std::atoi(get("only", "-1").c_str()), opt.count("only") > 0);
+                        std::atoi(get("only", "-1").c_str()), opt.count("only") > 0,
+                        std::atoi(get("stops", "5").c_str()), std::atof(get("spacing-mm", "20").c_str()));
   }
   usage(stderr);
   return 2;
