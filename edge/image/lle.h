@@ -14,6 +14,8 @@
 // kRobust (the default) instead:
 //   3. takes each run of candidates as a peak and computes the intensity-weighted centroid
 //      of the red excess over the local background (sub-pixel);
+//      (Candidates are taken at weakThresholdPct of the threshold; a segment must have rows
+//      that pass the threshold itself: hysteresis, so weak lines in bright light are kept.)
 //   4. links the peaks of successive rows into segments by continuity, keeps the strongest
 //      segment and the segments that continue it across gaps as "the line", and fits the
 //      polynomial robustly (rows beyond max(outlierPx, 3·1.4826·MAD) are rejected);
@@ -67,6 +69,9 @@ struct LleParams {
   double outlierPx = 2.0;    // kRobust: residual beyond which a row is rejected from the fit (0.1..100)
   int minRows = 8;           // fewer line rows than this: no line (polyOrder+1..16384)
   // kRobust only:
+  int weakThresholdPct = 75; // hysteresis: candidates at this share of brceThreshold; a segment needs
+                             // two rows, and a quarter of its rows, whose margin exceeds brceThreshold
+                             // itself (10..100; 100: no hysteresis)
   int maxPeaksPerRow = 4;    // strongest runs of a row considered by the continuity step (1..8)
   double maxJumpPx = 2.0;    // a peak continues a segment when within this of its prediction (0.25..64)
   int maxGapRows = 3;        // rows a segment may skip and still continue (0..64)
@@ -79,6 +84,10 @@ struct LleParams {
   LleKernels kernels = LleKernels::kAuto;
 
   Status validate() const;
+  // The threshold bRCE runs with: brceThreshold, or its weak share for kRobust.
+  int detectionThreshold() const {
+    return method == LleMethod::kRobust ? brceThreshold * weakThresholdPct / 100 : brceThreshold;
+  }
 };
 
 enum class RowStatus : uint8_t {

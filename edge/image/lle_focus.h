@@ -60,6 +60,7 @@ struct RunSums {
   int64_t sumXW = 0;  // Σ x · excess·span
   int32_t area = 0;   // Σ excess (DN·px), the peak's strength
   int32_t excess = 0; // largest excess (DN)
+  int32_t margin = 0; // largest bRCE margin min(c - l, c - r) over the run (the red bRCE saw)
   bool saturated = false;
 };
 
@@ -68,8 +69,18 @@ inline int redAt(const uint8_t* on, const uint8_t* off, int redOffset, int x) {
   return off == nullptr ? on[i] : static_cast<int>(on[i]) - static_cast<int>(off[i]);
 }
 
+// The red value bRCE compares (the laser-off frame subtracted with saturation at 0).
+inline int brceRedAt(const uint8_t* on, const uint8_t* off, int redOffset, int x) {
+  return std::max(0, redAt(on, off, redOffset, x));
+}
+
 inline RunSums runSums(const uint8_t* on, const uint8_t* off, int redOffset, int w, int a, int b, int step) {
   RunSums s;
+  for (int x = std::max(a, step); x <= std::min(b, w - 1 - step); ++x) {
+    const int c = brceRedAt(on, off, redOffset, x);
+    s.margin = std::max(s.margin, std::min(c - brceRedAt(on, off, redOffset, x - step),
+                                           c - brceRedAt(on, off, redOffset, x + step)));
+  }
   const int xl = std::max(0, a - step);
   const int xr = std::min(w - 1, b + step);
   const int span = xr - xl;
@@ -296,6 +307,7 @@ struct Peak {
   int32_t chain;
   int32_t next;     // next peak of the same chain (row order), -1
   uint8_t saturated;
+  uint8_t strong;   // its bRCE margin passes brceThreshold (not only the weak share)
 };
 
 struct Chain {
@@ -309,6 +321,7 @@ struct Chain {
   int32_t head;     // first peak
   int32_t tail;     // last peak
   int32_t segment;  // index in LaserLine::segments, -1: too short
+  int32_t strong;   // rows whose peak is strong
   uint8_t onLine;
 };
 
@@ -407,7 +420,7 @@ void focusRobust(const ImageView& frame, const ImageView* laserOff, const Roi& r
         --i;
       }
       row[i] = Peak{A::ratio(s.sumXW, s.sumW), Q::ratio(s.sumXW, s.sumW), s.area, s.excess, -1, -1,
-                    static_cast<uint8_t>(s.saturated ? 1 : 0)};
+                    static_cast<uint8_t>(s.saturated ? 1 : 0), static_cast<uint8_t>(s.margin > p.brceThreshold ? 1 : 0)};
     }
     nPeaks[y] = n;
   }
@@ -443,7 +456,7 @@ void focusRobust(const ImageView& frame, const ImageView* laserOff, const Roi& r
       }
       if (best < 0) {
         best = nChains++;
-        chains[best] = Chain{y, y, -1, 0, 0, pk.key, pk.key, pi, pi, -1, 0};
+        chains[best] = Chain{y, y, -1, 0, 0, pk.key, pk.key, pi, pi, -1, 0, 0};
         active[nActive++] = best;
       } else {
         Chain& c = chains[best];
@@ -457,14 +470,20 @@ void focusRobust(const ImageView& frame, const ImageView* laserOff, const Roi& r
       Chain& c = chains[best];
       c.count += 1;
       c.area += pk.area;
+      c.strong += pk.strong;
       pk.chain = best;
     }
   }
 
-  // Segments: chains of at least minSegmentRows rows, strongest first.
+  // Segments: chains of at least minSegmentRows rows of which at least two, and a quarter,
+  // pass brceThreshold itself (hysteresis: a weak line needs strong parts; a faint laser
+  // line on a far background, never strong, stays out). Strongest first.
+  auto isSegment = [&](const Chain& c) {
+    return c.count >= p.minSegmentRows && c.strong >= std::min(2, c.count) && 4 * c.strong >= c.count;
+  };
   int nSeg = 0;
   for (int c = 0; c < nChains; ++c)
-    if (chains[c].count >= p.minSegmentRows) order[nSeg++] = c;
+    if (isSegment(chains[c])) order[nSeg++] = c;
   std::sort(order, order + nSeg, [&](int32_t a, int32_t b) {
     return chains[a].area != chains[b].area ? chains[a].area > chains[b].area : a < b;
   });
@@ -595,7 +614,7 @@ void focusRobust(const ImageView& frame, const ImageView* laserOff, const Roi& r
   // (keepOtherSegments), stronger segments first.
   int nOut = 0;
   for (int c = 0; c < nChains; ++c)
-    if (chains[c].count >= p.minSegmentRows) chains[c].segment = nOut++;
+    if (isSegment(chains[c])) chains[c].segment = nOut++;
   for (int c = 0; c < nChains; ++c)
     if (chains[c].segment >= 0)
       out.segments.push_back(LineSegment{roi.y + chains[c].first, roi.y + chains[c].last, 0, chains[c].onLine != 0});

@@ -138,6 +138,7 @@ void candidateMask(const ImageView& frame, const ImageView* laserOff, const Roi&
   const int bandRows = h / 2;
   const bool denoise = bandRows >= 1 && w / 4 >= 1;
   const int bands = denoise ? h / bandRows : 0;
+  const int threshold = p.detectionThreshold();
   const int redOff = redOffset(frame.format);
   std::fill(ws.counts.begin(), ws.counts.begin() + wv, uint16_t{0});
   std::fill(ws.counts8.begin(), ws.counts8.begin() + wv, uint8_t{0});
@@ -148,10 +149,10 @@ void candidateMask(const ImageView& frame, const ImageView* laserOff, const Roi&
     uint64_t* bits = ws.bits.data() + static_cast<size_t>(y) * static_cast<size_t>(words);
     if (kernels != nullptr) {
       kernels->redRow(on, off, redOff, w, red);
-      kernels->brceRow(red, ws.validLanes.data(), wv, step, p.brceThreshold, p.brceForm, ws.counts8.data(), bits);
+      kernels->brceRow(red, ws.validLanes.data(), wv, step, threshold, p.brceForm, ws.counts8.data(), bits);
     } else {
       redRowScalar(on, off, redOff, w, red);
-      brceRowScalar(red, w, wv, step, p.brceThreshold, p.brceForm, ws.counts8.data(), bits);
+      brceRowScalar(red, w, wv, step, threshold, p.brceForm, ws.counts8.data(), bits);
     }
     const bool bandEnds = denoise && (y + 1) % bandRows == 0 && (y + 1) / bandRows <= bands;
     if (++pending == 255 || bandEnds) {

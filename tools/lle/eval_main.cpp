@@ -152,6 +152,7 @@ bool setParam(image::LleParams& p, const std::string& kv) {
   else if (k == "bridge") p.bridgePx = v;
   else if (k == "bridgerow") p.bridgePxPerRow = v;
   else if (k == "smooth") p.smoothRows = iv;
+  else if (k == "weak") p.weakThresholdPct = iv;
   else if (k == "sorder") p.smoothOrder = iv;
   else return false;
   return true;
