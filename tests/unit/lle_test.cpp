@@ -270,14 +270,18 @@ TEST_CASE("Hysteresis: a weak line is kept when some rows pass the threshold, a 
   LleParams p;
   p.smoothRows = 0;
   CHECK(run(weak, p).rows.empty());
-  // The same line with a few brighter rows: the whole line is found.
+  // The same line with a third of its rows brighter: the whole line is found.
   Rgb mixed = weak;
-  addLine(mixed, [](int) { return 60.0; }, 1.0, 40, 30, 38);
+  addLine(mixed, [](int) { return 60.0; }, 1.0, 40, 30, 56);
   const LaserLine l = run(mixed, p);
   CHECK(l.rows.size() == 80);
   LleParams none = p;
   none.weakThresholdPct = 100;
-  CHECK(run(mixed, none).rows.size() == 8);
+  CHECK(run(mixed, none).rows.size() == 26);
+  // Too few strong rows (a tenth): not a segment.
+  Rgb sparse = weak;
+  addLine(sparse, [](int) { return 60.0; }, 1.0, 40, 30, 38);
+  CHECK(run(sparse, p).rows.empty());
 }
 
 TEST_CASE("Smoothing along the line averages row noise and keeps the row's own centroid", "[lle]") {
