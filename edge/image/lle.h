@@ -155,6 +155,7 @@ struct LleWorkspace {
   std::vector<uint8_t> counts8;      // the same over the last < 256 rows
   std::vector<int32_t> prefix;       // prefix sums / clear coverage of a band
   std::vector<uint64_t> bits;        // candidate mask of the ROI, one bit per pixel
+  std::vector<uint8_t> rowAny;       // per ROI row: any candidate left
   std::vector<uint64_t> clearBits;   // columns cleared by noise removal in a band
   std::vector<uint8_t> scratch;      // peaks, segments, fit buffers (typed views)
   int roiWidth = -1;

@@ -170,18 +170,21 @@ struct FixedArith {
 
   // The least-squares quadratic through (u[i], c[i]) evaluated at u = 0 (Cramer's rule
   // over exact integer sums); linear, then the mean, when the points cannot support it.
+  // Sums fit int64 (|u| <= 32, n <= 64, |c| < 2^31); the products of the 3x3 solve need
+  // __int128, those of the linear one do not.
   static Col quadAtZero(const int* u, const Col* c, int n, int order) {
-    Int128 s0 = 0, s1 = 0, s2 = 0, s3 = 0, s4 = 0, t0 = 0, t1 = 0, t2 = 0;
+    int64_t s0 = 0, s1 = 0, s2 = 0, s3 = 0, s4 = 0, t0 = 0, t1 = 0, t2 = 0;
     for (int i = 0; i < n; ++i) {
-      const Int128 x = u[i];
+      const int64_t x = u[i];
+      const int64_t x2 = x * x;
       s0 += 1;
       s1 += x;
-      s2 += x * x;
-      s3 += x * x * x;
-      s4 += x * x * x * x;
+      s2 += x2;
+      s3 += x2 * x;
+      s4 += x2 * x2;
       t0 += c[i];
       t1 += x * c[i];
-      t2 += x * x * c[i];
+      t2 += x2 * c[i];
     }
     auto div = [](Int128 a, Int128 b) {
       if (b < 0) {
@@ -190,13 +193,16 @@ struct FixedArith {
       }
       return static_cast<Col>(a >= 0 ? (a + b / 2) / b : -((-a + b / 2) / b));
     };
-    const Int128 det = s0 * (s2 * s4 - s3 * s3) - s1 * (s1 * s4 - s3 * s2) + s2 * (s1 * s3 - s2 * s2);
-    if (order >= 2 && n >= 3 && det != 0) {
-      const Int128 det0 = t0 * (s2 * s4 - s3 * s3) - s1 * (t1 * s4 - s3 * t2) + s2 * (t1 * s3 - s2 * t2);
-      return div(det0, det);
+    if (order >= 2 && n >= 3) {
+      const Int128 S2 = s2, S3 = s3, S4 = s4, S1 = s1, T1 = t1, T2 = t2;
+      const Int128 det = s0 * (S2 * S4 - S3 * S3) - S1 * (S1 * S4 - S3 * S2) + S2 * (S1 * S3 - S2 * S2);
+      if (det != 0) {
+        const Int128 det0 = t0 * (S2 * S4 - S3 * S3) - S1 * (T1 * S4 - S3 * T2) + S2 * (T1 * S3 - S2 * T2);
+        return div(det0, det);
+      }
     }
-    const Int128 d2 = s0 * s2 - s1 * s1;
-    if (order >= 1 && n >= 2 && d2 != 0) return div(t0 * s2 - s1 * t1, d2);
+    const int64_t d2 = s0 * s2 - s1 * s1;
+    if (order >= 1 && n >= 2 && d2 != 0) return div(static_cast<Int128>(t0) * s2 - static_cast<Int128>(s1) * t1, d2);
     return div(t0, s0);
   }
 
@@ -399,7 +405,7 @@ void focusRobust(const ImageView& frame, const ImageView* laserOff, const Roi& r
     const uint8_t* off = laserOff != nullptr ? laserOff->row(roi.y + y) + static_cast<size_t>(roi.x) * 3U : nullptr;
     Peak* row = peaks + static_cast<size_t>(y) * static_cast<size_t>(kMax);
     int n = 0;
-    int x = focus::nextSet(bits, w, 0);
+    int x = ws.rowAny[static_cast<size_t>(y)] != 0 ? focus::nextSet(bits, w, 0) : w;
     while (x < w) {
       const int a = x;
       int b = focus::nextClear(bits, w, a) - 1;
@@ -729,6 +735,7 @@ void focusPaper(const Roi& roi, const LleParams& p, LleWorkspace& ws, LaserLine&
   // Line focusing as printed: the mean of the candidate columns of each row.
   int n = 0;
   for (int y = 0; y < h; ++y) {
+    if (ws.rowAny[static_cast<size_t>(y)] == 0) continue;
     const uint64_t* bits = ws.bits.data() + static_cast<size_t>(y) * static_cast<size_t>(words);
     int64_t sumX = 0;
     int count = 0;

@@ -60,7 +60,8 @@ const SimdKernels* simdKernelsAvx2();
 const SimdKernels* simdKernelsAvx512();
 
 // Stages 1-2 over the ROI: red extraction (minus the laser-off frame), bRCE, noise
-// removal. Leaves the candidate mask in ws.bits (wv/64 words per ROI row). Inputs are
+// removal. Leaves the candidate mask in ws.bits (wv/64 words per ROI row) and which rows
+// have any candidate in ws.rowAny. Inputs are
 // validated by the caller. `kernels` nullptr: the scalar reference.
 void candidateMask(const ImageView& frame, const ImageView* laserOff, const Roi& roi, const LleParams& p,
                    const SimdKernels* kernels, LleWorkspace& ws);

@@ -98,8 +98,11 @@ void clearBand(const LleParams& p, int w, int wv, int y0, int bandRows, LleWorks
     if (covering > 0) clear[x / 64] |= uint64_t{1} << (x % 64);
   }
   for (int y = y0; y < y0 + bandRows; ++y) {
+    if (ws.rowAny[static_cast<size_t>(y)] == 0) continue;
     uint64_t* row = ws.bits.data() + static_cast<size_t>(y) * static_cast<size_t>(words);
-    for (int k = 0; k < words; ++k) row[k] &= ~clear[k];
+    uint64_t left = 0;
+    for (int k = 0; k < words; ++k) left |= (row[k] &= ~clear[k]);
+    ws.rowAny[static_cast<size_t>(y)] = left != 0 ? 1 : 0;
   }
 }
 
@@ -122,6 +125,7 @@ void candidateMask(const ImageView& frame, const ImageView* laserOff, const Roi&
   const size_t bitWords = static_cast<size_t>(words) * static_cast<size_t>(h);
   if (ws.bits.size() < bitWords) ws.bits.resize(bitWords);
   if (ws.clearBits.size() < static_cast<size_t>(words)) ws.clearBits.resize(static_cast<size_t>(words));
+  if (ws.rowAny.size() < static_cast<size_t>(h)) ws.rowAny.resize(static_cast<size_t>(h));
 
   uint8_t* red = ws.red.data() + kRedPad;
   // The padding must read as zero; what a previous, wider ROI left there would not.
@@ -154,6 +158,9 @@ void candidateMask(const ImageView& frame, const ImageView* laserOff, const Roi&
       redRowScalar(on, off, redOff, w, red);
       brceRowScalar(red, w, wv, step, threshold, p.brceForm, ws.counts8.data(), bits);
     }
+    uint64_t any = 0;
+    for (int k = 0; k < words; ++k) any |= bits[k];
+    ws.rowAny[static_cast<size_t>(y)] = any != 0 ? 1 : 0;
     const bool bandEnds = denoise && (y + 1) % bandRows == 0 && (y + 1) / bandRows <= bands;
     if (++pending == 255 || bandEnds) {
       flushCounts(ws.counts8.data(), ws.counts.data(), wv);

@@ -9,7 +9,7 @@
 //   and the numpy reference of the paper's method (tools/paper_lle, in a subprocess),
 // and prints the ratios. A benchmark, not a test: it fails only when something cannot run.
 //
-//   alacs_lle_bench [--frames N] [--image PNG] [--python PATH] [--no-python] [--no-pin]
+//   alacs_lle_bench [--frames N] [--image PNG] [--python PATH] [--no-python] [--no-pin] [--profile N]
 #include <sched.h>
 #include <unistd.h>
 
@@ -152,6 +152,7 @@ int main(int argc, char** argv) {
   std::string python = fs::path(ALACS_SOURCE_DIR) / ".venv" / "bin" / "python";
   bool runPython = true;
   bool pin = true;
+  int profileFrames = 0;  // --profile N: only LLE on the full frame, N times (for perf)
   for (int i = 1; i < argc; ++i) {
     const std::string a = argv[i];
     if (a == "--frames" && i + 1 < argc) frames = std::max(10, std::atoi(argv[++i]));
@@ -159,8 +160,11 @@ int main(int argc, char** argv) {
     else if (a == "--python" && i + 1 < argc) python = argv[++i];
     else if (a == "--no-python") runPython = false;
     else if (a == "--no-pin") pin = false;
+    else if (a == "--profile" && i + 1 < argc) profileFrames = std::max(1, std::atoi(argv[++i]));
     else {
-      std::fprintf(stderr, "usage: alacs_lle_bench [--frames N] [--image PNG] [--python PATH] [--no-python] [--no-pin]\n");
+      std::fprintf(stderr,
+                   "usage: alacs_lle_bench [--frames N] [--image PNG] [--python PATH] [--no-python] [--no-pin]"
+                   " [--profile N]\n");
       return 2;
     }
   }
@@ -200,6 +204,12 @@ int main(int argc, char** argv) {
   image::LleWorkspace ws;
   image::LaserLine line;
   size_t sink = 0;
+  if (profileFrames > 0) {
+    for (int i = 0; i < profileFrames; ++i)
+      if (!image::extractLine(view, full, p, ws, line).isOk()) std::abort();
+    std::printf("%d frames, %zu rows\n", profileFrames, line.rows.size());
+    return 0;
+  }
   const Stats mem = timeIt(frames, [&] {
     std::memcpy(copy.data(), frame.data, bytes);
     sink += copy[bytes / 2];

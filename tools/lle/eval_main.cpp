@@ -20,6 +20,7 @@
 #include <cstdio>
 #include <cstdlib>
 #include <cstring>
+#include <filesystem>
 #include <fstream>
 #include <map>
 #include <mutex>
@@ -403,6 +404,14 @@ int main(int argc, char** argv) {
   if (cases < 1) {
     std::fprintf(stderr, "alacs_lle_eval: --cases must be >= 1\n");
     return 2;
+  }
+  if (!dump.empty()) {
+    std::error_code ec;
+    std::filesystem::create_directories(dump, ec);
+    if (ec) {
+      std::fprintf(stderr, "alacs_lle_eval: cannot create %s: %s\n", dump.c_str(), ec.message().c_str());
+      return 2;
+    }
   }
   std::vector<CaseResult> results(static_cast<size_t>(cases));
   std::atomic<int> nextCase{0};

@@ -1,0 +1,84 @@
+#!/usr/bin/env bash
+# LLE checks for CI (tests/run calls this; the unit tests run with the others, the fuzzer
+# in tests/fuzz/lle/run.sh):
+#   1. the numpy paper method (tools/paper_lle) = the C++ paper path, bit for bit (pytest)
+#   2. the twin's benchmark (alacs_lle_eval, 320 cases): fixed point within 1/64 px of the
+#      float reference and SIMD = scalar on every case (it exits non-zero otherwise); the
+#      accuracy table is printed, not judged
+#   3. the command: JSON and overlay for an image, a scan directory, and clear refusals
+#   4. the speed benchmark (alacs_lle_bench): printed, never a failure
+# Builds Release into build/lle-ci. Usage: tools/lle/check.sh [--junit-dir DIR]
+# Ends with one line: "lle: N passed, N failed". About 3 min on 2 cores from scratch.
+set -uo pipefail
+root=$(cd "$(dirname "${BASH_SOURCE[0]}")/../.." && pwd -P)
+cd "$root"
+junit=""
+[[ ${1:-} == --junit-dir ]] && junit=${2:-}
+build=build/lle-ci
+py="$root/.venv/bin/python"
+[[ -x $py ]] || py=python3
+passed=0
+failed=0
+pass() { passed=$((passed + 1)); echo "lle: ok   $*"; }
+fail() { failed=$((failed + 1)); echo "lle: FAIL $*"; }
+finish() { echo; echo "lle: $passed passed, $failed failed"; ((failed == 0)); exit; }
+step() { printf '\n=== %s\n' "$*"; }
+
+step "build (Release, $build)"
+if cmake -S . -B "$build" -G Ninja -DCMAKE_BUILD_TYPE=Release >"$root/build/lle-ci-configure.log" 2>&1 &&
+  nice ninja -C "$build" alacs_lle alacs_lle_eval alacs_lle_bench >"$root/build/lle-ci-build.log" 2>&1; then
+  pass "build"
+else
+  tail -30 "$root/build/lle-ci-build.log" "$root/build/lle-ci-configure.log" 2>/dev/null
+  fail "build (build/lle-ci-build.log)"
+  finish
+fi
+bin="$build/tools/lle"
+
+step "numpy paper method vs the C++ paper path"
+args=(-q tools/paper_lle/tests -p no:cacheprovider --rootdir tools/paper_lle)
+[[ -n $junit ]] && args+=(--junitxml="$junit/lle-paper.xml")
+if ALACS_LLE="$root/$bin/alacs_lle" "$py" -m pytest "${args[@]}"; then pass "paper_lle pytest"; else fail "paper_lle pytest"; fi
+
+step "the twin's benchmark: fixed point vs float reference, SIMD vs scalar, accuracy"
+tmp=$(mktemp -d)
+trap 'rm -rf "$tmp"' EXIT
+if "$bin/alacs_lle_eval" --cases 320 --jobs "$(nproc)" --dump "$tmp/cases" --first 0 >"$tmp/eval.txt" 2>"$tmp/eval.err"; then
+  pass "alacs_lle_eval: fixed = float within 1/64 px, SIMD = scalar on every case"
+else
+  fail "alacs_lle_eval (see below)"
+fi
+cat "$tmp/eval.txt"
+
+step "the command"
+case0=$(ls "$tmp"/cases/case_*_on.png 2>/dev/null | head -1)
+if [[ -n $case0 ]] && "$bin/alacs_lle" "$case0" --json "$tmp/one.json" --overlay "$tmp/one.png" >/dev/null &&
+  "$py" - "$tmp/one.json" <<'PY'
+import json, sys
+d = json.load(open(sys.argv[1]))
+rows = d["rows"]
+assert len(rows) == d["roi"][3], "one entry per ROI row"
+assert all(("column" in r and "confidence" in r and "valid" in r) for r in rows)
+assert any(r["valid"] for r in rows) and any(not r["valid"] for r in rows)
+assert d["polynomial"]["valid"] and len(d["polynomial"]["coeffs"]) == d["polynomial"]["order"] + 1
+PY
+then pass "alacs_lle IMAGE -> JSON + overlay"; else fail "alacs_lle IMAGE"; fi
+mkdir -p "$tmp/scan" && cp "$tmp"/cases/case_000{0,1,2}_on.png "$tmp/scan/" 2>/dev/null
+if "$bin/alacs_lle" --scan "$tmp/scan" --out "$tmp/scan-out" >/dev/null && [[ -f $tmp/scan-out/summary.json ]] &&
+  [[ $(ls "$tmp"/scan-out/*.json | wc -l) -eq 4 ]]; then
+  pass "alacs_lle --scan DIR"
+else
+  fail "alacs_lle --scan DIR"
+fi
+refused=0
+"$bin/alacs_lle" "$tmp/missing.png" --overlay none 2>/dev/null; [[ $? -eq 1 ]] && refused=$((refused + 1))
+"$bin/alacs_lle" "$case0" --roi 0,0,99999,10 --overlay none 2>/dev/null; [[ $? -eq 1 ]] && refused=$((refused + 1))
+"$bin/alacs_lle" "$case0" --roi 0,0,0,0 --overlay none 2>/dev/null; [[ $? -eq 1 ]] && refused=$((refused + 1))
+"$bin/alacs_lle" "$case0" --step 99 --overlay none 2>/dev/null; [[ $? -eq 1 ]] && refused=$((refused + 1))
+"$bin/alacs_lle" "$case0" --laser-off "$tmp/one.png" --roi 0,0,10,10 --overlay none 2>/dev/null; [[ $? -eq 1 ]] && refused=$((refused + 1))
+"$bin/alacs_lle" --bogus 2>/dev/null; [[ $? -eq 2 ]] && refused=$((refused + 1))
+if ((refused == 6)); then pass "bad input refused with exit 1 (usage 2)"; else fail "bad input: $refused of 6 refused"; fi
+
+step "speed (a benchmark: printed, not judged)"
+"$build/tools/bench/alacs_lle_bench" --frames 200 || echo "(the benchmark could not run)"
+finish
