@@ -75,7 +75,9 @@ refused=0
 "$bin/alacs_lle" "$case0" --roi 0,0,99999,10 --overlay none 2>/dev/null; [[ $? -eq 1 ]] && refused=$((refused + 1))
 "$bin/alacs_lle" "$case0" --roi 0,0,0,0 --overlay none 2>/dev/null; [[ $? -eq 1 ]] && refused=$((refused + 1))
 "$bin/alacs_lle" "$case0" --step 99 --overlay none 2>/dev/null; [[ $? -eq 1 ]] && refused=$((refused + 1))
-"$bin/alacs_lle" "$case0" --laser-off "$tmp/one.png" --roi 0,0,10,10 --overlay none 2>/dev/null; [[ $? -eq 1 ]] && refused=$((refused + 1))
+# A laser-off frame of another size (case 1's crop is not case 0's).
+"$bin/alacs_lle" "$case0" --laser-off "$tmp/cases/case_0001_off.png" --roi 0,0,10,10 --overlay none 2>/dev/null
+[[ $? -eq 1 ]] && refused=$((refused + 1))
 "$bin/alacs_lle" --bogus 2>/dev/null; [[ $? -eq 2 ]] && refused=$((refused + 1))
 if ((refused == 6)); then pass "bad input refused with exit 1 (usage 2)"; else fail "bad input: $refused of 6 refused"; fi
 
