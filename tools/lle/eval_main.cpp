@@ -11,7 +11,12 @@
 // (the nearest stop with a visible line when that one has none). Only the ROI is
 // rendered (the twin renders a region exactly as the crop of a full frame).
 //
-//   alacs_lle_eval [--cases N] [--first K] [--jobs J] [--laser-off] [--csv FILE] [--dump DIR]
+// With --set-dir DIR (repeatable), the cases are instead those of benchmark sets written by
+// `alacs-twin generate --set lle --out DIR` (scan directories: frame, ROI, rough position,
+// calibration and truth as the twin exported them).
+//
+//   alacs_lle_eval [--cases N] [--first K] [--set-dir DIR]... [--jobs J] [--laser-off] [--line]
+//                  [--csv FILE] [--dump DIR] [--set KEY=VALUE]...
 #include <opencv2/imgcodecs.hpp>
 
 #include <algorithm>
@@ -31,6 +36,7 @@
 #include "image/lle.h"
 #include "geometry/triangulation.h"
 #include "localize/localizer.h"
+#include "replay/scan_dir.h"
 #include "sim/orchard.h"
 #include "sim/renderer.h"
 #include "sim/truth.h"
@@ -53,7 +59,7 @@ struct CaseResult {
   int id = 0;
   bool ok = false;                 // false: the case could not be made (reason in `note`)
   std::string note;
-  sim::LightingKind light = sim::LightingKind::kLab;
+  std::string light;
   bool occluded = false;
   double distanceMm = 0.0;
   Score ours, line, paper;
@@ -153,78 +159,47 @@ bool setParam(image::LleParams& p, const std::string& kv) {
   else if (k == "bridge") p.bridgePx = v;
   else if (k == "bridgerow") p.bridgePxPerRow = v;
   else if (k == "smooth") p.smoothRows = iv;
-  else if (k == "weak") p.weakThresholdPct = iv;
   else if (k == "sorder") p.smoothOrder = iv;
+  else if (k == "weak") p.weakThresholdPct = iv;
   else return false;
   return true;
 }
 
-CaseResult runCase(int i, bool laserOff, const std::string& dumpDir, const std::shared_ptr<const sim::RayTable>& rays) {
-  CaseResult res;
-  res.id = i;
-  sim::CaseSpec spec;
-  spec.lighting = kLights[i % 4];
-  spec.occluded = (i / 4) % 2 == 1;
-  // Stratified over 0.8..1.6 m by a golden-ratio sequence.
-  spec.distanceMm = 800.0 + 800.0 * std::fmod(0.5 + i * 0.6180339887498949, 1.0);
-  res.light = spec.lighting;
-  res.occluded = spec.occluded;
-  res.distanceMm = spec.distanceMm;
-  Result<sim::OrchardCase> oc = sim::makeOrchardCase(spec, static_cast<uint64_t>(i) + 1);
-  if (!oc) {
-    res.note = oc.status().toString();
-    return res;
-  }
-  const sim::SimScene& scene = oc->scene;
-  const sim::SimApple& target = *scene.apple(oc->targetId);
-  const localize::Localizer loc(scene.truth, image::LleParams{}, localize::ScanParams{});
-  Result<localize::ScanPlan> plan = loc.plan(oc->roughMm, 200.0);
-  if (!plan) {
-    res.note = plan.status().toString();
-    return res;
-  }
-  // Stop i mod 5, else the nearest stop whose line has enough visible rows.
-  const int nStops = static_cast<int>(plan->stopsMm.size());
-  double slide = 0.0;
+// One benchmark case, however it was made: the frame (full size; only the ROI matters),
+// optionally the laser-off frame, the ROI, the target's truth rows with their flags, and
+// what the localizer would know (calibration, slide position, rough position).
+struct CaseInput {
+  int id = 0;
+  std::string light;
+  bool occluded = false;
+  double distanceMm = 0.0;
+  cv::Mat frame;
+  cv::Mat laserOff;
+  image::Roi roi;
   std::vector<sim::RowTruth> truth;
-  bool found = false;
-  for (int k = 0; k < nStops && !found; ++k) {
-    const int s0 = (i % 5) % nStops;
-    const int stop = (s0 + ((k % 2) ? (k + 1) / 2 : nStops - k / 2)) % nStops;
-    slide = plan->stopsMm[static_cast<size_t>(k == 0 ? s0 : stop)];
-    truth = sim::laserLineTruthAll(scene, target, slide);
-    int visible = 0;
-    for (const auto& t : truth) visible += t.visibleLit() ? 1 : 0;
-    found = visible >= 20;
-  }
-  if (!found) {
-    res.note = "no stop shows 20 visible rows of the line";
+  geometry::Calibration calibration;
+  double slideMm = 0.0;
+  Eigen::Vector3d roughMm = Eigen::Vector3d::Zero();
+  std::string note;  // empty: usable
+};
+
+image::ImageView viewOf(const cv::Mat& m) {
+  return {m.data, m.cols, m.rows, m.step[0], image::PixelFormat::kBgr888};
+}
+
+CaseResult evaluate(const CaseInput& in, bool laserOff) {
+  CaseResult res;
+  res.id = in.id;
+  res.light = in.light;
+  res.occluded = in.occluded;
+  res.distanceMm = in.distanceMm;
+  if (!in.note.empty()) {
+    res.note = in.note;
     return res;
   }
-  const image::Roi roi = plan->roi;
-  sim::Renderer renderer(scene, rays);
-  sim::FrameRequest req;
-  req.slideStartMm = req.slideEndMm = slide;
-  req.frameIndex = static_cast<uint64_t>(2 * i);
-  const cv::Rect rect(roi.x, roi.y, roi.width, roi.height);
-  cv::Mat crop, cropOff;
-  renderer.renderRegion(req, rect, crop);
-  const auto& cam = scene.truth.camera;
-  cv::Mat frameMat = cv::Mat::zeros(cam.heightPx, cam.widthPx, CV_8UC3);
-  cv::Mat offMat;
-  crop.copyTo(frameMat(rect));
-  const bool wantOff = laserOff || !dumpDir.empty();
-  if (wantOff) {
-    req.laserFraction = 0.0;
-    req.frameIndex += 1;
-    renderer.renderRegion(req, rect, cropOff);
-    offMat = cv::Mat::zeros(cam.heightPx, cam.widthPx, CV_8UC3);
-    cropOff.copyTo(offMat(rect));
-  }
-  const image::ImageView frame{frameMat.data, frameMat.cols, frameMat.rows, frameMat.step[0], image::PixelFormat::kBgr888};
-  const image::ImageView off =
-      wantOff ? image::ImageView{offMat.data, offMat.cols, offMat.rows, offMat.step[0], image::PixelFormat::kBgr888}
-              : image::ImageView{};
+  const image::Roi roi = in.roi;
+  const image::ImageView frame = viewOf(in.frame);
+  const image::ImageView off = laserOff ? viewOf(in.laserOff) : image::ImageView{};
   const image::ImageView* offPtr = laserOff ? &off : nullptr;
 
   const image::LleParams p = gParams;
@@ -255,22 +230,22 @@ CaseResult runCase(int i, bool laserOff, const std::string& dumpDir, const std::
       res.fixedVsFloatPolyPx = std::max(res.fixedVsFloatPolyPx, std::abs(ours.columnAt(a.row) - ref.columnAt(a.row)));
   }
 
-  const auto visible = truthByRow(truth);
+  const auto visible = truthByRow(in.truth);
   // What the localizer keeps of a row: of its valid samples, the one whose triangulated
   // point is nearest the rough (RGB-D) position, within the gate. No truth is used.
   std::map<int, double> chosen;
   {
     std::vector<geometry::PixelPoint> px;
     for (const auto& s : ours.rows) px.push_back({static_cast<double>(s.column), static_cast<double>(s.row)});
-    const std::vector<Eigen::Vector2d> xn = geometry::undistortPixels(scene.truth.camera, px);
+    const std::vector<Eigen::Vector2d> xn = geometry::undistortPixels(in.calibration.camera, px);
     const double gate = localize::ScanParams{}.gateMm;
     std::map<int, double> bestDist;
     for (size_t k = 0; k < ours.rows.size(); ++k) {
       const auto& s = ours.rows[k];
       if (!s.valid()) continue;
-      const geometry::TriangulatedPoint tp = geometry::triangulate(scene.truth.laser, slide, xn[k]);
+      const geometry::TriangulatedPoint tp = geometry::triangulate(in.calibration.laser, in.slideMm, xn[k]);
       if (!tp.valid) continue;
-      const double dist = (tp.pointMm - oc->roughMm).norm();
+      const double dist = (tp.pointMm - in.roughMm).norm();
       if (dist > gate) continue;
       auto it = bestDist.find(s.row);
       if (it == bestDist.end() || dist < it->second) {
@@ -279,19 +254,19 @@ CaseResult runCase(int i, bool laserOff, const std::string& dumpDir, const std::
       }
     }
   }
-  res.ours = score(visible, truth, [&](int row, double& col) {
+  res.ours = score(visible, in.truth, [&](int row, double& col) {
     auto it = chosen.find(row);
     if (it == chosen.end()) return false;
     col = it->second;
     return true;
   });
-  res.line = score(visible, truth, [&](int row, double& col) {
+  res.line = score(visible, in.truth, [&](int row, double& col) {
     const image::RowSample* s = ours.sampleAt(row);
     if (s == nullptr || s->status != image::RowStatus::kLine) return false;
     col = s->column;
     return true;
   });
-  res.paper = score(visible, truth, [&](int row, double& col) {
+  res.paper = score(visible, in.truth, [&](int row, double& col) {
     if (!paper.valid || paper.sampleAt(row) == nullptr) return false;
     col = paper.columnAt(row);
     return true;
@@ -301,6 +276,76 @@ CaseResult runCase(int i, bool laserOff, const std::string& dumpDir, const std::
   res.coverage = ours.coverage;
   res.ok = true;
 
+  res.ok = true;
+  return res;
+}
+
+// Case i of the built-in set, from the twin's orchard generator (see the file comment).
+CaseInput makeCase(int i, bool withOff, const std::string& dumpDir, const std::shared_ptr<const sim::RayTable>& rays) {
+  CaseInput in;
+  in.id = i;
+  sim::CaseSpec spec;
+  spec.lighting = kLights[i % 4];
+  spec.occluded = (i / 4) % 2 == 1;
+  // Stratified over 0.8..1.6 m by a golden-ratio sequence.
+  spec.distanceMm = 800.0 + 800.0 * std::fmod(0.5 + i * 0.6180339887498949, 1.0);
+  in.light = sim::lightingName(spec.lighting);
+  in.occluded = spec.occluded;
+  in.distanceMm = spec.distanceMm;
+  Result<sim::OrchardCase> oc = sim::makeOrchardCase(spec, static_cast<uint64_t>(i) + 1);
+  if (!oc) {
+    in.note = oc.status().toString();
+    return in;
+  }
+  const sim::SimScene& scene = oc->scene;
+  const sim::SimApple& target = *scene.apple(oc->targetId);
+  const localize::Localizer loc(scene.truth, image::LleParams{}, localize::ScanParams{});
+  Result<localize::ScanPlan> plan = loc.plan(oc->roughMm, 200.0);
+  if (!plan) {
+    in.note = plan.status().toString();
+    return in;
+  }
+  // Stop i mod 5, else the nearest stop whose line has enough visible rows.
+  const int nStops = static_cast<int>(plan->stopsMm.size());
+  double slide = 0.0;
+  std::vector<sim::RowTruth> truth;
+  bool found = false;
+  for (int k = 0; k < nStops && !found; ++k) {
+    const int s0 = (i % 5) % nStops;
+    const int stop = (s0 + ((k % 2) ? (k + 1) / 2 : nStops - k / 2)) % nStops;
+    slide = plan->stopsMm[static_cast<size_t>(k == 0 ? s0 : stop)];
+    truth = sim::laserLineTruthAll(scene, target, slide);
+    int visible = 0;
+    for (const auto& t : truth) visible += t.visibleLit() ? 1 : 0;
+    found = visible >= 20;
+  }
+  if (!found) {
+    in.note = "no stop shows 20 visible rows of the line";
+    return in;
+  }
+  const image::Roi roi = plan->roi;
+  in.roi = roi;
+  in.truth = truth;
+  in.calibration = scene.truth;
+  in.slideMm = slide;
+  in.roughMm = oc->roughMm;
+  sim::Renderer renderer(scene, rays);
+  sim::FrameRequest req;
+  req.slideStartMm = req.slideEndMm = slide;
+  req.frameIndex = static_cast<uint64_t>(2 * i);
+  const cv::Rect rect(roi.x, roi.y, roi.width, roi.height);
+  cv::Mat crop, cropOff;
+  renderer.renderRegion(req, rect, crop);
+  const auto& cam = scene.truth.camera;
+  in.frame = cv::Mat::zeros(cam.heightPx, cam.widthPx, CV_8UC3);
+  crop.copyTo(in.frame(rect));
+  if (withOff || !dumpDir.empty()) {
+    req.laserFraction = 0.0;
+    req.frameIndex += 1;
+    renderer.renderRegion(req, rect, cropOff);
+    in.laserOff = cv::Mat::zeros(cam.heightPx, cam.widthPx, CV_8UC3);
+    cropOff.copyTo(in.laserOff(rect));
+  }
   if (!dumpDir.empty()) {
     char name[64];
     std::snprintf(name, sizeof name, "/case_%04d", i);
@@ -309,7 +354,7 @@ CaseResult runCase(int i, bool laserOff, const std::string& dumpDir, const std::
     cv::imwrite(base + "_off.png", cropOff);
     std::ofstream js(base + ".json");
     js.precision(10);
-    js << "{\"id\": " << i << ", \"light\": \"" << sim::lightingName(spec.lighting) << "\", \"occluded\": "
+    js << "{\"id\": " << i << ", \"light\": \"" << in.light << "\", \"occluded\": "
        << (spec.occluded ? "true" : "false") << ", \"distance_mm\": " << spec.distanceMm << ", \"slide_mm\": " << slide
        << ", \"roi\": [" << roi.x << ", " << roi.y << ", " << roi.width << ", " << roi.height
        << "], \"note\": \"" << oc->description << "\", \"truth\": [";
@@ -320,7 +365,86 @@ CaseResult runCase(int i, bool laserOff, const std::string& dumpDir, const std::
     }
     js << "]}\n";
   }
-  return res;
+  return in;
+}
+
+// A case of a benchmark set written by `alacs-twin generate` (a scan directory: manifest,
+// frame, calibration, truth CSV); light, occlusion and distance from the set's set.jsonl.
+std::string jsonField(const std::string& line, const std::string& key) {
+  const size_t k = line.find("\"" + key + "\":");
+  if (k == std::string::npos) return "";
+  size_t v = k + key.size() + 3;
+  while (v < line.size() && line[v] == ' ') ++v;
+  if (v < line.size() && line[v] == '"') {
+    const size_t e = line.find('"', v + 1);
+    return line.substr(v + 1, e - v - 1);
+  }
+  const size_t e = line.find_first_of(",}", v);
+  return line.substr(v, e - v);
+}
+
+CaseInput loadCase(int id, const std::string& dir, const std::string& setLine, bool withOff) {
+  CaseInput in;
+  in.id = id;
+  in.light = jsonField(setLine, "lighting");
+  in.occluded = jsonField(setLine, "occluded") == "1";
+  in.distanceMm = std::atof(jsonField(setLine, "distance_mm").c_str());
+  Result<replay::ScanManifest> m = replay::readManifest(dir);
+  if (!m) {
+    in.note = m.status().toString();
+    return in;
+  }
+  Result<geometry::Calibration> cal = replay::loadScanCalibration(dir, *m);
+  const replay::FrameRecord* on = nullptr;
+  const replay::FrameRecord* offRec = nullptr;
+  for (const auto& f : m->frames) {
+    if (f.laserOn && on == nullptr) on = &f;
+    if (!f.laserOn && offRec == nullptr) offRec = &f;
+  }
+  if (!cal || on == nullptr || !m->scan.roiPx || !m->scan.roughMm || on->truthFile.empty()) {
+    in.note = "incomplete scan directory (calibration, laser-on frame, ROI, rough position, truth)";
+    return in;
+  }
+  Result<cv::Mat> frame = replay::loadFrame(dir, *m, *on);
+  if (!frame) {
+    in.note = frame.status().toString();
+    return in;
+  }
+  in.frame = *frame;
+  if (withOff) {
+    if (offRec == nullptr) {
+      in.note = "no laser-off frame in the scan (--laser-off)";
+      return in;
+    }
+    Result<cv::Mat> off = replay::loadFrame(dir, *m, *offRec);
+    if (!off) {
+      in.note = off.status().toString();
+      return in;
+    }
+    in.laserOff = *off;
+  }
+  in.roi = *m->scan.roiPx;
+  in.calibration = *cal;
+  in.slideMm = on->slideMm;
+  in.roughMm = *m->scan.roughMm;
+  std::ifstream csv(dir + "/" + on->truthFile);
+  std::string line;
+  std::getline(csv, line);  // header: apple_id,row,column_px,x_mm,y_mm,z_mm,flags
+  while (std::getline(csv, line)) {
+    int apple = 0, row = 0;
+    unsigned flags = 0;
+    double col = 0, x = 0, y = 0, z = 0;
+    if (std::sscanf(line.c_str(), "%d,%d,%lf,%lf,%lf,%lf,%u", &apple, &row, &col, &x, &y, &z, &flags) != 7) continue;
+    if (apple != m->scan.targetId) continue;
+    sim::RowTruth t;
+    t.row = row;
+    t.column = col;
+    t.flags = static_cast<uint8_t>(flags);
+    t.appleId = apple;
+    in.truth.push_back(t);
+  }
+  if (in.truth.empty()) in.note = "no truth rows for the target";
+  return in;
 }
 
 struct Agg {
@@ -367,6 +491,7 @@ int main(int argc, char** argv) {
   bool showLine = false;
   std::string csv;
   std::string dump;
+  std::vector<std::string> sets;
   for (int i = 1; i < argc; ++i) {
     const std::string a = argv[i];
     auto next = [&]() -> std::string {
@@ -383,6 +508,7 @@ int main(int argc, char** argv) {
     else if (a == "--line") showLine = true;
     else if (a == "--csv") csv = next();
     else if (a == "--dump") dump = next();
+    else if (a == "--set-dir") sets.push_back(next());
     else if (a == "--set") {
       if (!setParam(gParams, next())) {
         std::fprintf(stderr, "alacs_lle_eval: bad --set %s\n", argv[i]);
@@ -391,7 +517,8 @@ int main(int argc, char** argv) {
     }
     else {
       std::fprintf(stderr,
-                   "usage: alacs_lle_eval [--cases N] [--first K] [--jobs J] [--laser-off] [--line] [--csv FILE] [--dump DIR]\n"
+                   "usage: alacs_lle_eval [--cases N] [--first K] [--set-dir DIR]... [--jobs J] [--laser-off] [--line]\n"
+                   "                      [--csv FILE] [--dump DIR]\n"
                    "                      [--set step|th|theta|gamma|order|outlier|minrows|peaks|jump|gap|minseg|bridge|\n"
                    "                             bridgerow|smooth=VALUE]...\n");
       return 2;
@@ -413,6 +540,26 @@ int main(int argc, char** argv) {
       return 2;
     }
   }
+  // Cases from benchmark sets written by `alacs-twin generate --set lle`: every line of
+  // DIR/set.jsonl names a scan directory.
+  std::vector<std::pair<std::string, std::string>> setCases;
+  for (const std::string& dir : sets) {
+    std::ifstream jl(dir + "/set.jsonl");
+    if (!jl) {
+      std::fprintf(stderr, "alacs_lle_eval: %s/set.jsonl is missing (alacs-twin generate --set lle --out %s)\n", dir.c_str(),
+                   dir.c_str());
+      return 2;
+    }
+    std::vector<std::pair<std::string, std::string>> here;
+    for (std::string line; std::getline(jl, line);)
+      if (!line.empty()) here.emplace_back(dir + "/" + jsonField(line, "case"), line);
+    std::sort(here.begin(), here.end());
+    setCases.insert(setCases.end(), here.begin(), here.end());
+  }
+  if (!setCases.empty()) {
+    cases = static_cast<int>(setCases.size());
+    first = 0;
+  }
   std::vector<CaseResult> results(static_cast<size_t>(cases));
   std::atomic<int> nextCase{0};
   std::atomic<int> done{0};
@@ -420,7 +567,11 @@ int main(int argc, char** argv) {
   const auto rays = std::make_shared<const sim::RayTable>(sim::defaultScene().truth.camera);
   auto worker = [&]() {
     for (int k = nextCase++; k < cases; k = nextCase++) {
-      results[static_cast<size_t>(k)] = runCase(first + k, laserOff, dump, rays);
+      results[static_cast<size_t>(k)] =
+          setCases.empty() ? evaluate(makeCase(first + k, laserOff, dump, rays), laserOff)
+                           : evaluate(loadCase(k, setCases[static_cast<size_t>(k)].first,
+                                               setCases[static_cast<size_t>(k)].second, laserOff),
+                                      laserOff);
       const int d = ++done;
       if (d % 10 == 0 || d == cases) {
         std::lock_guard<std::mutex> lock(printMu);
@@ -445,9 +596,14 @@ int main(int argc, char** argv) {
       std::fprintf(stderr, "case %d skipped: %s\n", r.id, r.note.c_str());
       continue;
     }
-    const std::string light = sim::lightingName(r.light);
+    const std::string light = r.light;
     const std::string occ = r.occluded ? "leaf" : "free";
-    for (const std::string& g : {std::string("all"), light, light + "/" + occ, std::string("all/") + occ}) {
+    std::vector<std::string> groups = {"all", light, light + "/" + occ, "all/" + occ};
+    if (light != "sun") {  // the paper's conditions: lab and 1000-6500 lux outdoors
+      groups.push_back("paper-light");
+      groups.push_back("paper-light/" + occ);
+    }
+    for (const std::string& g : groups) {
       ours[g].add(r.ours);
       line[g].add(r.line);
       paper[g].add(r.paper);
@@ -465,9 +621,19 @@ int main(int argc, char** argv) {
       meanCoverageOcc += r.coverage;
     }
   }
-  std::printf("LLE benchmark on the twin: %d cases (ids %d..%d, %d skipped), %.2f-%.2f m, %d with leaves in front%s\n",
-              cases - failed, first, first + cases - 1, failed, dmin / 1000.0, dmax / 1000.0, nOcc,
-              laserOff ? ", laser-off frame subtracted" : "");
+  if (setCases.empty())
+    std::printf("LLE benchmark on the twin's orchard cases: %d cases (ids %d..%d, %d skipped), %.2f-%.2f m, %d with "
+                "leaves in front%s\n",
+                cases - failed, first, first + cases - 1, failed, dmin / 1000.0, dmax / 1000.0, nOcc,
+                laserOff ? ", laser-off frame subtracted" : "");
+  else
+    std::printf("LLE benchmark on the twin's set%s", sets.size() > 1 ? "s" : "");
+  for (const auto& d : sets) std::printf(" %s", d.c_str());
+  if (!setCases.empty())
+    std::printf(": %d cases (%d skipped), %.2f-%.2f m, %d with leaves in front%s\n", cases - failed, failed,
+                dmin / 1000.0, dmax / 1000.0, nOcc, laserOff ? ", laser-off frame subtracted" : "");
+  std::printf("paper-light = lab, overcast and direct light (the paper's conditions, up to 6500 lux); sun = full sun,\n"
+              "30-80 klux, beyond the paper.\n");
   std::printf("ours = per row, of the valid samples the one the localizer keeps (triangulated point nearest the\n"
               "rough RGB-D position, within its 90 mm gate)%s; paper = the paper's four steps, its fitted curve.\n",
               showLine ? "; line = only the extracted line's rows (status line)" : "");
@@ -477,7 +643,8 @@ int main(int argc, char** argv) {
   std::printf("%-6s %-16s %4s", "method", "cases", "n");
   for (int k : kSegments) std::printf("  %4d%%", k);
   std::printf("   worst maxrow  found80  found\n");
-  const char* order[] = {"all",           "all/free", "all/leaf", "lab",           "lab/free",    "lab/leaf",
+  const char* order[] = {"all",           "all/free", "all/leaf", "paper-light", "paper-light/free", "paper-light/leaf",
+                         "lab",           "lab/free",    "lab/leaf",
                          "overcast",      "overcast/free", "overcast/leaf", "direct",   "direct/free", "direct/leaf",
                          "sun",           "sun/free", "sun/leaf"};
   for (const char* g : order) {
@@ -502,7 +669,7 @@ int main(int argc, char** argv) {
       if (!r.ok) continue;
       for (int m = 0; m < 2; ++m) {
         const Score& s = m == 0 ? r.ours : r.paper;
-        f << r.id << "," << sim::lightingName(r.light) << "," << (r.occluded ? 1 : 0) << "," << r.distanceMm << ","
+        f << r.id << "," << r.light << "," << (r.occluded ? 1 : 0) << "," << r.distanceMm << ","
           << (m == 0 ? "ours" : "paper");
         for (double v : s.segMean) f << "," << v;
         f << "," << s.maxRowErr << "," << s.visible80 << "," << s.found80 << "," << s.visible << "," << s.found << ","
