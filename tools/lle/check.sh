@@ -2,10 +2,11 @@
 # LLE checks for CI (tests/run calls this; the unit tests run with the others, the fuzzer
 # in tests/fuzz/lle/run.sh):
 #   1. the numpy paper method (tools/paper_lle) = the C++ paper path, bit for bit (pytest)
-#   2. the twin's benchmark (alacs_lle_eval, 320 cases): fixed point within 1/64 px of the
-#      float reference and SIMD = scalar on every case (it exits non-zero otherwise); the
-#      accuracy table is printed, not judged
-#   3. the command: JSON and overlay for an image, a scan directory, and clear refusals
+#   2. the twin's LLE benchmark sets (alacs-twin generate --set lle: 100 lab, 200 outdoor,
+#      100 full-sun cases, occluded and free, 0.8-1.6 m) through alacs_lle_eval: fixed
+#      point within 1/64 px of the float reference and SIMD = scalar on every case (it
+#      exits non-zero otherwise); the accuracy table is printed, not judged
+#   3. the command: JSON and overlay for an image, a scan directory (the twin's), refusals
 #   4. the speed benchmark (alacs_lle_bench): printed, never a failure
 # Builds Release into build/lle-ci. Usage: tools/lle/check.sh [--junit-dir DIR]
 # Ends with one line: "lle: N passed, N failed". About 3 min on 2 cores from scratch.
@@ -26,7 +27,7 @@ step() { printf '\n=== %s\n' "$*"; }
 
 step "build (Release, $build)"
 if cmake -S . -B "$build" -G Ninja -DCMAKE_BUILD_TYPE=Release >"$root/build/lle-ci-configure.log" 2>&1 &&
-  nice ninja -C "$build" alacs_lle alacs_lle_eval alacs_lle_bench >"$root/build/lle-ci-build.log" 2>&1; then
+  nice ninja -C "$build" alacs_lle alacs_lle_eval alacs_lle_bench alacs-twin >"$root/build/lle-ci-build.log" 2>&1; then
   pass "build"
 else
   tail -30 "$root/build/lle-ci-build.log" "$root/build/lle-ci-configure.log" 2>/dev/null
@@ -40,10 +41,20 @@ args=(-q tools/paper_lle/tests -p no:cacheprovider --rootdir tools/paper_lle)
 [[ -n $junit ]] && args+=(--junitxml="$junit/lle-paper.xml")
 if ALACS_LLE="$root/$bin/alacs_lle" "$py" -m pytest "${args[@]}"; then pass "paper_lle pytest"; else fail "paper_lle pytest"; fi
 
-step "the twin's benchmark: fixed point vs float reference, SIMD vs scalar, accuracy"
+step "the twin's benchmark sets: fixed point vs float reference, SIMD vs scalar, accuracy"
 tmp=$(mktemp -d)
 trap 'rm -rf "$tmp"' EXIT
-if "$bin/alacs_lle_eval" --cases 320 --jobs "$(nproc)" --dump "$tmp/cases" --first 0 >"$tmp/eval.txt" 2>"$tmp/eval.err"; then
+twin="$build/tools/twin/alacs-twin"
+if "$twin" generate --set lle --lighting lab --count 100 --out "$tmp/lab" --jobs "$(nproc)" >/dev/null &&
+  "$twin" generate --set lle --count 200 --out "$tmp/outdoor" --jobs "$(nproc)" >/dev/null &&
+  "$twin" generate --set lle --lighting sun --count 100 --out "$tmp/sun" --jobs "$(nproc)" >/dev/null; then
+  pass "alacs-twin generate --set lle (400 cases)"
+else
+  fail "alacs-twin generate"
+  finish
+fi
+if "$bin/alacs_lle_eval" --set-dir "$tmp/lab" --set-dir "$tmp/outdoor" --set-dir "$tmp/sun" --jobs "$(nproc)" \
+  >"$tmp/eval.txt" 2>"$tmp/eval.err"; then
   pass "alacs_lle_eval: fixed = float within 1/64 px, SIMD = scalar on every case"
 else
   fail "alacs_lle_eval (see below)"
@@ -51,8 +62,8 @@ fi
 cat "$tmp/eval.txt"
 
 step "the command"
-case0=$(ls "$tmp"/cases/case_*_on.png 2>/dev/null | head -1)
-if [[ -n $case0 ]] && "$bin/alacs_lle" "$case0" --json "$tmp/one.json" --overlay "$tmp/one.png" >/dev/null &&
+case0="$tmp/lab/lle_0000/frames/frame_0000.png"
+if "$bin/alacs_lle" "$case0" --json "$tmp/one.json" --overlay "$tmp/one.png" >/dev/null &&
   "$py" - "$tmp/one.json" <<'PY'
 import json, sys
 d = json.load(open(sys.argv[1]))
@@ -63,10 +74,10 @@ assert any(r["valid"] for r in rows) and any(not r["valid"] for r in rows)
 assert d["polynomial"]["valid"] and len(d["polynomial"]["coeffs"]) == d["polynomial"]["order"] + 1
 PY
 then pass "alacs_lle IMAGE -> JSON + overlay"; else fail "alacs_lle IMAGE"; fi
-mkdir -p "$tmp/scan" && cp "$tmp"/cases/case_000{0,1,2}_on.png "$tmp/scan/" 2>/dev/null
-if "$bin/alacs_lle" --scan "$tmp/scan" --out "$tmp/scan-out" >/dev/null && [[ -f $tmp/scan-out/summary.json ]] &&
-  [[ $(ls "$tmp"/scan-out/*.json | wc -l) -eq 4 ]]; then
-  pass "alacs_lle --scan DIR"
+if "$bin/alacs_lle" --scan "$tmp/outdoor/lle_0007" --out "$tmp/scan-out" >/dev/null &&
+  "$py" -c "import json,sys; s=json.load(open(sys.argv[1])); assert s['processed']==1 and s['frames'][0]['line_valid']" \
+    "$tmp/scan-out/summary.json"; then
+  pass "alacs_lle --scan DIR (a twin scan directory: manifest ROI)"
 else
   fail "alacs_lle --scan DIR"
 fi
@@ -75,8 +86,8 @@ refused=0
 "$bin/alacs_lle" "$case0" --roi 0,0,99999,10 --overlay none 2>/dev/null; [[ $? -eq 1 ]] && refused=$((refused + 1))
 "$bin/alacs_lle" "$case0" --roi 0,0,0,0 --overlay none 2>/dev/null; [[ $? -eq 1 ]] && refused=$((refused + 1))
 "$bin/alacs_lle" "$case0" --step 99 --overlay none 2>/dev/null; [[ $? -eq 1 ]] && refused=$((refused + 1))
-# A laser-off frame of another size (case 1's crop is not case 0's).
-"$bin/alacs_lle" "$case0" --laser-off "$tmp/cases/case_0001_off.png" --roi 0,0,10,10 --overlay none 2>/dev/null
+# A laser-off frame of another size (the 1.6 m case's crop is smaller than the 0.8 m one's).
+"$bin/alacs_lle" "$case0" --laser-off "$tmp/lab/lle_0004/frames/frame_0000.png" --overlay none 2>/dev/null
 [[ $? -eq 1 ]] && refused=$((refused + 1))
 "$bin/alacs_lle" --bogus 2>/dev/null; [[ $? -eq 2 ]] && refused=$((refused + 1))
 if ((refused == 6)); then pass "bad input refused with exit 1 (usage 2)"; else fail "bad input: $refused of 6 refused"; fi
