@@ -164,7 +164,7 @@ TEST_CASE("A target's pose in a calibrated camera", "[calibration]") {
   CHECK(locateTarget(rig.truth.camera, TargetView{}).status().code() == Error::kBadInput);
 }
 
-TEST_CASE("Laser plane and slide come back from lines on a flat target, despite reflections", "[calibration]") {
+TEST_CASE("Laser plane and slide come back from lines on a flat target, despite reflections", "[calibration][render]") {
   Rig rig;
   std::mt19937 rng(7);
   std::vector<LaserLineSample> samples;

@@ -15,7 +15,7 @@ image::ImageView viewOf(const cv::Mat& m) {
 }
 }  // namespace
 
-TEST_CASE("LLE on a simulated frame follows the true laser line to a tenth of a pixel", "[sim][lle]") {
+TEST_CASE("LLE on a simulated frame follows the true laser line to a tenth of a pixel", "[sim][lle][render]") {
   sim::SimScene scene = sim::defaultScene();
   sim::Renderer renderer(scene);
   localize::Localizer loc(scene.truth, image::LleParams{}, localize::ScanParams{});
@@ -49,7 +49,7 @@ TEST_CASE("LLE on a simulated frame follows the true laser line to a tenth of a 
   CHECK(meanAbs < 0.25);
 }
 
-TEST_CASE("Five-stop scan localizes the simulated apple within 5 mm", "[sim][localize]") {
+TEST_CASE("Five-stop scan localizes the simulated apple within 5 mm", "[sim][localize][render]") {
   sim::SimScene scene = sim::defaultScene();
   sim::Renderer renderer(scene);
   localize::Localizer loc(scene.truth, image::LleParams{}, localize::ScanParams{});
@@ -79,7 +79,7 @@ TEST_CASE("Five-stop scan localizes the simulated apple within 5 mm", "[sim][loc
   CHECK(est->linesUsed >= 3);
 }
 
-TEST_CASE("A frame with the laser off yields no line", "[sim][lle]") {
+TEST_CASE("A frame with the laser off yields no line", "[sim][lle][render]") {
   sim::SimScene scene = sim::defaultScene();
   sim::Renderer renderer(scene);
   localize::Localizer loc(scene.truth, image::LleParams{}, localize::ScanParams{});

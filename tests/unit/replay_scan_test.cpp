@@ -270,7 +270,7 @@ TEST_CASE("The recorder writes each scan as a replayable scan directory", "[repl
   CHECK(img2->at<cv::Vec3b>(5, 9)[0] == 13);   // inside: the fourth capture
 }
 
-TEST_CASE("An exported twin scan replays into exactly the live estimate", "[replay][sim]") {
+TEST_CASE("An exported twin scan replays into exactly the live estimate", "[replay][sim][render]") {
   sim::SimScene scene = sim::defaultScene();
   const auto rays = std::make_shared<const sim::RayTable>(scene.truth.camera);
   localize::Localizer loc(scene.truth, image::LleParams{}, localize::ScanParams{});

@@ -8,7 +8,7 @@
 
 using namespace alacs;
 
-TEST_CASE("Scan-all finds every apple in view and nothing else", "[survey][sim]") {
+TEST_CASE("Scan-all finds every apple in view and nothing else", "[survey][sim][render]") {
   sim::SimScene scene = sim::defaultScene();
   scene.apples.clear();
   const Eigen::Vector3d centers[] = {{-55, -40, 1150}, {15, 60, 1250}, {75, -10, 1100}};
