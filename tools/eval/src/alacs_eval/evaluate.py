@@ -78,7 +78,7 @@ def _paper_lle_case(task: tuple[str, list[tuple[int, int]]]) -> dict[str, Any]:
     for step, th in combo_list:
         line = _paper()(rgb, step=step, th=th)
         predict = None
-        if line.coeffs is not None:
+        if line.has_curve:
             predict = (lambda l: (lambda rows: l.column_at(rows - roi[1]) + roi[0]))(line)
         out["combos"][f"{step},{th}"] = {
             "disp": metrics.segment_displacements(truth, predict),
@@ -212,10 +212,11 @@ def _examples(lle_cases: list[dict], raw: dict[str, dict]) -> list[dict[str, Any
         if f.get("valid") and "curve" in f:
             ours = (int(f["curve_first_row"]), np.asarray([np.nan if v is None else v for v in f["curve"]], float))
         line = _paper()(rgb)
+        curve_rows = np.arange(truth["row"].min(), truth["row"].max() + 1) - roi[1] if len(truth) else np.array([])
         out.append({"title": f"{c['lighting']} {c['lux']:.0f} lux, {'occluded' if c['occluded'] else 'clear'}, "
                              f"{c['distance_mm'] / 1000:.1f} m", "rgb": rgb, "roi": roi, "truth": truth, "ours": ours,
                     "paper_rows": line.rows, "paper_cols": line.columns,
-                    "paper_curve": None if line.coeffs is None else line.coeffs})
+                    "paper_curve": (curve_rows, line.column_at(curve_rows)) if line.has_curve else None})
     return out
 
 

@@ -22,6 +22,14 @@ def _adapt(fn: Callable) -> Callable[..., PaperLine]:
         out = fn(rgb, step=step, th=th, theta=theta, gamma=gamma)
         if isinstance(out, PaperLine):
             return out
+        if hasattr(out, "column_at") and hasattr(out, "rows") and hasattr(out, "columns"):
+            # Issue 4's PaperLine: its own curve, its own pixel count.
+            rows = np.asarray(out.rows, float)
+            has = getattr(out, "curve", None) is not None
+            mask = getattr(out, "mask", None)
+            pixels = int(np.count_nonzero(mask)) if mask is not None else int(len(rows))
+            return PaperLine(rows, np.asarray(out.columns, float), None, pixels,
+                             curve=(lambda r, o=out: o.column_at(r)) if has else None)
         if isinstance(out, dict):
             rows = np.asarray(sorted(out), float)
             cols = np.asarray([out[r] for r in sorted(out)], float)

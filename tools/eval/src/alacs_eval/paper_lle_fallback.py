@@ -15,6 +15,7 @@ Line focusing averages the column indices of a row's remaining pixels; the curve
 from __future__ import annotations
 
 import dataclasses
+from typing import Callable
 
 import numpy as np
 
@@ -25,8 +26,15 @@ class PaperLine:
     columns: np.ndarray       # their centroids (mean column index)
     coeffs: np.ndarray | None  # np.polyval coefficients of column = p(row), None if < 5 rows
     pixels: int               # line pixels after noise removal
+    curve: Callable[[np.ndarray], np.ndarray] | None = None  # another implementation's curve
+
+    @property
+    def has_curve(self) -> bool:
+        return self.coeffs is not None or self.curve is not None
 
     def column_at(self, rows: np.ndarray) -> np.ndarray:
+        if self.curve is not None:
+            return np.asarray(self.curve(np.asarray(rows, float)), float)
         if self.coeffs is None:
             return np.full(np.shape(rows), np.nan)
         return np.polyval(self.coeffs, np.asarray(rows, float))

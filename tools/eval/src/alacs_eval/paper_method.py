@@ -27,7 +27,7 @@ class Candidate:
 
 def candidate(line: PaperLine, roi: tuple[int, int, int, int], slide_mm: float,
               expected_px: tuple[float, float]) -> Candidate | None:
-    if line.coeffs is None or len(line.rows) == 0:
+    if not line.has_curve or len(line.rows) == 0:
         return None
     mid = float(line.rows[len(line.rows) // 2])
     u = float(line.column_at(np.array([mid]))[0]) + roi[0]

@@ -152,8 +152,8 @@ def examples_figure(examples: list[dict[str, Any]], path: Path) -> Path:
                 keep = (rows >= t["row"].min()) & (rows <= t["row"].max())
                 ax.plot(curve[keep] - x0 + 12, rows[keep] - y0, "-", color="#4fa3ff", lw=0.8)
         if ex["paper_curve"] is not None and len(t):
-            rr = np.arange(t["row"].min(), t["row"].max() + 1) - y0
-            ax.plot(np.polyval(ex["paper_curve"], rr) + 18, rr, "-", color="#ff5050", lw=0.8)
+            rr, cc = ex["paper_curve"]
+            ax.plot(cc + 18, rr, "-", color="#ff5050", lw=0.8)
         ax.set_xlim(0, ex["rgb"].shape[1])
         ax.set_ylim(ex["rgb"].shape[0], 0)
         ax.set_title(ex["title"], fontsize=7)

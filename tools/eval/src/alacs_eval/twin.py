@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import hashlib
 import json
 import os
 import shutil
@@ -44,10 +45,27 @@ def run_lines(cmd: list[str], total: int, desc: str, quiet: bool = False) -> lis
     return out
 
 
+GENERATOR_SOURCES = ("edge/sim", "edge/replay", "tools/twin/generate.cpp", "tools/twin/calibration_scans.cpp",
+                     "tools/twin/main.cpp", "edge/localize/localizer.cpp", "edge/localize/localizer.h",
+                     "edge/geometry/calibration.cpp", "edge/geometry/calibration.h", "edge/geometry/triangulation.cpp")
+
+
+def generator_version() -> str:
+    """A hash of the sources that decide what the twin generates (scenes, renders, plans)."""
+    h = hashlib.sha256()
+    for rel in GENERATOR_SOURCES:
+        p = ROOT / rel
+        for f in sorted(p.rglob("*") if p.is_dir() else [p]):
+            if f.is_file() and f.suffix in (".cpp", ".h", ".txt"):
+                h.update(str(f.relative_to(ROOT)).encode())
+                h.update(f.read_bytes())
+    return h.hexdigest()[:16]
+
+
 def generate(twin: Path, out: Path, set_name: str, args: dict[str, str], total: int, desc: str,
              quiet: bool = False) -> list[dict]:
-    """A benchmark set, regenerated only when its arguments or the twin changed."""
-    signature = {"set": set_name, **args, "twin_mtime": int(twin.stat().st_mtime)}
+    """A benchmark set, regenerated only when its arguments or the generator's sources changed."""
+    signature = {"set": set_name, **args, "generator": generator_version()}
     sig_file, index = out / "args.json", out / "set.jsonl"
     if sig_file.exists() and index.exists():
         if json.loads(sig_file.read_text()) == signature:
@@ -89,7 +107,7 @@ def find_calibrate(twin_path: Path) -> Path | None:
 
 def calibration_scans(twin: Path, out: Path, seed: int, jobs: int, quiet: bool = False) -> None:
     """The twin's calibration scans (checkerboard views, laser-plane placements), cached."""
-    signature = {"seed": seed, "twin_mtime": int(twin.stat().st_mtime)}
+    signature = {"seed": seed, "generator": generator_version()}
     sig_file = out / "args.json"
     if sig_file.exists() and json.loads(sig_file.read_text()) == signature:
         return
