@@ -64,22 +64,37 @@ std::string lleJson(const LleRun& run, int frameWidth, int frameHeight, const im
     << ", \"min_rows\": " << p.minRows << ", \"smooth_rows\": " << p.smoothRows
     << ", \"max_jump_px\": " << num(p.maxJumpPx, "%g") << ", \"max_gap_rows\": " << p.maxGapRows
     << ", \"min_segment_rows\": " << p.minSegmentRows << "},\n";
-  // Every ROI row: a row without a valid sample says so (column null, valid false).
+  // Every ROI row: a row without a valid sample says so (column null, valid false). A row's
+  // first sample (the line's when it has one) is the entry; further samples (other
+  // segments crossing the row) are listed in its "others".
   o << "  \"rows\": [";
   size_t k = 0;
+  auto sample = [&](const image::RowSample& r) {
+    o << "\"column\": " << (r.valid() ? num(r.column) : "null") << ", \"confidence\": " << num(r.confidence, "%.4f")
+      << ", \"valid\": " << (r.valid() ? "true" : "false") << ", \"status\": \"" << statusName(r.status)
+      << "\", \"segment\": " << r.segment << ", \"column_q8\": " << r.columnQ8
+      << ", \"centroid\": " << num(r.centroidQ8 / 256.0) << ", \"saturated\": " << (r.saturated ? "true" : "false");
+  };
   for (int y = run.roi.y; y < run.roi.y + run.roi.height; ++y) {
     while (k < line.rows.size() && line.rows[k].row < y) ++k;
-    const image::RowSample* s = k < line.rows.size() && line.rows[k].row == y ? &line.rows[k] : nullptr;
     o << (y == run.roi.y ? "\n    " : ",\n    ");
-    if (s == nullptr) {
+    if (k >= line.rows.size() || line.rows[k].row != y) {
       o << "{\"row\": " << y << ", \"column\": null, \"confidence\": 0, \"valid\": false, \"status\": \"none\"}";
       continue;
     }
-    o << "{\"row\": " << y << ", \"column\": " << (s->valid() ? num(s->column) : "null")
-      << ", \"confidence\": " << num(s->confidence, "%.4f") << ", \"valid\": " << (s->valid() ? "true" : "false")
-      << ", \"status\": \"" << statusName(s->status) << "\", \"segment\": " << s->segment
-      << ", \"column_q8\": " << s->columnQ8 << ", \"centroid\": " << num(s->centroidQ8 / 256.0)
-      << ", \"saturated\": " << (s->saturated ? "true" : "false") << "}";
+    o << "{\"row\": " << y << ", ";
+    sample(line.rows[k]);
+    size_t j = k + 1;
+    if (j < line.rows.size() && line.rows[j].row == y) {
+      o << ", \"others\": [";
+      for (bool first = true; j < line.rows.size() && line.rows[j].row == y; ++j, first = false) {
+        o << (first ? "{" : ", {");
+        sample(line.rows[j]);
+        o << "}";
+      }
+      o << "]";
+    }
+    o << "}";
   }
   o << "\n  ],\n";
   o << "  \"polynomial\": {\"valid\": " << (line.valid ? "true" : "false") << ", \"order\": " << line.order
