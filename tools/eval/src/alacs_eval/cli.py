@@ -43,6 +43,20 @@ def _report(a: argparse.Namespace) -> int:
     return 0
 
 
+def _render(a: argparse.Namespace) -> int:
+    """Writes the report and plots again from WORK/results.json (no scan is processed)."""
+    work = Path(a.work)
+    res = json.loads((work / "results.json").read_text())
+    doc = Path(a.doc) if a.doc else ROOT / "docs" / "evaluation.md"
+    figs = Path(a.figures) if a.figures else ROOT / "docs" / "figures"
+    paths = report.figures(res, figs, "eval_")
+    if (figs / "eval_lle_examples.png").exists():
+        paths["examples"] = figs / "eval_lle_examples.png"
+    doc.write_text(report.markdown(res, paths, doc, "tools/eval/run.sh report" + (" --small" if res["meta"]["small"] else "")))
+    print(f"alacs-eval: {doc} from {work / 'results.json'}")
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="alacs-eval", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = p.add_subparsers(dest="cmd", required=True)
@@ -59,6 +73,11 @@ def main(argv: list[str] | None = None) -> int:
                    help="skip the run with a calibration estimated from the twin's calibration scans")
     r.add_argument("--quiet", action="store_true", help="no progress bars")
     r.set_defaults(func=_report)
+    w = sub.add_parser("render", help="write the report and plots again from a previous run's results.json")
+    w.add_argument("--work", required=True, help="the run's work directory (holds results.json)")
+    w.add_argument("--doc", help="default docs/evaluation.md")
+    w.add_argument("--figures", help="default docs/figures")
+    w.set_defaults(func=_render)
     a = p.parse_args(argv)
     return a.func(a)
 
