@@ -15,9 +15,9 @@ The bench is an emulated kernel on a shared host: when the host does not run it 
 while, every timer in it fires late, the sensor's and anyone's. So the test also runs a
 reference heartbeat of its own on vcan0 (python-can's send_periodic, the same kernel
 broadcast manager, id 0x790) and judges the sensor's periods against it: a sensor period
-that overlaps a reference period (10 ms) more than 2 ms off is the platform's stall,
+that overlaps a reference period (10 ms) more than 5 ms off is the platform's stall,
 counted and reported, not held against the sensor. Asserted: over the other periods (at
-least 100, and at least half of all) the sensor's heartbeat is within 10 ms.
+least 100) the sensor's heartbeat is within 10 ms.
 
 Set-up chosen so that 100 localizations fit in a few minutes: alacsd --sim without a GPIO
 chip (the simulated slide moves at its real speed profile but without UML's slow GPIO
@@ -91,14 +91,14 @@ def test_flood_during_100_localizations(daemon, tmp_path: Path) -> None:  # noqa
     # controller would configure it; otherwise python, not the sensor, drowns.
     bus.set_filters([{"can_id": NODE, "can_mask": 0x7F, "extended": False},
                      {"can_id": REFERENCE_ID, "can_mask": 0x7FF, "extended": False}])
-    ref_bus = can.Bus(interface="socketcan", channel=IFACE)
-    reference = ref_bus.send_periodic(can.Message(arbitration_id=REFERENCE_ID, data=[5],
-                                                  is_extended_id=False), REFERENCE_MS / 1000)
     bus.send(can.Message(arbitration_id=0x600 + NODE, is_extended_id=False,
                          data=ac.sdo.download_request(0x1017, 0, HEARTBEAT_MS, 2)))
     time.sleep(0.3)
     drain(bus)
     x, y, z = d.scene["apples"][0]["center_mm"]
+    ref_bus = can.Bus(interface="socketcan", channel=IFACE)
+    reference = ref_bus.send_periodic(can.Message(arbitration_id=REFERENCE_ID, data=[5],
+                                                  is_extended_id=False), REFERENCE_MS / 1000)
 
     _route_flood(True)
     tx0, gen0, t0 = _tx_packets(IFACE), _tx_packets(FLOOD_IFACE), time.monotonic()
@@ -142,6 +142,8 @@ def test_flood_during_100_localizations(daemon, tmp_path: Path) -> None:  # noqa
             assert got is not None, f"localization {i}: no result (nacks {nacks[-1:]})"
             cycle_s.append(time.monotonic() - sent)
             results.append(got)
+            if (i + 1) % 10 == 0:
+                print(f"can flood: {i + 1} localizations, {time.monotonic() - t0:.0f} s", flush=True)
         assert flood.poll() is None, "cangen stopped during the run"
     finally:
         flood.send_signal(signal.SIGINT)
@@ -157,9 +159,9 @@ def test_flood_during_100_localizations(daemon, tmp_path: Path) -> None:  # noqa
     valid = [r for r in results if r.status == ac.ResultStatus.VALID and r.object_count == 1]
     periods_ms = [(b - a) * 1000 for a, b in zip(heartbeats, heartbeats[1:])]
     jitter_ms = [abs(p - HEARTBEAT_MS) for p in periods_ms]
-    # Platform stalls: reference periods more than 2 ms off, as (start, end) windows.
+    # Platform stalls: reference periods more than 5 ms off, as (start, end) windows.
     ref_jitter_ms = [abs((b - a) * 1000 - REFERENCE_MS) for a, b in zip(ref_beats, ref_beats[1:])]
-    stalls = [(a, b) for (a, b), j in zip(zip(ref_beats, ref_beats[1:]), ref_jitter_ms) if j > 2.0]
+    stalls = [(a, b) for (a, b), j in zip(zip(ref_beats, ref_beats[1:]), ref_jitter_ms) if j > 5.0]
 
     def stalled(a: float, b: float) -> bool:
         return any(sa < b and a < sb for sa, sb in stalls)
@@ -208,7 +210,7 @@ def test_flood_during_100_localizations(daemon, tmp_path: Path) -> None:  # noqa
     # period within 10 ms of the set one.
     assert len(heartbeats) >= 0.9 * elapsed * 1000 / HEARTBEAT_MS, figures
     assert len(ref_beats) >= 0.5 * elapsed * 1000 / REFERENCE_MS, figures
-    assert len(clean) >= max(100, len(jitter_ms) // 2), f"the platform stalled too often to judge: {figures}"
+    assert len(clean) >= 100, f"the platform stalled too often to judge: {figures}"
     assert figures["heartbeat_jitter_ms_max_outside_stalls"] <= 10.0, figures
     # The flood reached the sensor's block (it was a flood, not a trickle).
     assert figures["sensor_rx_unknown_ids"] > 100, figures

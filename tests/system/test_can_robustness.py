@@ -35,10 +35,12 @@ def sdo_read(bus: can.BusABC, index: int, sub: int) -> int:
     return response.value()
 
 
-def drain(bus: can.BusABC) -> int:
-    """Drop what is already received (answers to earlier junk), so waits see only new frames."""
+def drain(bus: can.BusABC, max_s: float = 1.0) -> int:
+    """Drop what is already received (answers to earlier junk), so waits see only new
+    frames: until 50 ms pass without one, or `max_s` (periodic traffic never stops)."""
     n = 0
-    while bus.recv(timeout=0.05) is not None:
+    end = time.monotonic() + max_s
+    while time.monotonic() < end and bus.recv(timeout=0.05) is not None:
         n += 1
     return n
 
