@@ -5,6 +5,8 @@
 #include <algorithm>
 #include <cmath>
 
+#include "geometry/spheroid_fit.h"
+
 namespace alacs::localize {
 
 namespace {
@@ -224,6 +226,8 @@ Result<AppleEstimate> Localizer::estimate(const ScanPlan& plan, const std::vecto
   geometry::SphereFitParams sp;
   sp.priorRadiusMm = scan_.priorRadiusMm;
   sp.priorRadiusSigmaMm = scan_.priorRadiusSigmaMm;
+  // LLE smooths each row's column over ±smoothRows rows: that many rows share an error.
+  sp.pointsPerIndependent = 2.0 * std::max(0, lle_.smoothRows) + 1.0;
   sp.minRadiusMm = scan_.minRadiusMm;
   sp.maxRadiusMm = scan_.maxRadiusMm;
   sp.priorCenterMm = plan.roughMm;
@@ -261,6 +265,33 @@ Result<AppleEstimate> Localizer::estimate(const ScanPlan& plan, const std::vecto
   est.sigmaMm = std::sqrt(std::max(0.0, covA.trace()));
   est.centerSigmaMm = fit->centerSigmaMm;
   est.diameterSigmaMm = 2.0 * fit->radiusSigmaMm;
+  if (scan_.spheroid && est.sphereFit) {
+    // The same points as a spheroid about the stem: the sphere's centre and diameter are
+    // off by millimetres on an oblate fruit.
+    geometry::SpheroidPriors pr;
+    pr.radiusMm = scan_.priorRadiusMm;
+    pr.radiusSigmaMm = scan_.priorRadiusSigmaMm;
+    pr.aspect = scan_.priorAspect;
+    pr.aspectSigma = scan_.priorAspectSigma;
+    pr.stemTiltSigmaRad = scan_.stemTiltSigmaDeg * M_PI / 180.0;
+    pr.pointsPerIndependent = sp.pointsPerIndependent;
+    Result<geometry::SpheroidFit> sf = geometry::refineSpheroid(all, fit->inlier, *fit, pr);
+    Eigen::Vector3d approach;
+    Eigen::Vector3d normal;
+    if (sf && sf->radiusMm >= scan_.minRadiusMm && sf->radiusMm <= scan_.maxRadiusMm && sf->aspect > 0.6 &&
+        sf->aspect < 1.25 &&
+        geometry::spheroidApproach(sf->centerMm, sf->radiusMm, sf->aspect, sf->stemAxis, &approach, &normal)) {
+      est.centerMm = sf->centerMm;
+      est.diameterMm = 2.0 * sf->radiusMm;
+      est.aspect = sf->aspect;
+      est.approachMm = approach;
+      est.approachNormal = normal;
+      est.rmsMm = sf->rmsMm;
+      est.sigmaMm = geometry::spheroidApproachSigma(*sf);
+      est.centerSigmaMm = std::sqrt(std::max(0.0, sf->covariance.topLeftCorner<3, 3>().trace()));
+      est.diameterSigmaMm = 2.0 * std::sqrt(std::max(0.0, sf->covariance(3, 3)));
+    }
+  }
   // Occlusion: rows expected from the fitted sphere's chord at each stop vs rows that
   // reached the fit.
   double expectedRows = 0.0;

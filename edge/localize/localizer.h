@@ -37,6 +37,12 @@ struct ScanParams {
   double priorRadiusSigmaMm = 6.0;
   double minRadiusMm = 27.5;      // what counts as an apple: 55–105 mm across
   double maxRadiusMm = 52.5;
+  // Apples are a little oblate about the stem: the sphere is refined into a spheroid with
+  // these priors (aspect = height/width; the stem's tilt from "up" in the camera frame).
+  bool spheroid = true;
+  double priorAspect = 0.9;
+  double priorAspectSigma = 0.05;
+  double stemTiltSigmaDeg = 20.0;
   // The rough position's error, 1σ per axis (the RealSense D435i's, paper Table 2:
   // 16–21.5 mm mean 3D error at 1.0–1.6 m). Among the spheres the lines support, the one
   // near the rough position is the target, not its neighbour; with one line only, it
@@ -61,8 +67,9 @@ struct LineObservation {
 struct AppleEstimate {
   Eigen::Vector3d centerMm = Eigen::Vector3d::Zero();
   Eigen::Vector3d approachMm = Eigen::Vector3d::Zero();  // surface point nearest the sensor on the line to the centre
-  Eigen::Vector3d approachNormal = Eigen::Vector3d::Zero();  // outward unit normal there (towards the sensor)
-  double diameterMm = 0.0;
+  Eigen::Vector3d approachNormal = Eigen::Vector3d::Zero();  // outward unit surface normal there
+  double aspect = 1.0;           // height/width of the fitted spheroid (1: a sphere)
+  double diameterMm = 0.0;       // equatorial (across the stem)
   double sigmaMm = 0.0;          // 1σ (3D) of the approach point
   double centerSigmaMm = 0.0;    // 1σ (3D) of the centre
   double diameterSigmaMm = 0.0;

@@ -313,6 +313,22 @@ int localizeEval(const std::string& calPath, int cases, const std::vector<double
             int visible = 0;
             for (const auto& t : lineTruth) visible += t.visibleLit() ? 1 : 0;
             std::printf("; truth: %zu target rows, %d visible and lit\n", lineTruth.size(), visible);
+            // Column error of the extracted line against the truth, on the target's rows.
+            double sum = 0, sumAbs = 0;
+            int matched = 0;
+            for (const auto& rw : l.line.rows) {
+              if (!rw.valid()) continue;
+              for (const auto& t : lineTruth) {
+                if (t.row != rw.row || !t.visibleLit() || std::abs(t.column - rw.column) > 3.0) continue;
+                sum += rw.column - t.column;
+                sumAbs += std::abs(rw.column - t.column);
+                ++matched;
+                break;
+              }
+            }
+            if (matched > 0)
+              std::printf("    LLE vs truth on %d target rows: mean %+.3f px, mean |e| %.3f px\n", matched, sum / matched,
+                          sumAbs / matched);
             (void)truth;
           }
         }
