@@ -166,8 +166,14 @@ def test_canopen_master_boot_heartbeat_sdo_nmt(sensor: Alacsd, network: canopen.
     assert node.sdo["Device type"].raw == 0
 
     # NMT reset node: boot-up again, settings kept by the daemon (only the CAN side resets).
+    # (Listen before sending: the boot-up may come before wait_for_bootup() would start.)
+    states: list[int] = []
+    node.nmt.add_heartbeat_callback(states.append)
     node.nmt.state = "RESET"
-    node.nmt.wait_for_bootup(timeout=5)
+    end = time.monotonic() + 5
+    while 0 not in states and time.monotonic() < end:
+        time.sleep(0.05)
+    assert 0 in states, states
     assert sensor.alive()
 
 
