@@ -39,6 +39,17 @@ def test_hidden_rows_do_not_count_and_shorten_the_line():
     assert d[10] == 0.0
 
 
+def test_a_line_counts_only_where_it_was_found():
+    rows = np.arange(0, 101)
+    t = truth(rows, np.full(len(rows), 20.0))
+    # A line found only over rows 50-100, exact there: no displacement, half the 80 % segment covered.
+    seg = metrics.segment_metrics(t, lambda r: np.where(r >= 50, 20.0, np.nan), segments=(80, 10))
+    d80, c80 = seg[80]
+    assert d80 == 0.0
+    assert c80 == pytest.approx(41 / 81, abs=1e-9)
+    assert seg[10][1] == pytest.approx(6 / 11)  # rows 45-55 around the centre, 50-55 found
+
+
 def test_loc_stats_count_missing_results_as_failures():
     s = metrics.loc_stats([1.0, 3.0, 25.0, math.nan])
     assert s.mean == pytest.approx(29.0 / 3)

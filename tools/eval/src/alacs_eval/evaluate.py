@@ -78,10 +78,16 @@ def _paper_lle_case(task: tuple[str, list[tuple[int, int]]]) -> dict[str, Any]:
     for step, th in combo_list:
         line = _paper()(rgb, step=step, th=th)
         predict = None
-        if line.has_curve:
-            predict = (lambda l: (lambda rows: l.column_at(rows - roi[1]) + roi[0]))(line)
+        if line.has_curve and len(line.rows):
+            lo, hi = float(np.min(line.rows)) + roi[1], float(np.max(line.rows)) + roi[1]
+
+            def predict(rows: np.ndarray, l=line, lo=lo, hi=hi) -> np.ndarray:
+                return np.where((rows >= lo) & (rows <= hi), l.column_at(rows - roi[1]) + roi[0], np.nan)
+
+        seg = metrics.segment_metrics(truth, predict)
         out["combos"][f"{step},{th}"] = {
-            "disp": metrics.segment_displacements(truth, predict),
+            "disp": {k: v[0] for k, v in seg.items()},
+            "cover": {k: v[1] for k, v in seg.items()},
             "rows": int(len(line.rows)),
             "pixels": int(line.pixels),
         }
@@ -121,16 +127,20 @@ def _ours_lle(results: dict[str, dict], truths: dict[str, np.ndarray]) -> dict[s
         frames = r.get("frames", [])
         f = frames[0] if frames else {}
         predict = None
-        if f.get("valid") and "curve" in f:
+        rows_found = [r[0] for r in f.get("rows", [])]
+        if f.get("valid") and "curve" in f and rows_found:
             curve = np.asarray([np.nan if v is None else v for v in f["curve"]], float)
             first = int(f["curve_first_row"])
+            lo, hi = min(rows_found), max(rows_found)
 
-            def predict(rows: np.ndarray, curve=curve, first=first) -> np.ndarray:
+            def predict(rows: np.ndarray, curve=curve, first=first, lo=lo, hi=hi) -> np.ndarray:
                 idx = np.round(rows).astype(int) - first
-                ok = (idx >= 0) & (idx < len(curve))
+                ok = (idx >= 0) & (idx < len(curve)) & (rows >= lo) & (rows <= hi)
                 return np.where(ok, curve[np.clip(idx, 0, len(curve) - 1)], np.nan)
 
-        out[d] = {"disp": metrics.segment_displacements(truths[d], predict), "rows": len(f.get("rows", []))}
+        seg = metrics.segment_metrics(truths[d], predict)
+        out[d] = {"disp": {k: v[0] for k, v in seg.items()}, "cover": {k: v[1] for k, v in seg.items()},
+                  "rows": len(rows_found)}
     return out
 
 
@@ -285,6 +295,9 @@ def assemble(cfg: Config, lle_cases: list[dict], loc_cases: list[dict], ours_lle
     def paper_disp(d: str, combo: str = key) -> dict[int, float]:
         return {int(k): v for k, v in paper_lle_res[d]["combos"][combo]["disp"].items()}
 
+    def cover_table(per_case: list[dict[int, float]]) -> dict[str, float]:
+        return {str(sg): float(np.mean([c[sg] for c in per_case])) for sg in metrics.SEGMENTS}
+
     res: dict[str, Any] = {
         "meta": {
             "small": cfg.small, "seed": cfg.seed, "lle_cases": len(lle_cases), "loc_cases": len(loc_cases),
@@ -294,6 +307,9 @@ def assemble(cfg: Config, lle_cases: list[dict], loc_cases: list[dict], ours_lle
         "lle": {
             "ours": _seg_table([ours_default[d]["disp"] for d in lle_dirs]),
             "paper": _seg_table([paper_disp(d) for d in lle_dirs]),
+            "ours_cover": cover_table([ours_default[d]["cover"] for d in lle_dirs]),
+            "paper_cover": cover_table([{int(k): v for k, v in paper_lle_res[d]["combos"][key]["cover"].items()}
+                                        for d in lle_dirs]),
         },
     }
     # LLE by condition (50 % segment), to see where each method struggles.

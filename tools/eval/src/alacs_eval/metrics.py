@@ -39,25 +39,36 @@ def visible_rows(truth: np.ndarray) -> np.ndarray:
     return vis[first]
 
 
-def segment_displacements(truth: np.ndarray, predict: Callable[[np.ndarray], np.ndarray] | None,
-                          segments: Iterable[int] = SEGMENTS) -> dict[int, float]:
-    """Mean |predicted - true column| (px) over the visible truth rows inside each central
-    segment (percent of the visible line's row span). NaN when there is no prediction."""
+def segment_metrics(truth: np.ndarray, predict: Callable[[np.ndarray], np.ndarray] | None,
+                    segments: Iterable[int] = SEGMENTS) -> dict[int, tuple[float, float]]:
+    """Per central segment (percent of the visible line's row span): the mean |predicted -
+    true column| (px) over the visible truth rows the prediction covers, and the share of
+    those rows it covers. A method's line exists only over the rows where it found it
+    (`predict` returns NaN elsewhere): the paper compares "the points on each row" of both
+    lines. (NaN, 0) when there is no prediction in the segment."""
     vis = visible_rows(truth)
-    out: dict[int, float] = {}
+    out: dict[int, tuple[float, float]] = {}
     if len(vis) < 3 or predict is None:
-        return {s: math.nan for s in segments}
+        return {s: (math.nan, 0.0) for s in segments}
     r0, r1 = float(vis["row"][0]), float(vis["row"][-1])
     centre, half = 0.5 * (r0 + r1), 0.5 * (r1 - r0)
     for s in segments:
         sel = np.abs(vis["row"] - centre) <= s / 100.0 * half + 1e-9
         rows = vis[sel]
         if len(rows) == 0:
-            out[s] = math.nan
+            out[s] = (math.nan, 0.0)
             continue
         pred = np.asarray(predict(rows["row"].astype(float)), float)
-        out[s] = float(np.mean(np.abs(pred - rows["column"]))) if np.all(np.isfinite(pred)) else math.nan
+        ok = np.isfinite(pred)
+        out[s] = (float(np.mean(np.abs(pred[ok] - rows["column"][ok]))) if ok.any() else math.nan,
+                  float(ok.mean()))
     return out
+
+
+def segment_displacements(truth: np.ndarray, predict: Callable[[np.ndarray], np.ndarray] | None,
+                          segments: Iterable[int] = SEGMENTS) -> dict[int, float]:
+    """The displacement part of segment_metrics."""
+    return {s: d for s, (d, _) in segment_metrics(truth, predict, segments).items()}
 
 
 @dataclasses.dataclass

@@ -182,6 +182,33 @@ def markdown(res: dict[str, Any], figs: dict[str, Path], doc: Path, command: str
              "with the paper's own method run on the same scans beside ours. Truth is geometric "
              "(the laser plane cut with the apple, projected with the camera's distortion), not labelled "
              "by hand, and the apple's true position is exact.\n")
+    L.append("## Reading the numbers\n")
+    lo, pa = res["lle"]["ours"], res["lle"]["paper"]
+    multi = res["loc"]["ours"]["multi"]["approach"]
+    pm = res["loc"]["paper"]["multi"]["approach"]
+    ours_clear = [multi["clear"][str(d)]["mean"] for d in DISTANCES]
+    ours_occ = [multi["occluded"][str(d)]["mean"] for d in DISTANCES]
+    paper_clear = [pm["clear"][str(d)]["mean"] for d in DISTANCES]
+    L.append(f"- Our LLE follows the geometric truth to a median of {_f(lo['50']['median'])} px on the central half "
+             f"of the line (the paper's LLE on the same frames: {_f(pa['50']['median'])} px; published, against "
+             f"manual labels: 1.5 px mean). The twin's line is a clean, physically blurred profile on a smooth "
+             "surface; real frames add what the twin does not model (skin micro-texture under the line, "
+             "lens flare, rolling shutter, compression), so expect more on recorded scans. Means are pulled by "
+             "the few cases where a method takes another surface for the line.")
+    L.append(f"- Five lines, face point: ours {_f(min(ours_clear), 1)}-{_f(max(ours_clear), 1)} mm mean without "
+             f"occlusion and {_f(min(ours_occ), 1)}-{_f(max(ours_occ), 1)} mm with it (the paper published "
+             "5.5-9.1 and 9.2-17.5 mm on real apples with a real calibration). The twin's apples are smooth "
+             "ellipsoids (height/width 0.82-0.98): a sphere fit to one is biased by a few mm, which is most of "
+             "our error; real apples are less regular.")
+    L.append(f"- The paper's method does worse on the twin ({_f(min(paper_clear), 1)}-{_f(max(paper_clear), 1)} mm "
+             "mean, five lines, no occlusion) than published: the twin's ROI holds the target's neighbours in its "
+             "cluster, canopy leaves and foliage that catch the laser, and the paper's line focusing averages "
+             "every candidate of a row while its curve fit has no outlier rejection, so another surface in the "
+             "same rows pulls the line and its middle point; one middle point of one line also stands for the "
+             "whole apple. The paper's indoor scenes (one apple, artificial foliage) had less of that.")
+    L.append("- The single-line rows are the paper's first experiment (the laser aimed at the marker): our "
+             "localizer was built for five lines; with one it falls back on the paper's candidate or a "
+             "one-line fit.\n")
     L.append("## Set-up\n")
     L.append(f"- **LLE set:** {m['lle_cases']} single frames (paper: 300 cases), distances 0.8-1.6 m, "
              "the paper's outdoor light (overcast 1000-4000 lux and direct light 3000-6500 lux), half of "
@@ -208,13 +235,18 @@ def markdown(res: dict[str, Any], figs: dict[str, Path], doc: Path, command: str
     L.append("## LLE: displacement on central segments (the paper's Table 1)\n")
     L.append("Mean |column − true column| over the visible, laser-lit rows of each central segment of the "
              "line, per case; then the average, minimum and maximum over cases (px). The curve each method "
-             "fits is what is compared, as in the paper.\n")
+             "fits is what is compared, as in the paper, over the rows where the method found its line (the "
+             "paper compares \"the points on each row\" of both lines); *covered* is the mean share of the "
+             "segment's visible rows inside the method's line.\n")
     L.append("| | " + " | ".join(f"{s} %" for s in segs) + " |")
     L.append("| --- " * (len(segs) + 1) + "|")
     for name, label in (("ours", "ours"), ("paper", "paper's LLE, twin")):
         tab = res["lle"][name]
         for stat in ("avg", "min", "max", "median"):
             L.append(f"| {label} {stat} | " + " | ".join(_f(tab[str(s)][stat]) for s in segs) + " |")
+        cov = res["lle"].get(f"{name}_cover")
+        if cov:
+            L.append(f"| {label} covered | " + " | ".join(_pct(cov[str(s)]) for s in segs) + " |")
     for stat in ("avg", "min", "max"):
         L.append(f"| paper published {stat} | " + " | ".join(_f(v, 1) for v in metrics.PAPER_LLE[stat]) + " |")
     miss_o = res["lle"]["ours"]["80"]["missing"]
