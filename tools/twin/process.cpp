@@ -140,6 +140,11 @@ int processMain(const Args& args) {
               fo << (r ? ", " : "") << "[" << line.rows[r].row << ", " << jsonNum(line.rows[r].column) << ", "
                 << (line.rows[r].inlier ? 1 : 0) << "]";
             fo << "]";
+            // What the localizer keeps of the frame: the samples gated in 3D around the target.
+            fo << ", \"kept\": [";
+            for (size_t k = 0; k < ob->pixels.size(); ++k)
+              fo << (k ? ", " : "") << "[" << jsonNum(ob->pixels[k].rowPx) << ", " << jsonNum(ob->pixels[k].columnPx) << "]";
+            fo << "]";
             if (line.valid) {
               fo << ", \"curve_first_row\": " << plan->roi.y << ", \"curve\": [";
               for (int r = 0; r < plan->roi.height; ++r) fo << (r ? ", " : "") << jsonNum(line.columnAt(plan->roi.y + r));

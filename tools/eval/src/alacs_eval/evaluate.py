@@ -122,25 +122,23 @@ def _paper_loc_case(task: tuple[str, str | None]) -> dict[str, Any]:
 # ---- the run -------------------------------------------------------------------------
 
 def _ours_lle(results: dict[str, dict], truths: dict[str, np.ndarray]) -> dict[str, dict]:
+    """Our line per row: the samples the localizer keeps of the frame (its LLE, gated in 3D
+    around the rough position), the first where a row has several."""
     out = {}
     for d, r in results.items():
         frames = r.get("frames", [])
         f = frames[0] if frames else {}
+        kept: dict[int, float] = {}
+        for row, col in f.get("kept", []):
+            kept.setdefault(int(round(row)), float(col))
         predict = None
-        rows_found = [r[0] for r in f.get("rows", [])]
-        if f.get("valid") and "curve" in f and rows_found:
-            curve = np.asarray([np.nan if v is None else v for v in f["curve"]], float)
-            first = int(f["curve_first_row"])
-            lo, hi = min(rows_found), max(rows_found)
-
-            def predict(rows: np.ndarray, curve=curve, first=first, lo=lo, hi=hi) -> np.ndarray:
-                idx = np.round(rows).astype(int) - first
-                ok = (idx >= 0) & (idx < len(curve)) & (rows >= lo) & (rows <= hi)
-                return np.where(ok, curve[np.clip(idx, 0, len(curve) - 1)], np.nan)
+        if kept:
+            def predict(rows: np.ndarray, kept=kept) -> np.ndarray:
+                return np.array([kept.get(int(round(x)), np.nan) for x in rows], float)
 
         seg = metrics.segment_metrics(truths[d], predict)
         out[d] = {"disp": {k: v[0] for k, v in seg.items()}, "cover": {k: v[1] for k, v in seg.items()},
-                  "rows": len(rows_found)}
+                  "rows": len(kept)}
     return out
 
 
@@ -218,9 +216,7 @@ def _examples(lle_cases: list[dict], raw: dict[str, dict]) -> list[dict[str, Any
         rgb = scan.region(frame, roi)
         truth = metrics.visible_rows(scan.truth_rows(frame, scan.target_id))
         f = raw.get(c["dir"], {}).get("frames", [{}])[0]
-        ours = None
-        if f.get("valid") and "curve" in f:
-            ours = (int(f["curve_first_row"]), np.asarray([np.nan if v is None else v for v in f["curve"]], float))
+        ours = np.asarray(f.get("kept", []), float).reshape(-1, 2)
         line = _paper()(rgb)
         curve_rows = np.arange(truth["row"].min(), truth["row"].max() + 1) - roi[1] if len(truth) else np.array([])
         out.append({"title": f"{c['lighting']} {c['lux']:.0f} lux, {'occluded' if c['occluded'] else 'clear'}, "

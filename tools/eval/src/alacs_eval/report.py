@@ -145,12 +145,8 @@ def examples_figure(examples: list[dict[str, Any]], path: Path) -> Path:
         t = ex["truth"]
         if len(t):
             ax.plot(t["column"] - x0 + 6, t["row"] - y0, ",", color="lime", ms=1)
-        if ex["ours"] is not None:
-            first, curve = ex["ours"]
-            rows = np.arange(len(curve)) + first
-            if len(t):
-                keep = (rows >= t["row"].min()) & (rows <= t["row"].max())
-                ax.plot(curve[keep] - x0 + 12, rows[keep] - y0, "-", color="#4fa3ff", lw=0.8)
+        if len(ex["ours"]):
+            ax.plot(ex["ours"][:, 1] - x0 + 12, ex["ours"][:, 0] - y0, ",", color="#4fa3ff", ms=1)
         if ex["paper_curve"] is not None and len(t):
             rr, cc = ex["paper_curve"]
             ax.plot(cc + 18, rr, "-", color="#ff5050", lw=0.8)
@@ -234,10 +230,11 @@ def markdown(res: dict[str, Any], figs: dict[str, Path], doc: Path, command: str
 
     L.append("## LLE: displacement on central segments (the paper's Table 1)\n")
     L.append("Mean |column − true column| over the visible, laser-lit rows of each central segment of the "
-             "line, per case; then the average, minimum and maximum over cases (px). The curve each method "
-             "fits is what is compared, as in the paper, over the rows where the method found its line (the "
-             "paper compares \"the points on each row\" of both lines); *covered* is the mean share of the "
-             "segment's visible rows inside the method's line.\n")
+             "line, per case; then the average, minimum and maximum over cases (px). Compared are the points on "
+             "each row of both lines, as in the paper: for the paper's LLE its fitted curve over the rows where "
+             "it found the line; for ours the row samples the localizer keeps (its LLE, the surfaces told apart "
+             "in 3D around the rough position). *Covered* is the mean share of the segment's visible rows with "
+             "a point of the method's line.\n")
     L.append("| | " + " | ".join(f"{s} %" for s in segs) + " |")
     L.append("| --- " * (len(segs) + 1) + "|")
     for name, label in (("ours", "ours"), ("paper", "paper's LLE, twin")):
