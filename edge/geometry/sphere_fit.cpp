@@ -150,15 +150,17 @@ class Scorer {
       const double z = (r - p_.priorRadiusMm) / (1.5 * p_.priorRadiusSigmaMm);
       s *= std::exp(-0.5 * z * z);
     }
-    if (p_.priorCenterSigmaMm > 0.0) {
-      // Flat within 1.5σ of the rough position, then Gaussian: a target the rough position
-      // missed by a typical error must not lose to a sphere that merely sits nearer to it
-      // while explaining less; a neighbour an apple's width away still loses.
-      const double sc = p_.priorCenterSigmaMm;
-      const double excess = std::max(0.0, (c - p_.priorCenterMm).norm() - 1.5 * sc);
-      s *= std::exp(-0.5 * excess * excess / (sc * sc));
-    }
-    return s;
+    return s * centreFactor(c);
+  }
+
+  // Flat within 1.5σ of the rough position, then Gaussian: a target the rough position
+  // missed by a typical error must not lose to a sphere that merely sits nearer to it
+  // while explaining less; a neighbour an apple's width away still loses.
+  double centreFactor(const Eigen::Vector3d& c) const {
+    if (!(p_.priorCenterSigmaMm > 0.0)) return 1.0;
+    const double sc = p_.priorCenterSigmaMm;
+    const double excess = std::max(0.0, (c - p_.priorCenterMm).norm() - 1.5 * sc);
+    return std::exp(-0.5 * excess * excess / (sc * sc));
   }
 
  private:
@@ -307,11 +309,14 @@ Result<SphereFit> finish(const std::vector<Eigen::Vector3d>& pts, const std::vec
   gn.c = h.c;
   gn.radius = h.r;
   const double band = std::max(p.outlierMm, 2.0 * p.ransacBandMm);
+  // Pieces join on the hypothesis' own terms (most of the piece within the tight band), so
+  // that a neighbour's piece grazing the sphere cannot join and drag it; the refinement
+  // then uses the wider band within the pieces it has.
   for (int round = 0; round < 3; ++round) {
     std::fill(use.begin(), use.end(), false);
     for (const auto& piece : pieces.members) {
       size_t count = 0;
-      for (size_t i : piece) count += std::abs((pts[i] - gn.c).norm() - gn.radius) <= band ? 1U : 0U;
+      for (size_t i : piece) count += std::abs((pts[i] - gn.c).norm() - gn.radius) <= p.ransacBandMm ? 1U : 0U;
       if (static_cast<double>(count) >= 0.5 * static_cast<double>(piece.size()))
         for (size_t i : piece) use[i] = true;
     }
@@ -349,7 +354,7 @@ Result<SphereFit> finish(const std::vector<Eigen::Vector3d>& pts, const std::vec
   out.linesUsed = static_cast<int>(std::unique(lines.begin(), lines.end()) - lines.begin());
   out.rmsMm = std::sqrt(sumSq / static_cast<double>(out.inliers));
   const double variance = sumSq / std::max(1.0, static_cast<double>(out.inliers) - 4.0);
-  out.covariance = gn.jtj.inverse() * variance;
+  out.covariance = gn.jtj.inverse() * variance * std::max(1.0, p.pointsPerIndependent);
   if (!out.covariance.allFinite()) return Status(Error::kBadInput, "sphere fit is degenerate");
   out.centerSigmaMm = std::sqrt(std::max(0.0, out.covariance.topLeftCorner<3, 3>().trace()));
   out.radiusSigmaMm = std::sqrt(std::max(0.0, out.covariance(3, 3)));
@@ -475,7 +480,7 @@ Result<SphereFit> finishOneLine(const std::vector<Eigen::Vector3d>& pts, const P
   // Covariance of (c, R): the circle's (in-plane centre and ρ) and δ's, through
   // c = c0 + δ·n, R = sqrt(ρ² + δ²).
   const double variance = sumSq / std::max(1.0, static_cast<double>(used) - 3.0);
-  const Eigen::Matrix3d covCircle = jtj.inverse() * variance;
+  const Eigen::Matrix3d covCircle = jtj.inverse() * variance * std::max(1.0, p.pointsPerIndependent);
   Eigen::Matrix4d covIn = Eigen::Matrix4d::Zero();  // (x0, y0, ρ, δ)
   covIn.topLeftCorner<3, 3>() = covCircle;
   covIn(3, 3) = varDelta;
@@ -504,19 +509,91 @@ Result<SphereFit> fit(const std::vector<Eigen::Vector3d>& pts, const std::vector
   // Lines together first; when that cannot make a sphere on two lines or more, what one
   // line and the priors can say.
   Result<SphereFit> multi = Status(Error::kBadInput, "no sphere across the lines");
-  const Hypothesis h = search(pts, pieces, scorer, mean, p, false);
-  if (h.score > 0.0) multi = finish(pts, lineIds, pieces, h, p);
-  if (lineIds == nullptr) return multi;
-  if (multi && multi->linesUsed < 2) multi = Status(Error::kBadInput, "the sphere explains one line only");
+  double multiScore = 0.0;
+  if (lineIds == nullptr) {
+    const Hypothesis h = search(pts, pieces, scorer, mean, p, false);
+    if (h.score > 0.0) multi = finish(pts, lineIds, pieces, h, p);
+    return multi;
+  }
+  // The objects in the gate, one after the other by their own support (without the rough
+  // position): each takes the pieces it explains. Only then does the rough position choose
+  // among them. Ranking hypotheses by nearness from the start lets a sphere bent through
+  // two arcs of a neighbour slide towards the rough position and win.
+  {
+    SphereFitParams free = p;
+    free.priorCenterSigmaMm = 0.0;
+    Pieces remaining = pieces;
+    for (int object = 0; object < 4; ++object) {
+      const Scorer objectScorer(pts, remaining, free);
+      const Hypothesis h = search(pts, remaining, objectScorer, mean, free, false);
+      if (!(h.score > 0.0)) break;
+      Result<SphereFit> f = finish(pts, lineIds, remaining, h, p);
+      if (!f) break;
+      const std::vector<bool> taken = f->inlier;
+      if (f->linesUsed >= 2) {
+        const double sc = std::max(scorer.score(h.c, h.r), scorer.score(f->centerMm, f->radiusMm));
+        if (sc > multiScore) {
+          multiScore = sc;
+          multi = std::move(f);
+        }
+      }
+      // Remove the pieces this object explains; stop when too little is left.
+      Pieces rest;
+      for (size_t g = 0; g < remaining.members.size(); ++g) {
+        size_t count = 0;
+        for (size_t i : remaining.members[g]) count += taken[i] ? 1U : 0U;
+        if (static_cast<double>(count) >= 0.5 * static_cast<double>(remaining.members[g].size())) continue;
+        rest.members.push_back(remaining.members[g]);
+        rest.line.push_back(remaining.line[g]);
+      }
+      std::vector<std::vector<size_t>> byLine;
+      std::vector<int> lineKeys;
+      for (size_t g = 0; g < rest.members.size(); ++g) {
+        auto it = std::find(lineKeys.begin(), lineKeys.end(), rest.line[g]);
+        if (it == lineKeys.end()) {
+          lineKeys.push_back(rest.line[g]);
+          byLine.emplace_back();
+          it = lineKeys.end() - 1;
+        }
+        auto& dst = byLine[static_cast<size_t>(it - lineKeys.begin())];
+        dst.insert(dst.end(), rest.members[g].begin(), rest.members[g].end());
+      }
+      rest.byLine = std::move(byLine);
+      if (rest.byLine.size() < 2 || rest.members.size() == remaining.members.size()) break;
+      remaining = std::move(rest);
+    }
+  }
   const Hypothesis one = search(pts, pieces, scorer, mean, p, true);
   Result<SphereFit> single = Status(Error::kBadInput, "no sphere through one line");
   if (one.score > 0.0) single = finishOneLine(pts, pieces, one, p);
-  // Both refined results compete on the same score: a sphere across two objects' lines
-  // far from the rough position must not beat one line of the target near it.
+  // Two lines or more that one plausible sphere explains win: what one line says rests on
+  // the priors. Plausible: near the rough position (not a neighbour), two lines with a
+  // real piece each, a well-determined centre (not two objects' pieces bent into one).
+  if (multi) {
+    int strongLines = 0;
+    if (lineIds != nullptr) {
+      std::vector<int> ids;
+      for (size_t i = 0; i < n; ++i)
+        if (multi->inlier[i]) ids.push_back((*lineIds)[i]);
+      std::sort(ids.begin(), ids.end());
+      for (size_t i = 0; i < ids.size();) {
+        size_t j = i;
+        while (j < ids.size() && ids[j] == ids[i]) ++j;
+        strongLines += (j - i) >= 8 ? 1 : 0;
+        i = j;
+      }
+    }
+    if (scorer.centreFactor(multi->centerMm) >= 0.1 && strongLines >= 2 &&
+        multi->centerSigmaMm <= p.maxPlausibleCenterSigmaMm)
+      return multi;
+  }
+  // Otherwise both compete on the common score (support × priors), each by the better of its
+  // hypothesis and its refinement (refining towards all the points can cost a sphere a
+  // little of its coherent support): a sphere across two objects' lines far from the
+  // rough position must not beat one line of the target near it.
   if (multi && single) {
-    const double sm = scorer.score(multi->centerMm, multi->radiusMm);
-    const double ss = scorer.score(single->centerMm, single->radiusMm);
-    return sm >= ss ? multi : single;
+    const double ss = std::max(one.score, scorer.score(single->centerMm, single->radiusMm));
+    return multiScore >= ss ? multi : single;
   }
   if (multi) return multi;
   if (single) return single;

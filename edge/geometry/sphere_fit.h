@@ -32,6 +32,13 @@ struct SphereFitParams {
   double priorCenterSigmaMm = 0.0;
   Eigen::Vector3d priorCenterMm = Eigen::Vector3d::Zero();
   double coherentShare = 0.6;   // a piece counts fully when this share of it is explained
+  // Points per independent measurement: neighbouring rows of a line share their errors
+  // (speckle grain, the line extraction's smoothing along the line), so the covariance
+  // is scaled by this (1: independent points).
+  double pointsPerIndependent = 1.0;
+  // A multi-line sphere whose centre is less certain than this (1σ, 3D) may be two
+  // objects' pieces bent into one: it then has to beat the one-line estimate on score.
+  double maxPlausibleCenterSigmaMm = 8.0;
   int ransacIterations = 300;
   int iterations = 50;
   size_t minPoints = 12;

@@ -52,9 +52,14 @@ Result<ScanPlan> Localizer::plan(const Eigen::Vector3d& roughMm, double strokeMm
   if (!std::isfinite(centerMm)) return Status(Error::kNotCalibrated, "slide axis does not move the laser plane");
   ScanPlan plan;
   plan.roughMm = roughMm;
-  const double half = 0.5 * (scan_.stops - 1) * scan_.stopSpacingMm;
+  // The window of stops around the target; where it would leave the stroke it is shifted
+  // back inside (keeping every stop) as long as the target stays within reach.
+  const double span = (scan_.stops - 1) * scan_.stopSpacingMm;
+  double first = centerMm - 0.5 * span;
+  if (span <= strokeMm && centerMm >= -scan_.maxAppleRadiusMm && centerMm <= strokeMm + scan_.maxAppleRadiusMm)
+    first = std::clamp(first, 0.0, strokeMm - span);
   for (int i = 0; i < scan_.stops; ++i) {
-    const double s = centerMm - half + i * scan_.stopSpacingMm;
+    const double s = first + i * scan_.stopSpacingMm;
     if (s >= 0.0 && s <= strokeMm) plan.stopsMm.push_back(s);
   }
   if (plan.stopsMm.empty())
