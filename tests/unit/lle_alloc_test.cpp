@@ -117,14 +117,19 @@ TEST_CASE("LLE allocates nothing per frame after warm-up", "[lle][alloc]") {
       const Roi roi{100, 60, 301, 250};
       // Warm-up: one frame at the largest ROI.
       REQUIRE(extractLine(view(frames[0]), full, p, ws, line).isOk());
+      // No Catch2 assertion inside the counted window: a reporter may allocate per
+      // assertion (the JUnit reporter keeps every one), which would be counted here.
       const long before = gAllocations.load();
       size_t rows = 0;
+      int failedFrames = 0;
       for (int k = 0; k < 24; ++k) {
         const auto& f = frames[static_cast<size_t>(k) % frames.size()];
-        REQUIRE(extractLine(view(f), k % 3 == 0 ? roi : full, p, ws, line, k % 4 == 1 ? &offView : nullptr).isOk());
+        if (!extractLine(view(f), k % 3 == 0 ? roi : full, p, ws, line, k % 4 == 1 ? &offView : nullptr).isOk())
+          ++failedFrames;
         rows += line.rows.size();
       }
       const long during = gAllocations.load() - before;
+      REQUIRE(failedFrames == 0);
       INFO("method " << static_cast<int>(method) << ", kernels " << static_cast<int>(kernels) << ": " << during
                      << " allocations in 24 frames (" << rows << " rows extracted)");
       CHECK(rows > 24 * 200);  // the frames had lines: work was done
