@@ -118,6 +118,28 @@ Pieces makePieces(size_t n, const std::vector<int>* lineIds, const std::vector<i
   return out;
 }
 
+// Points that the camera (at the origin) could not see if the sphere (c, r − margin) were
+// there: the sight line to them crosses it. Each counts by how deep the line passes.
+double hiddenPoints(const std::vector<Eigen::Vector3d>& pts, const Eigen::Vector3d& c, double r,
+                    const SphereFitParams& p) {
+  if (!(p.freeSpacePoints > 0.0)) return 0.0;
+  const double core = r * (1.0 - p.freeSpaceMarginShare) - p.freeSpaceMarginMm;
+  if (!(core > 0.0)) return 0.0;
+  const double cc = c.squaredNorm();
+  double hidden = 0.0;
+  for (const Eigen::Vector3d& q : pts) {
+    const double qq = q.squaredNorm();
+    if (!(qq > 0.0)) continue;
+    // The sight line's point nearest the centre, within the segment from the camera to q.
+    const double t = std::clamp(c.dot(q) / qq, 0.0, 1.0);
+    const double d2 = cc - 2.0 * t * c.dot(q) + t * t * qq;
+    if (d2 >= core * core) continue;
+    const double depth = core - std::sqrt(std::max(0.0, d2));
+    hidden += std::min(1.0, depth / std::max(1e-9, p.freeSpaceDepthMm));
+  }
+  return hidden;
+}
+
 class Scorer {
  public:
   Scorer(const std::vector<Eigen::Vector3d>& pts, const Pieces& pieces, const SphereFitParams& p)
@@ -150,7 +172,13 @@ class Scorer {
       const double z = (r - p_.priorRadiusMm) / (1.5 * p_.priorRadiusSigmaMm);
       s *= std::exp(-0.5 * z * z);
     }
-    return s * centreFactor(c);
+    return s * centreFactor(c) * freeSpaceFactor(c, r);
+  }
+
+  // exp(−(weighted points the sphere would hide)/freeSpacePoints); see SphereFitParams.
+  double freeSpaceFactor(const Eigen::Vector3d& c, double r) const {
+    if (!(p_.freeSpacePoints > 0.0)) return 1.0;
+    return std::exp(-hiddenPoints(pts_, c, r, p_) / p_.freeSpacePoints);
   }
 
   // Flat within 1.5σ of the rough position, then Gaussian: a target the rough position
@@ -300,30 +328,44 @@ Hypothesis search(const std::vector<Eigen::Vector3d>& pts, const Pieces& pieces,
 
 // Refines a hypothesis over the pieces it explains and measures the result.
 Result<SphereFit> finish(const std::vector<Eigen::Vector3d>& pts, const std::vector<int>* lineIds,
-                         const Pieces& pieces, const Hypothesis& h, const SphereFitParams& p) {
+                         const Pieces& pieces, const Hypothesis& h, const SphereFitParams& params) {
   const size_t n = pts.size();
-  // Twice more after the first pass: the refined sphere can explain a piece the
-  // hypothesis only grazed, or stop explaining one.
+  // Lines on two planes or more fix the centre: the rough position (off by 20–30 mm at
+  // 2σ) would only pull it along the direction the lines fix least. It ranked the
+  // hypotheses; it stays out of the refinement.
+  SphereFitParams p = params;
+  p.priorCenterSigmaMm = 0.0;
   std::vector<bool> use(n, false);
   GaussNewton gn;
-  gn.c = h.c;
-  gn.radius = h.r;
-  const double band = std::max(p.outlierMm, 2.0 * p.ransacBandMm);
-  // Pieces join on the hypothesis' own terms (most of the piece within the tight band), so
-  // that a neighbour's piece grazing the sphere cannot join and drag it; the refinement
-  // then uses the wider band within the pieces it has.
-  for (int round = 0; round < 3; ++round) {
-    std::fill(use.begin(), use.end(), false);
-    for (const auto& piece : pieces.members) {
-      size_t count = 0;
-      for (size_t i : piece) count += std::abs((pts[i] - gn.c).norm() - gn.radius) <= p.ransacBandMm ? 1U : 0U;
-      if (static_cast<double>(count) >= 0.5 * static_cast<double>(piece.size()))
-        for (size_t i : piece) use[i] = true;
+  // Twice more after the first pass: the refined sphere can explain a piece the
+  // hypothesis only grazed, or stop explaining one. Pieces join on the hypothesis' own
+  // terms (most of the piece within the tight band), so that a neighbour's piece grazing
+  // the sphere cannot join and drag it; the refinement then uses the wider band within the
+  // pieces it has. When that leaves the fruit's sizes (a leaf's points within the wide
+  // band of a small cap), the refinement again within the tight band only.
+  auto run = [&](double band) {
+    gn.c = h.c;
+    gn.radius = h.r;
+    gn.ok = true;
+    for (int round = 0; round < 3; ++round) {
+      std::fill(use.begin(), use.end(), false);
+      for (const auto& piece : pieces.members) {
+        size_t count = 0;
+        for (size_t i : piece) count += std::abs((pts[i] - gn.c).norm() - gn.radius) <= p.ransacBandMm ? 1U : 0U;
+        if (static_cast<double>(count) >= 0.5 * static_cast<double>(piece.size()))
+          for (size_t i : piece) use[i] = true;
+      }
+      GaussNewton next = refine(pts, use, gn.c, gn.radius, band, p);
+      if (!next.ok) {
+        gn.ok = false;
+        return;
+      }
+      gn = next;
     }
-    GaussNewton next = refine(pts, use, gn.c, gn.radius, band, p);
-    if (!next.ok) return Status(Error::kBadInput, "sphere fit lost its points");
-    gn = next;
-  }
+  };
+  run(std::max(p.outlierMm, 2.0 * p.ransacBandMm));
+  if (!gn.ok || gn.radius < p.minRadiusMm || gn.radius > p.maxRadiusMm) run(p.ransacBandMm);
+  if (!gn.ok) return Status(Error::kBadInput, "sphere fit lost its points");
   const double radius = gn.radius;
   if (radius < p.minRadiusMm || radius > p.maxRadiusMm)
     return Status(Error::kOutOfRange, "fitted radius " + std::to_string(radius) + " mm is not a fruit");
@@ -441,6 +483,14 @@ Result<SphereFit> finishOneLine(const std::vector<Eigen::Vector3d>& pts, const P
     const Eigen::Vector3d c = c0 + delta * normal;
     return (r - p.priorRadiusMm) * (r - p.priorRadiusMm) / (sr * sr) + (c - p.priorCenterMm).squaredNorm() / (sc * sc);
   };
+  // The other lines' points the camera saw choose the side and the offset too: the sphere
+  // cannot hide them (−2·log of Scorer::freeSpaceFactor). Not in the curvature below: it is
+  // a step, not a measurement.
+  auto hiddenCost = [&](double delta) {
+    const double r = std::sqrt(rho * rho + delta * delta);
+    if (!(p.freeSpacePoints > 0.0)) return 0.0;
+    return 2.0 * hiddenPoints(pts, c0 + delta * normal, r, p) / p.freeSpacePoints;
+  };
   // The centre lies behind the visible arc: farther from the camera than its points.
   const double arcRange = mean.norm();
   double bestDelta = 0.0;
@@ -449,7 +499,7 @@ Result<SphereFit> finishOneLine(const std::vector<Eigen::Vector3d>& pts, const P
     const Eigen::Vector3d c = c0 + delta * normal;
     const double r = std::sqrt(rho * rho + delta * delta);
     if (c.norm() < arcRange || r < p.minRadiusMm || r > p.maxRadiusMm) continue;
-    const double f = cost(delta);
+    const double f = cost(delta) + hiddenCost(delta);
     if (f < bestCost) {
       bestCost = f;
       bestDelta = delta;
@@ -584,6 +634,7 @@ Result<SphereFit> fit(const std::vector<Eigen::Vector3d>& pts, const std::vector
       }
     }
     if (scorer.centreFactor(multi->centerMm) >= 0.1 && strongLines >= 2 &&
+        scorer.freeSpaceFactor(multi->centerMm, multi->radiusMm) >= 0.1 &&
         multi->centerSigmaMm <= p.maxPlausibleCenterSigmaMm)
       return multi;
   }

@@ -32,6 +32,17 @@ struct SphereFitParams {
   double priorCenterSigmaMm = 0.0;
   Eigen::Vector3d priorCenterMm = Eigen::Vector3d::Zero();
   double coherentShare = 0.6;   // a piece counts fully when this share of it is explained
+  // Free space: a point the camera sees cannot lie behind (or inside) the fruit. A
+  // hypothesis whose sphere, shrunk to its core (radius·(1 − share) − margin), the sight
+  // line to a point crosses is contradicted by that point; each such point (weighted by
+  // how deep the line passes, up to 1 at `freeSpaceDepthMm`) costs a factor
+  // exp(−1/freeSpacePoints). The share covers an oblate fruit's departure from the sphere
+  // fitted to it (polar radius down to 0.82 of the equatorial), the margin the noise near
+  // the limb. freeSpacePoints 0: off.
+  double freeSpaceMarginShare = 0.18;
+  double freeSpaceMarginMm = 2.0;
+  double freeSpaceDepthMm = 3.0;
+  double freeSpacePoints = 4.0;
   // Points per independent measurement: neighbouring rows of a line share their errors
   // (speckle grain, the line extraction's smoothing along the line), so the covariance
   // is scaled by this (1: independent points).
