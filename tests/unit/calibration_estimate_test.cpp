@@ -136,12 +136,22 @@ TEST_CASE("Camera intrinsics and distortion come back from checkerboard views", 
   CHECK(fit->sigmaPx[0] > 0.0);
   CHECK(fit->sigmaPx[0] < 4.0);
   CHECK(std::abs(c.cxPx - rig.truth.camera.cxPx) < 4.0 * fit->sigmaPx[2] + 0.2);
-  // Undistortion with the estimate agrees with the truth's to a pixel even in the frame's
-  // corner, and much better in the middle.
-  for (const auto& [px, tolerance] : {std::pair{PixelPoint{40.0, 30.0}, 1.5}, std::pair{PixelPoint{700.0, 500.0}, 0.8}}) {
-    const auto xt = undistortPixels(rig.truth.camera, {px})[0];
-    const auto xe = undistortPixels(c, {px})[0];
-    CHECK((xt - xe).norm() * rig.truth.camera.fxPx < tolerance);
+  // The lens model: how far each model moves a pixel when it undistorts it (its
+  // normalized coordinate against the linear one, K⁻¹·p), compared in pixels. The
+  // principal point itself is not compared here: an offset of it within its σ is taken
+  // up by the poses (a rotation of ~0.3 mrad), and where the solver settles inside that
+  // valley differs between builds (x86 vs aarch64 floating-point contraction).
+  for (const auto& [px, tolerance] : {std::pair{PixelPoint{40.0, 30.0}, 1.0}, std::pair{PixelPoint{700.0, 500.0}, 0.2}}) {
+    const auto shift = [&](const CameraIntrinsics& cam) {
+      const Eigen::Vector2d linear((px.columnPx - cam.cxPx) / cam.fxPx, (px.rowPx - cam.cyPx) / cam.fyPx);
+      return Eigen::Vector2d(undistortPixels(cam, {px})[0] - linear);
+    };
+    const Eigen::Vector2d st = shift(rig.truth.camera);
+    const Eigen::Vector2d se = shift(c);
+    INFO("pixel (" << px.columnPx << ", " << px.rowPx << "): the truth moves it " << st.norm() * rig.truth.camera.fxPx
+                   << " px, the estimate " << se.norm() * rig.truth.camera.fxPx << " px");
+    CHECK(st.norm() * rig.truth.camera.fxPx > 3.0 * tolerance);  // there is distortion to get right
+    CHECK((st - se).norm() * rig.truth.camera.fxPx < tolerance);
   }
   // Poses: every view's plane within a millimetre.
   for (size_t i = 0; i < poses.size(); ++i) {
