@@ -35,20 +35,44 @@ bool algebraicSphere(const std::vector<Eigen::Vector3d>& pts, const std::vector<
 }
 
 // The circle through a piece of one line: its plane (PCA), then an algebraic circle in it.
-bool circleOf(const std::vector<Eigen::Vector3d>& pts, const std::vector<size_t>& idx, Eigen::Vector3d* centre,
-              double* radius, Eigen::Vector3d* normal) {
-  if (idx.size() < 8) return false;
-  Eigen::Vector3d mean = Eigen::Vector3d::Zero();
-  for (size_t i : idx) mean += pts[i];
-  mean /= static_cast<double>(idx.size());
+// The plane of one line's points and two unit vectors in it (u along the points' larger
+// extent): the known plane normal when given (a short, nearly straight arc does not fix
+// its plane), otherwise by PCA. False when the points do not span what is needed.
+bool linePlane(const std::vector<Eigen::Vector3d>& pts, const std::vector<size_t>& idx, const Eigen::Vector3d& known,
+               Eigen::Vector3d* mean, Eigen::Vector3d* normal, Eigen::Vector3d* u, Eigen::Vector3d* v) {
+  if (idx.empty()) return false;
+  *mean = Eigen::Vector3d::Zero();
+  for (size_t i : idx) *mean += pts[i];
+  *mean /= static_cast<double>(idx.size());
   Eigen::Matrix3d cov = Eigen::Matrix3d::Zero();
-  for (size_t i : idx) cov += (pts[i] - mean) * (pts[i] - mean).transpose();
+  for (size_t i : idx) cov += (pts[i] - *mean) * (pts[i] - *mean).transpose();
+  if (known.norm() > 0.5) {
+    *normal = known.normalized();
+    // The in-plane direction of the largest extent.
+    const Eigen::Matrix3d proj = Eigen::Matrix3d::Identity() - *normal * normal->transpose();
+    const Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> eig(proj * cov * proj);
+    if (eig.info() != Eigen::Success || !(eig.eigenvalues()(2) > 0.0)) return false;
+    *u = eig.eigenvectors().col(2);
+    *v = normal->cross(*u).normalized();
+    return true;
+  }
   const Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> eig(cov);
   if (eig.info() != Eigen::Success) return false;
   // An arc spans a plane: two clearly non-zero extents.
   if (!(eig.eigenvalues()(1) > 1e-6 * eig.eigenvalues()(2))) return false;
-  const Eigen::Vector3d u = eig.eigenvectors().col(2);
-  const Eigen::Vector3d v = eig.eigenvectors().col(1);
+  *normal = eig.eigenvectors().col(0);
+  *u = eig.eigenvectors().col(2);
+  *v = eig.eigenvectors().col(1);
+  return true;
+}
+
+bool circleOf(const std::vector<Eigen::Vector3d>& pts, const std::vector<size_t>& idx, const Eigen::Vector3d& known,
+              Eigen::Vector3d* centre, double* radius, Eigen::Vector3d* normal) {
+  if (idx.size() < 8) return false;
+  Eigen::Vector3d mean;
+  Eigen::Vector3d u;
+  Eigen::Vector3d v;
+  if (!linePlane(pts, idx, known, &mean, normal, &u, &v)) return false;
   Eigen::MatrixXd a(static_cast<Eigen::Index>(idx.size()), 3);
   Eigen::VectorXd b(static_cast<Eigen::Index>(idx.size()));
   for (size_t k = 0; k < idx.size(); ++k) {
@@ -65,7 +89,6 @@ bool circleOf(const std::vector<Eigen::Vector3d>& pts, const std::vector<size_t>
   if (!(r2 > 0.0) || !std::isfinite(r2)) return false;
   *centre = mean + cx * u + cy * v;
   *radius = std::sqrt(r2);
-  *normal = eig.eigenvectors().col(0);
   return true;
 }
 
@@ -286,7 +309,7 @@ Hypothesis search(const std::vector<Eigen::Vector3d>& pts, const Pieces& pieces,
       Eigen::Vector3d c0;
       Eigen::Vector3d normal;
       double rho = 0.0;
-      if (!circleOf(pts, piece, &c0, &rho, &normal)) continue;
+      if (!circleOf(pts, piece, p.linePlaneNormal, &c0, &rho, &normal)) continue;
       for (int k = -24; k <= 24; ++k) {
         const double delta = 2.0 * k;  // mm
         const double r = std::sqrt(rho * rho + delta * delta);
@@ -434,15 +457,12 @@ Result<SphereFit> finishOneLine(const std::vector<Eigen::Vector3d>& pts, const P
   }
   if (idx.size() < p.minPoints) return Status(Error::kBadInput, "too few points on the one line");
   // Plane and in-plane frame.
-  Eigen::Vector3d mean = Eigen::Vector3d::Zero();
-  for (size_t i : idx) mean += pts[i];
-  mean /= static_cast<double>(idx.size());
-  Eigen::Matrix3d scatter = Eigen::Matrix3d::Zero();
-  for (size_t i : idx) scatter += (pts[i] - mean) * (pts[i] - mean).transpose();
-  const Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> eig(scatter);
-  const Eigen::Vector3d normal = eig.eigenvectors().col(0);
-  const Eigen::Vector3d u = eig.eigenvectors().col(2);
-  const Eigen::Vector3d v = eig.eigenvectors().col(1);
+  Eigen::Vector3d mean;
+  Eigen::Vector3d normal;
+  Eigen::Vector3d u;
+  Eigen::Vector3d v;
+  if (!linePlane(pts, idx, p.linePlaneNormal, &mean, &normal, &u, &v))
+    return Status(Error::kBadInput, "the one line's points do not fix its plane");
   // Geometric circle fit (Huber Gauss–Newton on |q − m| − ρ), from the hypothesis' circle.
   Eigen::Vector3d m3 = h.c - normal.dot(h.c - mean) * normal;
   Eigen::Vector3d x(u.dot(m3 - mean), v.dot(m3 - mean), std::sqrt(std::max(1.0, h.r * h.r - std::pow(normal.dot(h.c - mean), 2))));

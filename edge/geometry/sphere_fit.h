@@ -50,6 +50,10 @@ struct SphereFitParams {
   // A multi-line sphere whose centre is less certain than this (1σ, 3D) may be two
   // objects' pieces bent into one: it then has to beat the one-line estimate on score.
   double maxPlausibleCenterSigmaMm = 8.0;
+  // The unit normal of the planes the lines lie on, when known (a laser plane moved by a
+  // slide keeps its normal): one line's plane then comes from it, not from the points
+  // (a short arc is nearly straight and leaves its plane open). Zero: unknown.
+  Eigen::Vector3d linePlaneNormal = Eigen::Vector3d::Zero();
   int ransacIterations = 300;
   int iterations = 50;
   size_t minPoints = 12;

@@ -237,6 +237,7 @@ Result<AppleEstimate> Localizer::estimate(const ScanPlan& plan, const std::vecto
   sp.maxRadiusMm = scan_.maxRadiusMm;
   sp.priorCenterMm = plan.roughMm;
   sp.priorCenterSigmaMm = scan_.roughSigmaMm;
+  sp.linePlaneNormal = cal_.laser.planeNormal;
   Result<geometry::SphereFit> fit = geometry::fitSphere(all, lineIds, pieceIds, sp);
   // Lines whose points reached the fit. One line alone leaves the sphere's offset from
   // that line's plane to the priors: still better than the paper's line middle, but
