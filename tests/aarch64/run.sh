@@ -123,8 +123,10 @@ else
 fi
 
 step "unit tests under qemu"
+# 300 s a test: the scan-all test renders 26 full physical frames, which takes 2-2.5 min
+# under qemu-user on a loaded 2-core host (its LLE runs NEON like the other [render] tests).
 start=$(now_ms)
-timeout -s KILL "$qemu_timeout" ctest --test-dir "$build" --timeout 120 -j "$(nproc)" \
+timeout -s KILL "$qemu_timeout" ctest --test-dir "$build" --timeout 300 -j "$(nproc)" \
   --output-junit "$root/build/aarch64-unit.xml" >"$root/build/aarch64-ctest.log" 2>&1
 rc=$?
 secs=$(secs_since "$start")
