@@ -8,14 +8,14 @@
 #      exits non-zero otherwise); the accuracy table is printed, not judged
 #   3. the command: JSON and overlay for an image, a scan directory (the twin's), refusals
 #   4. the speed benchmark (alacs_lle_bench): printed, never a failure
-# Builds Release into build/lle-ci. Usage: tools/lle/check.sh [--junit-dir DIR]
+# Builds Release into build/lle-ci (or $ALACS_LLE_BUILD: tests/run shares its Release build). Usage: tools/lle/check.sh [--junit-dir DIR]
 # Ends with one line: "lle: N passed, N failed". About 3 min on 2 cores from scratch.
 set -uo pipefail
 root=$(cd "$(dirname "${BASH_SOURCE[0]}")/../.." && pwd -P)
 cd "$root"
 junit=""
 [[ ${1:-} == --junit-dir ]] && junit=${2:-}
-build=build/lle-ci
+build=${ALACS_LLE_BUILD:-build/lle-ci}
 py="$root/.venv/bin/python"
 [[ -x $py ]] || py=python3
 passed=0
