@@ -22,6 +22,7 @@
 
 #include "app/config.h"
 #include "app/laser_guard.h"
+#include "app/process_memory.h"
 #include "app/scan_worker.h"
 #include "common/log.h"
 #include "drivers/socketcan/socketcan.h"
@@ -326,8 +327,11 @@ Status Daemon::setUp() {
                                                 : &simSlide_->homeSwitch();
     ports::FakeDigitalOut* laserLine = simLaser_.get();
     sim::SimSlide* slide = simSlide_.get();
-    camera_ = std::make_unique<sim::SimCamera>(scene, clock_, [laserLine] { return laserLine->level(); },
-                                               [slide] { return slide->positionMm(); });
+    // --replay serves recorded frames (below): no renderer, whose ray table alone is 25 MB
+    // at 3 MP, counts against the daemon's memory then.
+    if (opts_.replayDir.empty())
+      camera_ = std::make_unique<sim::SimCamera>(scene, clock_, [laserLine] { return laserLine->level(); },
+                                                 [slide] { return slide->positionMm(); });
   } else {
     if (lines.step == nullptr) return {Error::kInvalidArgument, "no GPIO chip configured (gpio.chip) and not --sim"};
 #ifdef ALACS_HAVE_LIBCAMERA
@@ -572,6 +576,16 @@ void Daemon::onCommand(const protocol::Command& c, TimeNs now) {
 }
 
 void Daemon::onWorkerEvent(const WorkerEvent& ev, TimeNs now) {
+  if (ev.afterResult) {
+    // The slide braking after a continuous scan whose result is already published: a
+    // fault is raised as any other; a STOP during it only leaves the position in doubt.
+    if (ev.faultBit != 0) {
+      enterFault(ev.faultBit, ev.status);
+    } else {
+      ALACS_LOG_WARN("motion", "after the scan: %s (HOME before the next scan)", ev.status.toString().c_str());
+    }
+    return;
+  }
   const bool isHome = ev.job.kind == WorkerJob::Kind::kHome;
   if (ev.faultBit != 0) {
     enterFault(ev.faultBit, ev.status);
@@ -773,7 +787,7 @@ int Daemon::run() {
   ::close(tfd);
   ::close(sfd);
   ::close(eventFd_);
-  ALACS_LOG_INFO("main", "stopped; laser off");
+  ALACS_LOG_INFO("main", "stopped; laser off; peak resident memory %.1f MB", peakResidentMb());
   return 0;
 }
 
@@ -782,6 +796,7 @@ int Daemon::run() {
 
 int main(int argc, char** argv) {
   using namespace alacs;
+  app::mapLargeBlocks();
   app::Options opts;
   const int rc = app::parseOptions(argc, argv, &opts);
   if (rc != 0) return rc == 1 ? 0 : rc;

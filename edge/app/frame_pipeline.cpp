@@ -1,10 +1,28 @@
 #include "app/frame_pipeline.h"
 
+#include <sys/mman.h>
+
 #include <cstring>
+#include <new>
 
 #include "common/log.h"
 
 namespace alacs::app {
+
+void FramePipeline::Mapping::reset(size_t bytes) {
+  if (data_ != nullptr) ::munmap(data_, bytes_);
+  data_ = nullptr;
+  bytes_ = 0;
+  if (bytes == 0) return;
+  void* p = ::mmap(nullptr, bytes, PROT_READ | PROT_WRITE, MAP_PRIVATE | MAP_ANONYMOUS | MAP_NORESERVE, -1, 0);
+  if (p == MAP_FAILED) throw std::bad_alloc();
+  data_ = static_cast<uint8_t*>(p);
+  bytes_ = bytes;
+}
+
+void FramePipeline::Mapping::dropPages() {
+  if (data_ != nullptr) (void)::madvise(data_, bytes_, MADV_DONTNEED);
+}
 
 FramePipeline::FramePipeline() { thread_ = std::thread([this] { run(); }); }
 
@@ -20,6 +38,7 @@ FramePipeline::~FramePipeline() {
 void FramePipeline::begin(const localize::Localizer& localizer, const localize::ScanPlan& plan) {
   (void)finish();
   std::lock_guard<std::mutex> lock(mu_);
+  for (Mapping& b : buffers_) b.dropPages();
   localizer_.emplace(localizer);
   plan_ = plan;
   results_.clear();
@@ -30,16 +49,13 @@ void FramePipeline::push(const image::ImageView& frame, double slideMm) {
   cv_.wait(lock, [&] { return !bufferBusy_[0] || !bufferBusy_[1]; });
   const size_t b = bufferBusy_[0] ? 1 : 0;
   const size_t bytes = frame.strideBytes * static_cast<size_t>(frame.height);
-  if (bufferBytes_[b] != bytes) {  // once per frame size
-    buffers_[b].reset(new uint8_t[bytes]);
-    bufferBytes_[b] = bytes;
-  }
+  if (buffers_[b].bytes() != bytes) buffers_[b].reset(bytes);  // once per frame size
   shape_ = frame;
   // Only the ROI rows and columns are read by the LLE: copy those.
   const image::Roi& roi = plan_.roi;
   for (int y = roi.y; y < roi.y + roi.height; ++y) {
     const size_t off = static_cast<size_t>(y) * frame.strideBytes + static_cast<size_t>(roi.x) * 3U;
-    std::memcpy(buffers_[b].get() + off, frame.data + off, static_cast<size_t>(roi.width) * 3U);
+    std::memcpy(buffers_[b].data() + off, frame.data + off, static_cast<size_t>(roi.width) * 3U);
   }
   bufferBusy_[b] = true;
   lastBuffer_ = b;
@@ -57,7 +73,7 @@ std::vector<localize::LineObservation> FramePipeline::finish() {
 image::ImageView FramePipeline::lastFrame() const {
   std::lock_guard<std::mutex> lock(mu_);
   image::ImageView v = shape_;
-  v.data = buffers_[lastBuffer_].get();
+  v.data = buffers_[lastBuffer_].data();
   return v;
 }
 
@@ -72,7 +88,7 @@ void FramePipeline::run() {
       task = queue_.front();
       queue_.pop_front();
       view = shape_;
-      view.data = buffers_[task.buffer].get();
+      view.data = buffers_[task.buffer].data();
     }
     // The localizer and plan only change in begin(), which first waits for this work.
     Result<localize::LineObservation> obs = localizer_->observe(view, plan_, task.slideMm, ws_);

@@ -1,8 +1,10 @@
 // Image work of a scan, overlapped with the motion: the scan worker hands each frame over
 // and moves on to the next stop while this thread runs LLE and triangulation on it.
-// Bounded: two frame buffers (allocated once per frame size); the plan's ROI is the only
-// part copied, so a hand-over costs a fraction of one frame copy. push() blocks while
-// both buffers are being processed. Thread-safe for one producer.
+// Bounded: two frame buffers (mapped once per frame size); the plan's ROI is the only
+// part copied, so a hand-over costs a fraction of one frame copy, and only the ROI's pages
+// of a buffer are ever resident (begin() returns the previous scan's to the system, so
+// windows all over the frame never add up to whole frames). push() blocks while both
+// buffers are being processed. Thread-safe for one producer.
 #pragma once
 
 #include <condition_variable>
@@ -46,10 +48,25 @@ class FramePipeline {
   bool quit_ = false;
   std::deque<Task> queue_;
   size_t inFlight_ = 0;
-  // Left uninitialised on purpose: only the window's pages are ever written, so a 5 MP
-  // frame buffer costs the window's size in resident memory, not 15 MB.
-  std::unique_ptr<uint8_t[]> buffers_[2];
-  size_t bufferBytes_[2] = {0, 0};
+  // Anonymous mappings, not heap blocks: untouched pages are never resident, so a 5 MP
+  // frame buffer costs the window's pages in resident memory, not 15 MB (a heap block
+  // could reuse pages another frame has already made resident).
+  class Mapping {
+   public:
+    Mapping() = default;
+    ~Mapping() { reset(0); }
+    Mapping(const Mapping&) = delete;
+    Mapping& operator=(const Mapping&) = delete;
+    void reset(size_t bytes);  // unmaps, then maps `bytes` (none for 0); throws std::bad_alloc
+    void dropPages();          // returns the written pages to the system (they read as zero)
+    uint8_t* data() const { return data_; }
+    size_t bytes() const { return bytes_; }
+
+   private:
+    uint8_t* data_ = nullptr;
+    size_t bytes_ = 0;
+  };
+  Mapping buffers_[2];
   bool bufferBusy_[2] = {false, false};
   size_t lastBuffer_ = 0;
   image::ImageView shape_;  // size and format of the frames of this scan

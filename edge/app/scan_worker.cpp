@@ -8,10 +8,10 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdlib>
-#include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 
 #include "common/log.h"
+#include "replay/png_io.h"
 
 namespace alacs::app {
 
@@ -33,11 +33,16 @@ ScanWorker::~ScanWorker() {
 void ScanWorker::submit(const WorkerJob& job) {
   {
     std::lock_guard<std::mutex> lock(mu_);
-    jobs_.push_back(job);
+    jobs_.push_back({job, cancelEpoch_.load()});
     busy_.store(true);
   }
-  cancel_.store(false);
   cv_.notify_all();
+}
+
+void ScanWorker::cancel() {
+  // The epoch first: a job that starts after this sees it changed and stays cancelled.
+  cancelEpoch_.fetch_add(1);
+  cancel_.store(true);
 }
 
 std::optional<WorkerEvent> ScanWorker::takeEvent() {
@@ -76,8 +81,12 @@ void ScanWorker::run() {
       std::unique_lock<std::mutex> lock(mu_);
       cv_.wait(lock, [&] { return quit_ || !jobs_.empty(); });
       if (quit_) return;
-      job = jobs_.front();
+      job = jobs_.front().job;
+      const uint64_t epoch = jobs_.front().cancelEpoch;
       jobs_.pop_front();
+      // A cancel() after the job's submission cancels it; none: it runs.
+      cancel_.store(false);
+      if (cancelEpoch_.load() != epoch) cancel_.store(true);
     }
     WorkerEvent ev;
     switch (job.kind) {
@@ -94,16 +103,40 @@ void ScanWorker::run() {
         break;
     }
     (void)deps_.laser->off();  // whatever happened, the laser ends the job off
-    (void)deps_.enable->set(false);
-    ev.doneNs = deps_.clock->now();
-    {
-      std::lock_guard<std::mutex> lock(mu_);
-      events_.push_back(std::move(ev));
-      busy_.store(!jobs_.empty());
+    if (braking_) {
+      // A continuous scan: the result goes out now; the slide still brakes past the last stop.
+      post(std::move(ev));
+      finishBraking(job);
+      (void)deps_.enable->set(false);
+    } else {
+      (void)deps_.enable->set(false);
+      post(std::move(ev));
     }
-    const uint64_t one = 1;
-    [[maybe_unused]] ssize_t w = ::write(eventFd_, &one, sizeof one);
   }
+}
+
+void ScanWorker::post(WorkerEvent ev) {
+  ev.doneNs = deps_.clock->now();
+  {
+    std::lock_guard<std::mutex> lock(mu_);
+    events_.push_back(std::move(ev));
+    busy_.store(!jobs_.empty());
+  }
+  const uint64_t one = 1;
+  [[maybe_unused]] ssize_t w = ::write(eventFd_, &one, sizeof one);
+}
+
+void ScanWorker::finishBraking(const WorkerJob& job) {
+  braking_->thread.join();
+  const motion::MoveReport report = braking_->report;
+  braking_.reset();
+  if (report.outcome == motion::MoveOutcome::kCompleted) return;
+  WorkerEvent late;
+  late.job = job;
+  late.afterResult = true;
+  late.status = moveOutcome(report, late);
+  ALACS_LOG_WARN("motion", "braking after the scan's last frame: %s", late.status.toString().c_str());
+  post(std::move(late));
 }
 
 WorkerEvent ScanWorker::doHome(const WorkerJob& job) {
@@ -178,7 +211,7 @@ void writeOverlay(const std::string& dir, const image::ImageView& frame, const l
     }
   }
   cv::rectangle(out, cv::Rect(0, 0, window.width, window.height), {255, 255, 255}, 2);
-  cv::imwrite(dir + "/overlay.png", out);
+  if (Status s = replay::writePng(dir + "/overlay.png", out); !s) ALACS_LOG_WARN("debug", "%s", s.toString().c_str());
 }
 }  // namespace
 
@@ -337,33 +370,36 @@ Status ScanWorker::sweepStops(const localize::ScanPlan& plan, const ports::Captu
   if ((forward && here > stops.front()) || (!forward && here < stops.front())) {
     if (Status s = moveTo(stops.front(), ev); !s) return s;
   }
-  // Run on past the last stop by half an exposure's travel, so that it is centred.
-  const double overrunMm = deps_.limits.maxSpeedMmPerS * static_cast<double>(capture.exposureUs) * 1e-6 + 0.5;
-  const double endMm = std::clamp(stops.back() + (forward ? overrunMm : -overrunMm), 0.0, deps_.limits.strokeMm);
+  const motion::SlideLimits& lim = deps_.limits;
+  // Run on past the last stop by half an exposure's travel (so that its exposure is
+  // centred) and by the braking distance, so that the slide passes every stop at cruise
+  // speed and brakes only after the last frame, while the result is already out.
+  const double brakingMm = lim.maxSpeedMmPerS * lim.maxSpeedMmPerS / (2.0 * lim.accelMmPerS2);
+  const double overrunMm = lim.maxSpeedMmPerS * static_cast<double>(capture.exposureUs) * 1e-6 + 0.5 + brakingMm;
+  const double endMm = std::clamp(stops.back() + (forward ? overrunMm : -overrunMm), 0.0, lim.strokeMm);
   const int64_t from = positionSteps_.load();
-  Result<motion::TrapezoidMove> move = motion::planMove(deps_.limits, from, deps_.limits.stepsFor(endMm));
+  Result<motion::TrapezoidMove> move = motion::planMove(lim, from, lim.stepsFor(endMm));
   if (!move) return move.status();
-  motion::StepRunner runner(deps_.limits, deps_.stepLines, *deps_.clock, *deps_.sleeper);
-  runner.trackPosition(&positionSteps_);
-  const TimeNs moveStart = deps_.clock->now() + deps_.limits.dirSetupNs;
-  motion::MoveReport report;
-  std::atomic<bool> moving{true};
-  std::thread motion([&] {
-    report = runner.run(*move, forward, cancel_);
-    moving.store(false);
+  auto sweep = std::make_unique<Sweep>(lim, deps_.stepLines, *deps_.clock, *deps_.sleeper, *move, forward);
+  sweep->runner.trackPosition(&positionSteps_);
+  const TimeNs moveStart = deps_.clock->now() + lim.dirSetupNs;
+  Sweep* sw = sweep.get();
+  sweep->thread = std::thread([this, sw] {
+    sw->report = sw->runner.run(sw->move, sw->forward, cancel_);
+    sw->moving.store(false);
   });
   Status status = Status::ok();
   const TimeNs halfExposure = capture.exposureUs * kNsPerUs / 2;
   // Half an exposure's travel at cruise speed, in steps: the exposure is centred on the stop.
-  const auto halfTravel = static_cast<int64_t>(deps_.limits.maxSpeedMmPerS * deps_.limits.stepsPerMm *
+  const auto halfTravel = static_cast<int64_t>(lim.maxSpeedMmPerS * lim.stepsPerMm *
                                                static_cast<double>(halfExposure) * 1e-9);
   for (size_t i = 0; i < stops.size() && status.isOk(); ++i) {
-    const int64_t k = std::llabs(deps_.limits.stepsFor(stops[i]) - from);
+    const int64_t k = std::llabs(lim.stepsFor(stops[i]) - from);
     // Sleep to the planned passing time, then follow the steps actually emitted: a motor
     // running late (a loaded machine) must not make the frame early.
     deps_.sleeper->sleepUntil(moveStart + (k > 0 ? move->stepTimeNs(k) : 0) - halfExposure);
-    const int64_t target = deps_.limits.stepsFor(stops[i]) + (forward ? -halfTravel : halfTravel);
-    while (moving.load() && !cancel_.load() &&
+    const int64_t target = lim.stepsFor(stops[i]) + (forward ? -halfTravel : halfTravel);
+    while (sw->moving.load() && !cancel_.load() &&
            (forward ? positionSteps_.load() < target : positionSteps_.load() > target))
       deps_.sleeper->sleepUntil(deps_.clock->now() + 100 * kNsPerUs);
     double midMm = 0.0;
@@ -379,14 +415,19 @@ Status ScanWorker::sweepStops(const localize::ScanPlan& plan, const ports::Captu
       status = Status(Error::kFault, "scan stopped by command");
     }
   }
-  motion.join();
-  if (!status) {
-    // The sweep was cut short on purpose: the failure above is the reason, not the stop.
-    ev.maxStepLatenessNs = std::max(ev.maxStepLatenessNs, report.maxLatenessNs);
-    homed_.store(homed_.load() && report.outcome == motion::MoveOutcome::kCompleted);
+  if (status.isOk() && sw->moving.load()) {
+    // Every frame taken: the slide brakes while the result is made and posted (run()).
+    braking_ = std::move(sweep);
     return status;
   }
-  return moveOutcome(report, ev);
+  sweep->thread.join();
+  if (!status) {
+    // The sweep was cut short on purpose: the failure above is the reason, not the stop.
+    ev.maxStepLatenessNs = std::max(ev.maxStepLatenessNs, sweep->report.maxLatenessNs);
+    homed_.store(homed_.load() && sweep->report.outcome == motion::MoveOutcome::kCompleted);
+    return status;
+  }
+  return moveOutcome(sweep->report, ev);
 }
 
 }  // namespace alacs::app

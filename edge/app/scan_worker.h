@@ -7,6 +7,7 @@
 #include <condition_variable>
 #include <deque>
 #include <functional>
+#include <memory>
 #include <mutex>
 #include <optional>
 #include <string>
@@ -50,6 +51,11 @@ struct WorkerEvent {
   TimeNs maxStepLatenessNs = 0;
   std::vector<ExposureWindow> exposures;  // of this job, in order
   TimeNs processingTailNs = 0;  // image work left after the last frame (not overlapped with motion)
+  // A continuous scan's result is posted as soon as it is known, while the slide still
+  // brakes past the last stop; if that braking then ends badly (limit switch, I/O error,
+  // STOP), a second event of the same job follows with this set: the result stands, only
+  // the fault (faultBit, status) counts.
+  bool afterResult = false;
 };
 
 struct WorkerDeps {
@@ -74,9 +80,15 @@ class ScanWorker {
   ScanWorker(WorkerDeps deps, const localize::Localizer& localizer, int eventFd);
   ~ScanWorker();
 
+  // Queues a job. The queue holds what the daemon submits while a job's result is out but
+  // its slide still brakes (continuous scans), at most one job in practice; the job runs
+  // once the slide is at rest.
   void submit(const WorkerJob& job);
   std::optional<WorkerEvent> takeEvent();
-  void cancel() { cancel_.store(true); }
+  // Stops the running job and the braking after a result, and cancels the jobs queued so
+  // far (they end at once as aborted); jobs submitted afterwards run normally.
+  void cancel();
+  // A job is running or queued and its result is not out yet.
   bool busy() const { return busy_.load(); }
   bool homed() const { return homed_.load(); }
   double positionMm() const { return deps_.limits.mmFor(positionSteps_.load()); }
@@ -101,6 +113,29 @@ class ScanWorker {
   // The two ways through a localize plan's stops; both hand frames to pipeline_.
   Status stopAndGo(const localize::ScanPlan& plan, const ports::CaptureRequest& capture, WorkerEvent& ev);
   Status sweepStops(const localize::ScanPlan& plan, const ports::CaptureRequest& capture, WorkerEvent& ev);
+  // Posts `ev` to the loop (queue + eventfd).
+  void post(WorkerEvent ev);
+  // Waits for the braking after a continuous scan's last frame; a second event when it
+  // did not complete.
+  void finishBraking(const WorkerJob& job);
+
+  // The sweep's motion, on a thread of its own while the worker exposes the frames; it
+  // outlives sweepStops() when the slide brakes after the last frame.
+  struct Sweep {
+    Sweep(const motion::SlideLimits& limits, motion::StepLines lines, const Clock& clock, Sleeper& sleeper,
+          const motion::TrapezoidMove& m, bool fwd)
+        : runner(limits, lines, clock, sleeper), move(m), forward(fwd) {}
+    motion::StepRunner runner;
+    motion::TrapezoidMove move;
+    bool forward;
+    motion::MoveReport report;
+    std::atomic<bool> moving{true};
+    std::thread thread;
+  };
+  struct Queued {
+    WorkerJob job;
+    uint64_t cancelEpoch;  // cancel() calls before its submission
+  };
 
   WorkerDeps deps_;
   localize::Localizer localizer_;
@@ -108,10 +143,12 @@ class ScanWorker {
   std::thread thread_;
   std::mutex mu_;
   std::condition_variable cv_;
-  std::deque<WorkerJob> jobs_;
+  std::deque<Queued> jobs_;
   std::deque<WorkerEvent> events_;
   bool quit_ = false;
   std::atomic<bool> cancel_{false};
+  std::atomic<uint64_t> cancelEpoch_{0};
+  std::unique_ptr<Sweep> braking_;  // a continuous scan's sweep still braking after its last frame
   std::atomic<bool> busy_{false};
   std::atomic<bool> homed_{false};
   std::atomic<int64_t> positionSteps_{0};

@@ -52,9 +52,8 @@ Result<ports::CapturedFrame> ReplaySource::doCapture(const ports::CaptureRequest
   if (index < 0)
     return Status(Error::kNotFound, std::string("scan '") + dir_ + "' has no frame with the laser " + (laserOn ? "on" : "off"));
   const FrameRecord& rec = manifest_.frames[static_cast<size_t>(index)];
-  Result<cv::Mat> img = loadFrame(dir_, manifest_, rec);
-  if (!img) return img.status();
-  frame_ = std::move(*img);
+  // Decoded into the one frame buffer (the previous frame's view is no longer valid).
+  if (Status s = loadFrameInto(dir_, manifest_, rec, frame_); !s) return s;
   lastSlideMm_.store(rec.slideMm);
   lastErrorMm_.store(std::abs(rec.slideMm - position));
   lastFrame_.store(index);

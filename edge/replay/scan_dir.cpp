@@ -7,11 +7,11 @@
 #include <cstdio>
 #include <cstring>
 #include <fstream>
-#include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 #include <sstream>
 
 #include "common/json_file.h"
+#include "replay/png_io.h"
 
 namespace alacs::replay {
 
@@ -203,26 +203,28 @@ Status writeManifest(const std::string& dir, const ScanManifest& m) {
   return Status::ok();
 }
 
-Result<cv::Mat> loadFrame(const std::string& dir, const ScanManifest& m, const FrameRecord& f) {
+Status loadFrameInto(const std::string& dir, const ScanManifest& m, const FrameRecord& f, cv::Mat& out) {
   const std::string path = dir + "/" + f.file;
   struct stat st {};
-  if (::stat(path.c_str(), &st) != 0) return Status(Error::kNotFound, "frame '" + path + "' does not exist");
-  cv::Mat img;
-  try {
-    img = cv::imread(path, cv::IMREAD_COLOR);
-  } catch (const cv::Exception& e) {
-    return Status(Error::kBadInput, "frame '" + path + "': " + e.msg);
+  if (::stat(path.c_str(), &st) != 0) return {Error::kNotFound, "frame '" + path + "' does not exist"};
+  // One buffer of the frame's size, reused from frame to frame; a crop decodes in place.
+  out.create(m.scan.heightPx, m.scan.widthPx, CV_8UC3);
+  cv::Mat dst = out;
+  if (f.cropPx) {
+    const cv::Rect crop(f.cropPx->x, f.cropPx->y, f.cropPx->width, f.cropPx->height);
+    if ((crop & cv::Rect(0, 0, m.scan.widthPx, m.scan.heightPx)) != crop)
+      return {Error::kBadInput, "frame '" + path + "': crop_px leaves the frame"};
+    out.setTo(cv::Scalar::all(0));
+    dst = out(crop);
   }
-  if (img.empty() || img.type() != CV_8UC3) return Status(Error::kBadInput, "frame '" + path + "' is not an 8-bit colour image");
-  const int w = f.cropPx ? f.cropPx->width : m.scan.widthPx;
-  const int h = f.cropPx ? f.cropPx->height : m.scan.heightPx;
-  if (img.cols != w || img.rows != h)
-    return Status(Error::kBadInput, "frame '" + path + "' is " + std::to_string(img.cols) + "x" + std::to_string(img.rows) +
-                                        ", the manifest says " + std::to_string(w) + "x" + std::to_string(h));
-  if (!f.cropPx) return img;
-  cv::Mat full = cv::Mat::zeros(m.scan.heightPx, m.scan.widthPx, CV_8UC3);
-  img.copyTo(full(cv::Rect(f.cropPx->x, f.cropPx->y, f.cropPx->width, f.cropPx->height)));
-  return full;
+  if (Status s = readPngInto(path, dst); !s) return {s.code(), "frame " + s.reason()};
+  return Status::ok();
+}
+
+Result<cv::Mat> loadFrame(const std::string& dir, const ScanManifest& m, const FrameRecord& f) {
+  cv::Mat img;
+  if (Status s = loadFrameInto(dir, m, f, img); !s) return s;
+  return img;
 }
 
 Result<geometry::Calibration> loadScanCalibration(const std::string& dir, const ScanManifest& m) {
@@ -245,14 +247,8 @@ Status ScanWriter::writePng(const cv::Mat& bgr, FrameRecord& record) {
   std::snprintf(name, sizeof name, "frames/frame_%04d.png", record.index);
   record.file = name;
   const std::string path = dir_ + "/" + record.file;
-  bool ok = false;
-  try {
-    // Level 1: a full frame encodes in tens of ms instead of hundreds; PNG stays lossless.
-    ok = cv::imwrite(path, bgr, {cv::IMWRITE_PNG_COMPRESSION, 1});
-  } catch (const cv::Exception& e) {
-    return {Error::kIo, "cannot write '" + path + "': " + e.msg};
-  }
-  if (!ok) return {Error::kIo, "cannot write '" + path + "'"};
+  // Level 1: a full frame encodes in tens of ms instead of hundreds; PNG stays lossless.
+  if (Status s = replay::writePng(path, bgr, 1); !s) return s;
   manifest_.frames.push_back(record);
   return Status::ok();
 }

@@ -63,6 +63,10 @@ Status writeManifest(const std::string& dir, const ScanManifest& manifest);
 // Decodes one frame to a full-size 8-bit BGR image; pixels outside its crop are zero.
 // Errors: kNotFound, kBadInput (not a PNG, wrong size).
 Result<cv::Mat> loadFrame(const std::string& dir, const ScanManifest& manifest, const FrameRecord& frame);
+// The same into `out`, for a reader of many frames: a cropped frame reuses `out` when it
+// has the frame's size (only the crop is decoded apart); a full frame replaces it, `out`
+// released before the decode. On error `out` may be released.
+Status loadFrameInto(const std::string& dir, const ScanManifest& manifest, const FrameRecord& frame, cv::Mat& out);
 // The calibration stored with the scan.
 Result<geometry::Calibration> loadScanCalibration(const std::string& dir, const ScanManifest& manifest);
 

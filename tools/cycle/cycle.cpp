@@ -2,10 +2,19 @@
 // step runner, laser guard and image pipeline as alacsd, driving the simulated slide
 // (which counts the STEP pulses) and the simulated camera (windowed render of the
 // target's region, standing in for the sensor's readout). For each orchard case the
-// slide is first parked within 2 cm of where the scan starts, then the job is timed from
-// submission to its result. CAN adds one frame time (< 1 ms at 500 kbit/s) on top.
+// slide is first parked within 2 cm of where the scan starts (outside or inside the
+// span of the stops), then the job is timed from submission to its result. CAN adds one
+// frame time (< 1 ms at 500 kbit/s) on top.
 //
-// usage: alacs_cycle [--cases N] [--mode stop-and-go|continuous|both] [--width W --height H]
+// Peak memory with real-size frames: --export writes orchard scans as scan directories
+// of full frames (docs/scan-format.md) at --width x --height; --replay runs the same
+// worker on them with a replay source as the camera (PNG decode of every full frame, as
+// alacsd --replay), in a process that holds no simulator, and prints its peak resident
+// memory (VmHWM). docs/daemon.md.
+//
+// usage: alacs_cycle [--cases N] [--mode stop-and-go|continuous|both] [--width W --height H] [--verbose]
+//        alacs_cycle --export DIR [--cases N] [--width W --height H]
+//        alacs_cycle --replay [--mode stop-and-go|continuous|scan-all|all] [--verbose] DIR...
 #include <sys/eventfd.h>
 #include <sys/resource.h>
 #include <unistd.h>
@@ -13,21 +22,39 @@
 #include <algorithm>
 #include <cstdio>
 #include <cstring>
+#include <memory>
 #include <string>
 #include <vector>
 
 #include "app/laser_guard.h"
+#include "app/process_memory.h"
 #include "app/scan_worker.h"
+#include "replay/replay_source.h"
+#include "replay/scan_dir.h"
 #include "sim/orchard.h"
+#include "sim/scan_export.h"
 #include "sim/sim_camera.h"
 #include "sim/sim_slide.h"
+#include "survey/survey.h"
 
 using namespace alacs;
 
 namespace {
 
+struct Options {
+  int cases = 10;
+  std::string modes;
+  int widthPx = 0;
+  int heightPx = 0;
+  bool verbose = false;
+  std::string exportDir;
+  bool replay = false;
+  std::vector<std::string> dirs;
+};
+
 struct Trial {
   double cycleMs = 0;
+  double lastFrameMs = 0;  // end of the last exposure, after the command
   double tailMs = 0;
   double centreErrMm = 0;
   bool ok = false;
@@ -39,6 +66,8 @@ double median(std::vector<double> v) {
   return v[v.size() / 2];
 }
 
+double maxOf(const std::vector<double>& v) { return v.empty() ? 0.0 : *std::max_element(v.begin(), v.end()); }
+
 app::WorkerEvent runJob(app::ScanWorker& worker, int efd, const app::WorkerJob& job) {
   worker.submit(job);
   uint64_t n = 0;
@@ -48,52 +77,104 @@ app::WorkerEvent runJob(app::ScanWorker& worker, int efd, const app::WorkerJob& 
   }
 }
 
-}  // namespace
+// Home, park at `parkMm`, then run `job` timed from its submission.
+Trial timeJob(app::ScanWorker& worker, int efd, const Clock& clock, double parkMm, app::WorkerJob job,
+              const Eigen::Vector3d* truthCentreMm) {
+  app::WorkerJob home;
+  home.kind = app::WorkerJob::Kind::kHome;
+  (void)runJob(worker, efd, home);
+  app::WorkerJob park;
+  park.kind = app::WorkerJob::Kind::kMoveTo;
+  park.moveToMm = parkMm;
+  (void)runJob(worker, efd, park);
+  const TimeNs t0 = clock.now();
+  job.commandTimeNs = t0;
+  const app::WorkerEvent ev = runJob(worker, efd, job);
+  const TimeNs t1 = clock.now();
+  // Back to the park position: queued while a continuous scan's slide still brakes, it
+  // runs once the slide is at rest.
+  (void)runJob(worker, efd, park);
+  Trial t;
+  t.cycleMs = static_cast<double>(t1 - t0) / 1e6;
+  t.lastFrameMs = ev.lastExposureNs > 0 ? static_cast<double>(ev.lastExposureNs - t0) / 1e6 : 0.0;
+  t.tailMs = static_cast<double>(ev.processingTailNs) / 1e6;
+  t.ok = ev.status.isOk() && !ev.estimates.empty();
+  if (t.ok && truthCentreMm != nullptr && job.kind == app::WorkerJob::Kind::kLocalize)
+    t.centreErrMm = (ev.estimates[0].centerMm - *truthCentreMm).norm();
+  return t;
+}
 
-int main(int argc, char** argv) {
-  int cases = 10;
-  std::string modes = "both";
-  int width = 0, height = 0;
-  for (int i = 1; i < argc; ++i) {
-    const std::string a = argv[i];
-    if (a == "--cases" && i + 1 < argc) cases = std::max(1, std::atoi(argv[++i]));
-    else if (a == "--mode" && i + 1 < argc) modes = argv[++i];
-    else if (a == "--width" && i + 1 < argc) width = std::atoi(argv[++i]);
-    else if (a == "--height" && i + 1 < argc) height = std::atoi(argv[++i]);
-    else {
-      std::fprintf(stderr, "usage: alacs_cycle [--cases N] [--mode stop-and-go|continuous|both] [--width W --height H]\n");
-      return 2;
+void report(const char* mode, const std::vector<Trial>& trials, bool accuracy) {
+  std::vector<double> cyc, last, tail, share, err;
+  int found = 0;
+  for (const auto& t : trials) {
+    cyc.push_back(t.cycleMs);
+    last.push_back(t.lastFrameMs);
+    tail.push_back(t.tailMs);
+    share.push_back(100.0 * t.tailMs / t.cycleMs);
+    if (t.ok) {
+      err.push_back(t.centreErrMm);
+      ++found;
     }
   }
+  std::printf("  %-12s cycle median %6.0f ms, max %6.0f ms | last exposure ends at median %4.0f ms, max %4.0f ms | "
+              "processing after the last frame: median %5.1f ms (%4.1f %% of the cycle), max %5.1f ms | found %d/%zu",
+              mode, median(cyc), maxOf(cyc), median(last), maxOf(last), median(tail), median(share), maxOf(tail), found,
+              trials.size());
+  if (accuracy) std::printf(", centre error median %.2f mm, max %.2f mm", median(err), maxOf(err));
+  std::printf("\n");
+}
+
+// The simulated scene at another sensor size: the same optics scaled (same field of view).
+void scaleCamera(sim::SimScene& scene, int widthPx, int heightPx) {
+  if (widthPx <= 0 || heightPx <= 0) return;
+  auto& cam = scene.truth.camera;
+  const double sx = widthPx / static_cast<double>(cam.widthPx);
+  cam.fxPx *= sx;
+  cam.fyPx *= sx;
+  cam.cxPx *= sx;
+  cam.cyPx *= sx;
+  cam.widthPx = widthPx;
+  cam.heightPx = heightPx;
+}
+
+double caseDistanceMm(int c) { return 1000.0 + 100.0 * (c % 5); }
+
+Result<sim::OrchardCase> orchardCase(int c) {
+  sim::CaseSpec spec;
+  spec.distanceMm = caseDistanceMm(c);
+  spec.occluded = true;
+  spec.lighting = sim::LightingKind::kOvercast;
+  return sim::makeOrchardCase(spec, 1000 + static_cast<uint64_t>(c));
+}
+
+// Where the slide waits for the command: within 2 cm of the end of the stops the scan
+// starts from (the nearer one), outside the span or inside it.
+double parkFor(int c, const localize::ScanPlan& plan, double strokeMm) {
+  static constexpr double kOffsetsMm[] = {-20.0, -5.0, 5.0, 20.0};  // < 0: outside the span
+  const double offset = kOffsetsMm[c % 4];
+  return std::clamp(plan.stopsMm.front() + offset, 0.0, strokeMm);
+}
+
+int simulatedCycle(const Options& o) {
   MonotonicClock clock;
   MonotonicSleeper sleeper;
   motion::SlideLimits limits;  // the daemon's defaults: docs/daemon.md
   image::LleParams lle;
   localize::ScanParams scanParams;
   std::printf("localize cycle: %d orchard cases (1.0-1.4 m, occluded, overcast), motor %.0f mm/s, %.0f mm/s², "
-              "%.0f steps/mm\n", cases, limits.maxSpeedMmPerS, limits.accelMmPerS2, limits.stepsPerMm);
+              "%.0f steps/mm, slide parked -20/-5/+5/+20 mm from the scan's first stop\n",
+              o.cases, limits.maxSpeedMmPerS, limits.accelMmPerS2, limits.stepsPerMm);
+  const std::string modes = o.modes.empty() ? "both" : o.modes;
   for (const char* mode : {"stop-and-go", "continuous"}) {
     if (modes != "both" && modes != mode) continue;
     const bool continuous = std::strcmp(mode, "continuous") == 0;
     std::vector<Trial> trials;
-    for (int c = 0; c < cases; ++c) {
-      sim::CaseSpec spec;
-      spec.distanceMm = 1000.0 + 100.0 * (c % 5);
-      spec.occluded = true;
-      spec.lighting = sim::LightingKind::kOvercast;
-      Result<sim::OrchardCase> oc = sim::makeOrchardCase(spec, 1000 + static_cast<uint64_t>(c));
+    for (int c = 0; c < o.cases; ++c) {
+      Result<sim::OrchardCase> oc = orchardCase(c);
       if (!oc) continue;
       sim::SimScene scene = oc->scene;
-      if (width > 0 && height > 0) {
-        const double sx = width / static_cast<double>(scene.truth.camera.widthPx);
-        auto& cam = scene.truth.camera;
-        cam.fxPx *= sx;
-        cam.fyPx *= sx;
-        cam.cxPx *= sx;
-        cam.cyPx *= sx;
-        cam.widthPx = width;
-        cam.heightPx = height;
-      }
+      scaleCamera(scene, o.widthPx, o.heightPx);
       const localize::Localizer loc(scene.truth, lle, scanParams);
       Result<localize::ScanPlan> plan = loc.plan(oc->roughMm, limits.strokeMm);
       if (!plan) continue;
@@ -112,51 +193,202 @@ int main(int argc, char** argv) {
       deps.capture.exposureUs = std::min<int64_t>(sim::autoExposureUs(scene), 3000);
       const int efd = ::eventfd(0, EFD_CLOEXEC);
       app::ScanWorker worker(deps, loc, efd);
-      app::WorkerJob home;
-      home.kind = app::WorkerJob::Kind::kHome;
-      (void)runJob(worker, efd, home);
-      // Park within 2 cm of the scan's first stop (on the side it starts from).
-      app::WorkerJob park;
-      park.kind = app::WorkerJob::Kind::kMoveTo;
-      park.moveToMm = std::clamp(plan->stopsMm.front() - 5.0 - 15.0 * ((c % 3) / 2.0), 0.0, limits.strokeMm);
-      (void)runJob(worker, efd, park);
       app::WorkerJob job;
       job.kind = app::WorkerJob::Kind::kLocalize;
       job.localize.mode = continuous ? protocol::ScanMode::kContinuous : protocol::ScanMode::kStopAndGo;
       job.localize.roughMm = oc->roughMm;
       job.plan = *plan;
-      const TimeNs t0 = clock.now();
-      job.commandTimeNs = t0;
-      const app::WorkerEvent ev = runJob(worker, efd, job);
-      Trial t;
-      t.cycleMs = static_cast<double>(clock.now() - t0) / 1e6;
-      t.tailMs = static_cast<double>(ev.processingTailNs) / 1e6;
-      t.ok = !ev.estimates.empty();
-      if (t.ok) {
-        for (const auto& a : scene.apples)
-          if (a.id == oc->targetId) t.centreErrMm = (ev.estimates[0].centerMm - a.centerMm).norm();
-      }
+      const double parkMm = parkFor(c, *plan, limits.strokeMm);
+      const Eigen::Vector3d truth = scene.apple(oc->targetId)->centerMm;
+      const Trial t = timeJob(worker, efd, clock, parkMm, job, &truth);
+      if (o.verbose)
+        std::printf("    %s case %2d: %4.0f mm away, parked %+5.1f mm from the first stop: cycle %4.0f ms, last exposure "
+                    "ends %4.0f ms, tail %5.1f ms, %s, centre error %.2f mm, stops %.1f-%.1f mm\n",
+                    mode, c, caseDistanceMm(c), parkMm - plan->stopsMm.front(), t.cycleMs, t.lastFrameMs, t.tailMs,
+                    t.ok ? "found" : "not found", t.centreErrMm, plan->stopsMm.front(), plan->stopsMm.back());
       trials.push_back(t);
       ::close(efd);
     }
-    std::vector<double> cyc, tail, share, err;
-    int found = 0;
-    for (const auto& t : trials) {
-      cyc.push_back(t.cycleMs);
-      tail.push_back(t.tailMs);
-      share.push_back(100.0 * t.tailMs / t.cycleMs);
-      if (t.ok) {
-        err.push_back(t.centreErrMm);
-        ++found;
-      }
-    }
-    std::printf("  %-12s cycle median %6.0f ms, max %6.0f ms | processing after the last frame: median %5.1f ms "
-                "(%4.1f %% of the cycle) | found %d/%zu, centre error median %.2f mm\n",
-                mode, median(cyc), cyc.empty() ? 0.0 : *std::max_element(cyc.begin(), cyc.end()), median(tail),
-                median(share), found, trials.size(), median(err));
+    report(mode, trials, true);
   }
-  rusage ru{};
-  getrusage(RUSAGE_SELF, &ru);
-  std::printf("  peak resident memory of this process (worker + simulator): %.1f MB\n", static_cast<double>(ru.ru_maxrss) / 1024.0);
+  std::printf("  peak resident memory of this process (worker + simulator): %.1f MB\n", app::peakResidentMb());
   return 0;
+}
+
+
+// Orchard scans as scan directories of full frames (the twin's renderer at the scaled
+// sensor size): DIR/case_NN, the five planned stops each, laser on, at rest.
+int exportScans(const Options& o) {
+  motion::SlideLimits limits;
+  image::LleParams lle;
+  localize::ScanParams scanParams;
+  std::shared_ptr<const sim::RayTable> rays;
+  for (int c = 0; c < o.cases; ++c) {
+    Result<sim::OrchardCase> oc = orchardCase(c);
+    if (!oc) {
+      std::fprintf(stderr, "alacs_cycle: case %d: %s\n", c, oc.status().toString().c_str());
+      return 1;
+    }
+    sim::SimScene scene = oc->scene;
+    scaleCamera(scene, o.widthPx, o.heightPx);
+    if (!rays) rays = std::make_shared<const sim::RayTable>(scene.truth.camera);
+    Result<localize::ScanPlan> plan = localize::Localizer(scene.truth, lle, scanParams).plan(oc->roughMm, limits.strokeMm);
+    if (!plan) {
+      std::fprintf(stderr, "alacs_cycle: case %d: %s\n", c, plan.status().toString().c_str());
+      return 1;
+    }
+    replay::ScanInfo info;
+    info.kind = "localize";
+    info.targetId = oc->targetId;
+    info.roughMm = oc->roughMm;
+    info.stopsMm = plan->stopsMm;
+    info.roiPx = plan->roi;
+    info.note = oc->description;
+    const int64_t exposureUs = std::min<int64_t>(sim::autoExposureUs(scene), 3000);
+    std::vector<sim::ExportFrame> frames;
+    double t = 0.0;
+    for (double s : plan->stopsMm) {
+      frames.push_back({s, s, true, exposureUs, t, "stop"});
+      t += 0.25;
+    }
+    char name[32];
+    std::snprintf(name, sizeof name, "/case_%02d", c);
+    const std::string dir = o.exportDir + name;
+    if (Status s = sim::exportScan(scene, rays, dir, info, frames); !s) {
+      std::fprintf(stderr, "alacs_cycle: %s: %s\n", dir.c_str(), s.toString().c_str());
+      return 1;
+    }
+    std::printf("%s: %d x %d, %zu frames\n", dir.c_str(), scene.truth.camera.widthPx, scene.truth.camera.heightPx,
+                frames.size());
+    std::fflush(stdout);
+  }
+  return 0;
+}
+
+// The worker on scan directories, the camera a ReplaySource (as alacsd --replay): the
+// cycle (dominated here by the PNG decode of every full frame on the worker thread) and
+// the peak resident memory of the process, which holds no simulator.
+int replayCycle(const Options& o) {
+  MonotonicClock clock;
+  MonotonicSleeper sleeper;
+  motion::SlideLimits limits;
+  image::LleParams lle;
+  localize::ScanParams scanParams;
+  const std::string modes = o.modes.empty() ? "stop-and-go" : o.modes;
+  const double startMb = app::peakResidentMb();
+  int widthPx = 0, heightPx = 0;
+  double setupMb = 0.0;
+  for (const char* mode : {"stop-and-go", "continuous", "scan-all"}) {
+    if (modes != "all" && modes != mode && !(modes == "both" && std::strcmp(mode, "scan-all") != 0)) continue;
+    std::vector<Trial> trials;
+    for (size_t d = 0; d < o.dirs.size(); ++d) {
+      const std::string& dir = o.dirs[d];
+      Result<replay::ScanManifest> m = replay::readManifest(dir);
+      if (!m) {
+        std::fprintf(stderr, "alacs_cycle: %s\n", m.status().toString().c_str());
+        return 1;
+      }
+      Result<geometry::Calibration> cal = replay::loadScanCalibration(dir, *m);
+      if (!cal || !m->scan.roughMm) {
+        std::fprintf(stderr, "alacs_cycle: %s: %s\n", dir.c_str(),
+                     cal ? "the manifest has no rough position" : cal.status().toString().c_str());
+        return 1;
+      }
+      widthPx = m->scan.widthPx;
+      heightPx = m->scan.heightPx;
+      std::optional<Eigen::Vector3d> truth;
+      if (!m->scan.truthFile.empty()) {
+        if (Result<sim::SimScene> scene = sim::loadScene(dir + "/" + m->scan.truthFile)) {
+          if (const sim::SimApple* a = scene->apple(m->scan.targetId)) truth = a->centerMm;
+        }
+      }
+      const localize::Localizer loc(*cal, lle, scanParams);
+      Result<localize::ScanPlan> plan = loc.plan(*m->scan.roughMm, limits.strokeMm);
+      if (!plan) continue;
+      sim::SimSlide slide(clock, limits.stepsPerMm, limits.strokeMm, 0.0);
+      ports::FakeDigitalOut laserLine(clock);
+      app::LaserGuard laser(laserLine, clock, 250 * kNsPerMs);
+      Result<std::unique_ptr<replay::ReplaySource>> source = replay::ReplaySource::open(
+          dir, clock, [&] { return laserLine.level(); }, [&] { return slide.positionMm(); });
+      if (!source) {
+        std::fprintf(stderr, "alacs_cycle: %s\n", source.status().toString().c_str());
+        return 1;
+      }
+      replay::ReplaySource* rs = source->get();
+      app::WorkerDeps deps;
+      deps.clock = &clock;
+      deps.sleeper = &sleeper;
+      deps.limits = limits;
+      deps.stepLines = {&slide.stepInput(), &slide.dirInput(), &slide.homeSwitch(), &slide.endSwitch()};
+      deps.enable = &slide.enableInput();
+      deps.laser = &laser;
+      deps.camera = rs;
+      deps.capture.exposureUs = m->frames.front().exposureUs;
+      deps.frameSlideMm = [rs] { return rs->lastSlideMm(); };
+      const int efd = ::eventfd(0, EFD_CLOEXEC);
+      app::ScanWorker worker(deps, loc, efd);
+      if (setupMb == 0.0) setupMb = app::peakResidentMb();
+      app::WorkerJob job;
+      if (std::strcmp(mode, "scan-all") == 0) {
+        const survey::SurveyParams sp;
+        job.kind = app::WorkerJob::Kind::kScanAll;
+        job.survey.emplace(*cal, lle, scanParams, sp);
+        job.surveyStopsMm = survey::surveyStops(limits.strokeMm, sp);
+      } else {
+        job.kind = app::WorkerJob::Kind::kLocalize;
+        job.localize.mode = std::strcmp(mode, "continuous") == 0 ? protocol::ScanMode::kContinuous
+                                                                  : protocol::ScanMode::kStopAndGo;
+        job.localize.roughMm = *m->scan.roughMm;
+        job.plan = *plan;
+      }
+      const int c = static_cast<int>(d);
+      const double parkMm = parkFor(c, *plan, limits.strokeMm);
+      const Trial t = timeJob(worker, efd, clock, parkMm, job, truth ? &*truth : nullptr);
+      if (o.verbose)
+        std::printf("    %s %s: cycle %4.0f ms, tail %5.1f ms, %s, centre error %.2f mm, peak so far %.1f MB\n", mode,
+                    dir.c_str(), t.cycleMs, t.tailMs, t.ok ? "found" : "not found", t.centreErrMm, app::peakResidentMb());
+      trials.push_back(t);
+      ::close(efd);
+    }
+    report(mode, trials, std::strcmp(mode, "scan-all") != 0);
+  }
+  std::printf("  frames %d x %d (%.1f MP, %.1f MB as BGR8) | peak resident memory (VmHWM) %.1f MB: %.1f MB at start, "
+              "%.1f MB with the worker set up; resident now %.1f MB\n",
+              widthPx, heightPx, widthPx * static_cast<double>(heightPx) / 1e6,
+              3.0 * widthPx * static_cast<double>(heightPx) / (1024.0 * 1024.0), app::peakResidentMb(), startMb, setupMb,
+              app::residentMb());
+  return 0;
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  app::mapLargeBlocks();  // as alacsd
+  Options o;
+  const char* usage =
+      "usage: alacs_cycle [--cases N] [--mode stop-and-go|continuous|both] [--width W --height H] [--verbose]\n"
+      "       alacs_cycle --export DIR [--cases N] [--width W --height H]\n"
+      "       alacs_cycle --replay [--mode stop-and-go|continuous|scan-all|both|all] [--verbose] DIR...\n";
+  for (int i = 1; i < argc; ++i) {
+    const std::string a = argv[i];
+    if (a == "--cases" && i + 1 < argc) o.cases = std::max(1, std::atoi(argv[++i]));
+    else if (a == "--mode" && i + 1 < argc) o.modes = argv[++i];
+    else if (a == "--width" && i + 1 < argc) o.widthPx = std::atoi(argv[++i]);
+    else if (a == "--height" && i + 1 < argc) o.heightPx = std::atoi(argv[++i]);
+    else if (a == "--verbose") o.verbose = true;
+    else if (a == "--export" && i + 1 < argc) o.exportDir = argv[++i];
+    else if (a == "--replay") o.replay = true;
+    else if (o.replay && a.rfind("--", 0) != 0) o.dirs.push_back(a);
+    else {
+      std::fprintf(stderr, "%s", usage);
+      return 2;
+    }
+  }
+  if ((o.widthPx > 0) != (o.heightPx > 0) || (o.replay && o.dirs.empty()) || (o.replay && !o.exportDir.empty())) {
+    std::fprintf(stderr, "%s", usage);
+    return 2;
+  }
+  if (!o.exportDir.empty()) return exportScans(o);
+  if (o.replay) return replayCycle(o);
+  return simulatedCycle(o);
 }
