@@ -43,6 +43,7 @@ void usage(FILE* out) {
                "                           [--report FILE.md] [--csv FILE.csv] [--min-cases N]\n"
                "                           [--stops N] [--spacing-mm MM] [--only CASE (debug one case)]\n"
                "                           [--within-pct P (share within 20 mm required, default 99.5)]\n"
+               "                           [--prior-radius-sigma-mm MM (the fruit-size prior's 1σ; default: ScanParams')]\n"
                "       alacs_geometry_eval check-calibration --calibration FILE --truth FILE [--max-mean-mm MM]\n"
                "\n"
                "  localize exits 0 when every target of issue 5 is met, 4 when one is not, 1 on errors.\n"
@@ -223,7 +224,8 @@ image::ImageView viewOf(const cv::Mat& m) { return {m.data, m.cols, m.rows, m.st
 
 int localizeEval(const std::string& calPath, int cases, const std::vector<double>& distances, bool occluded,
                  sim::LightingKind lighting, uint64_t seed, const std::string& reportPath, const std::string& csvPath,
-                 int minCases, int only, bool debug, int stops, double spacingMm, double withinTargetPct) {
+                 int minCases, int only, bool debug, int stops, double spacingMm, double withinTargetPct,
+                 double priorRadiusSigmaMm) {
   Result<geometry::Calibration> cal = geometry::loadCalibration(calPath);
   if (!cal) {
     std::fprintf(stderr, "calibration: %s\n", cal.status().toString().c_str());
@@ -235,6 +237,7 @@ int localizeEval(const std::string& calPath, int cases, const std::vector<double
   localize::ScanParams scan;
   scan.stops = stops;
   scan.stopSpacingMm = spacingMm;
+  if (priorRadiusSigmaMm > 0.0) scan.priorRadiusSigmaMm = priorRadiusSigmaMm;
   if (Status st = scan.validate(); !st) {
     std::fprintf(stderr, "%s\n", st.toString().c_str());
     return 2;
@@ -565,7 +568,8 @@ int main(int argc, char** argv) {
                         seed, get("report", ""), get("csv", ""), std::atoi(get("min-cases", "120").c_str()),
                         std::atoi(get("only", "-1").c_str()), opt.count("only") > 0,
                         std::atoi(get("stops", "5").c_str()), std::atof(get("spacing-mm", "20").c_str()),
-                        std::atof(get("within-pct", "99.5").c_str()));
+                        std::atof(get("within-pct", "99.5").c_str()),
+                        std::atof(get("prior-radius-sigma-mm", "0").c_str()));
   }
   usage(stderr);
   return 2;
