@@ -190,7 +190,7 @@ class Daemon {
   void flushTx();
   void enterFault(uint16_t bit, const Status& why);
   protocol::StatusReport statusReport();
-  void startHoming();
+  bool startHoming();  // false: the worker's queue is full (never after busy() said no)
   // --sim --debug-dir: the laser line's edges and the exposures of the last scan, as JSON.
   void writeLaserTimeline(const WorkerEvent& ev);
 
@@ -447,12 +447,13 @@ void Daemon::writeLaserTimeline(const WorkerEvent& ev) {
   simLaser_->clearEdges();
 }
 
-void Daemon::startHoming() {
-  state_ = protocol::State::kHoming;
+bool Daemon::startHoming() {
   WorkerJob job;
   job.kind = WorkerJob::Kind::kHome;
   job.commandTimeNs = clock_.now();
-  worker_->submit(job);
+  if (!worker_->submit(job)) return false;
+  state_ = protocol::State::kHoming;
+  return true;
 }
 
 // SET_CONFIG and the SDO server's writes (objects 0x1017, 0x2000, 0x2001): all valid
@@ -516,9 +517,9 @@ void Daemon::onCommand(const protocol::Command& c, TimeNs now) {
     case Opcode::kHome:
       if (state_ == State::kFault || state_ == State::kStopped) return node_->nack(c.opcode, c.counter, NackReason::kFaultActive);
       if (worker_->busy()) return node_->nack(c.opcode, c.counter, NackReason::kBusy);
+      if (!startHoming()) return node_->nack(c.opcode, c.counter, NackReason::kBusy);
       node_->ack(c, protocol::AckResult::kAck);
       activeCommand_ = c;
-      startHoming();
       return;
     case Opcode::kLocalize: {
       if (state_ == State::kFault || state_ == State::kStopped)
@@ -532,19 +533,20 @@ void Daemon::onCommand(const protocol::Command& c, TimeNs now) {
         ALACS_LOG_WARN("cmd", "localize refused: %s", plan.status().toString().c_str());
         return node_->nack(c.opcode, c.counter, NackReason::kOutOfRange);
       }
-      node_->ack(c, protocol::AckResult::kAck);
-      activeCommand_ = c;
-      state_ = State::kScanning;
       WorkerJob job;
       job.kind = WorkerJob::Kind::kLocalize;
       job.localize = c.localize;
+      job.plan = *plan;
+      job.commandTimeNs = now;
+      // The worker's queue is bounded: refused only if a job were already waiting.
+      if (!worker_->submit(job)) return node_->nack(c.opcode, c.counter, NackReason::kBusy);
+      node_->ack(c, protocol::AckResult::kAck);
+      activeCommand_ = c;
+      state_ = State::kScanning;
       if (recorder_) {
         if (Status s = recorder_->begin(c.localize.targetId, c.localize.roughMm, plan->stopsMm, plan->roi); !s)
           ALACS_LOG_WARN("record", "%s", s.toString().c_str());
       }
-      job.plan = std::move(*plan);
-      job.commandTimeNs = now;
-      worker_->submit(job);
       return;
     }
     case Opcode::kSetConfig: {
@@ -558,16 +560,16 @@ void Daemon::onCommand(const protocol::Command& c, TimeNs now) {
       if (worker_->busy() || state_ != State::kIdle) return node_->nack(c.opcode, c.counter, NackReason::kBusy);
       if (!calibration_) return node_->nack(c.opcode, c.counter, NackReason::kNotCalibrated);
       if (!worker_->homed()) return node_->nack(c.opcode, c.counter, NackReason::kNotHomed);
-      node_->ack(c, protocol::AckResult::kAck);
-      activeCommand_ = c;
-      state_ = State::kScanning;
       WorkerJob job;
       job.kind = WorkerJob::Kind::kScanAll;
       const survey::SurveyParams sp;
       job.survey.emplace(*calibration_, cfg_.lle, cfg_.scan, sp);
       job.surveyStopsMm = survey::surveyStops(cfg_.motion.strokeMm, sp);
       job.commandTimeNs = now;
-      worker_->submit(job);
+      if (!worker_->submit(job)) return node_->nack(c.opcode, c.counter, NackReason::kBusy);
+      node_->ack(c, protocol::AckResult::kAck);
+      activeCommand_ = c;
+      state_ = State::kScanning;
       return;
     }
     case Opcode::kInvalid:
@@ -705,7 +707,7 @@ int Daemon::run() {
   if (faults_ & protocol::kFaultNotCalibrated) {
     state_ = protocol::State::kIdle;  // not a fault state: the sensor still homes and answers
   }
-  startHoming();
+  (void)startHoming();  // the queue is empty at start
   notify("READY=1");
   uint64_t watchdogUs = 0;
 #ifdef ALACS_HAVE_SYSTEMD

@@ -30,13 +30,15 @@ ScanWorker::~ScanWorker() {
   if (thread_.joinable()) thread_.join();
 }
 
-void ScanWorker::submit(const WorkerJob& job) {
+bool ScanWorker::submit(const WorkerJob& job) {
   {
     std::lock_guard<std::mutex> lock(mu_);
+    if (jobs_.size() >= kMaxWaitingJobs) return false;
     jobs_.push_back({job, cancelEpoch_.load()});
     busy_.store(true);
   }
   cv_.notify_all();
+  return true;
 }
 
 void ScanWorker::cancel() {

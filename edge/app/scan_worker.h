@@ -80,10 +80,10 @@ class ScanWorker {
   ScanWorker(WorkerDeps deps, const localize::Localizer& localizer, int eventFd);
   ~ScanWorker();
 
-  // Queues a job. The queue holds what the daemon submits while a job's result is out but
-  // its slide still brakes (continuous scans), at most one job in practice; the job runs
-  // once the slide is at rest.
-  void submit(const WorkerJob& job);
+  // Queues a job; false (refused) when one is already waiting: the queue holds one job
+  // besides the running one. A job waits when the daemon sends it while a continuous
+  // scan's result is out but its slide still brakes; it runs once the slide is at rest.
+  bool submit(const WorkerJob& job);
   std::optional<WorkerEvent> takeEvent();
   // Stops the running job and the braking after a result, and cancels the jobs queued so
   // far (they end at once as aborted); jobs submitted afterwards run normally.
@@ -143,7 +143,8 @@ class ScanWorker {
   std::thread thread_;
   std::mutex mu_;
   std::condition_variable cv_;
-  std::deque<Queued> jobs_;
+  static constexpr size_t kMaxWaitingJobs = 1;
+  std::deque<Queued> jobs_;  // at most kMaxWaitingJobs
   std::deque<WorkerEvent> events_;
   bool quit_ = false;
   std::atomic<bool> cancel_{false};

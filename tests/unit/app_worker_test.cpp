@@ -131,7 +131,7 @@ TEST_CASE("A continuous scan's result is out while the slide brakes; a job sent 
   CHECK(!worker.takeEvent());  // no second event: the braking completed
 }
 
-TEST_CASE("cancel() ends the running job and the queued ones; a job sent afterwards runs", "[app][worker]") {
+TEST_CASE("One job waits behind the running one; cancel() ends both, and a job sent afterwards runs", "[app][worker]") {
   Rig rig(2.0);
   const localize::Localizer loc(sim::defaultScene().truth, image::LleParams{}, localize::ScanParams{});
   app::ScanWorker worker(rig.deps, loc, rig.efd);
@@ -139,9 +139,11 @@ TEST_CASE("cancel() ends the running job and the queued ones; a job sent afterwa
   std::optional<app::WorkerEvent> ev = rig.next(worker);
   REQUIRE(ev);
   REQUIRE(ev->status.isOk());
-  worker.submit(jobOf(app::WorkerJob::Kind::kMoveTo, 150.0));  // 1.7 s
-  worker.submit(jobOf(app::WorkerJob::Kind::kHome));
-  std::this_thread::sleep_for(std::chrono::milliseconds(100));
+  REQUIRE(worker.submit(jobOf(app::WorkerJob::Kind::kMoveTo, 150.0)));  // 1.7 s
+  for (int i = 0; i < 2000 && rig.slide.positionMm() < 1.0; ++i) std::this_thread::sleep_for(std::chrono::milliseconds(1));
+  REQUIRE(rig.slide.positionMm() >= 1.0);  // running: the queue is empty again
+  REQUIRE(worker.submit(jobOf(app::WorkerJob::Kind::kHome)));
+  CHECK(!worker.submit(jobOf(app::WorkerJob::Kind::kHome)));  // bounded: one job waits, no more
   worker.cancel();
   ev = rig.next(worker);
   REQUIRE(ev);

@@ -21,6 +21,7 @@
 
 #include <algorithm>
 #include <cstdio>
+#include <cstdlib>
 #include <cstring>
 #include <memory>
 #include <string>
@@ -69,7 +70,10 @@ double median(std::vector<double> v) {
 double maxOf(const std::vector<double>& v) { return v.empty() ? 0.0 : *std::max_element(v.begin(), v.end()); }
 
 app::WorkerEvent runJob(app::ScanWorker& worker, int efd, const app::WorkerJob& job) {
-  worker.submit(job);
+  if (!worker.submit(job)) {
+    std::fprintf(stderr, "alacs_cycle: the worker refused a job (its queue is full)\n");
+    std::exit(1);
+  }
   uint64_t n = 0;
   while (true) {
     if (::read(efd, &n, sizeof n) < 0) continue;
