@@ -7,7 +7,7 @@ root=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd -P)
 
 apt_packages=(
   build-essential cmake ninja-build pkg-config git
-  libopencv-dev libeigen3-dev libgpiod-dev gpiod libcamera-dev libsystemd-dev catch2
+  libopencv-dev libeigen3-dev libpng-dev libgpiod-dev gpiod libcamera-dev libsystemd-dev catch2
   can-utils kmod iproute2
   user-mode-linux linux-source-6.1 flex bison bc libelf-dev xz-utils
   python3 python3-venv python3-pip

@@ -32,7 +32,7 @@ installed() { dpkg-query -W -f='${Status}' "$1" 2>/dev/null | grep -q "install o
 
 step "host packages"
 host_packages=(file cmake ninja-build pkg-config g++-aarch64-linux-gnu qemu-user-static binfmt-support catch2 libeigen3-dev
-  libgpiod-dev:arm64 libcamera-dev:arm64 libsystemd-dev:arm64
+  libgpiod-dev:arm64 libcamera-dev:arm64 libsystemd-dev:arm64 libpng-dev:arm64
   libopencv-core-dev:arm64 libopencv-imgproc-dev:arm64)
 # Unpacked into $extra, never installed (see above).
 extra_packages=(libopencv-calib3d-dev:arm64 libopencv-imgcodecs-dev:arm64)
