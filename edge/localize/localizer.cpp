@@ -38,6 +38,8 @@ Status ScanParams::validate() const {
   if (!(minRadiusMm >= 10.0 && maxRadiusMm > minRadiusMm && maxRadiusMm <= 100.0))
     return {Error::kInvalidArgument, "scan.min_radius_mm/max_radius_mm must satisfy 10 <= min < max <= 100"};
   if (!(roughSigmaMm >= 0.0 && roughSigmaMm <= 500.0)) return {Error::kInvalidArgument, "scan.rough_sigma_mm must be in 0..500"};
+  if (!(roughGateSigmas >= 0.0 && roughGateSigmas <= 100.0))
+    return {Error::kInvalidArgument, "scan.rough_gate_sigmas must be in 0..100"};
   return Status::ok();
 }
 
@@ -213,7 +215,32 @@ Result<AppleEstimate> Localizer::estimateSingleLine(const ScanPlan& plan, const 
   return est;
 }
 
+AppleEstimate Localizer::roughEstimate(const ScanPlan& plan) const {
+  AppleEstimate est;
+  const Eigen::Vector3d u = plan.roughMm.normalized();
+  est.centerMm = plan.roughMm;
+  est.approachMm = plan.roughMm - scan_.priorRadiusMm * u;
+  est.approachNormal = -u;
+  est.diameterMm = 2.0 * scan_.priorRadiusMm;
+  est.centerSigmaMm = std::sqrt(3.0) * scan_.roughSigmaMm;
+  est.sigmaMm = std::hypot(est.centerSigmaMm, scan_.priorRadiusSigmaMm);
+  est.diameterSigmaMm = 2.0 * scan_.priorRadiusSigmaMm;
+  est.occlusionPct = 100.0;
+  est.confidencePct = 100.0 * 0.5 * withinProbability(kToleranceMm, est.sigmaMm);
+  return est;
+}
+
 Result<AppleEstimate> Localizer::estimate(const ScanPlan& plan, const std::vector<LineObservation>& lines) const {
+  Result<AppleEstimate> est = estimateFused(plan, lines);
+  // One line (or the paper's candidate) that puts the centre far beyond the rough
+  // position's error is not the target (a leaf's edge, a neighbour's limb).
+  if (est && !est->sphereFit && scan_.roughGateSigmas > 0.0 && scan_.roughSigmaMm > 0.0 &&
+      (est->centerMm - plan.roughMm).norm() > scan_.roughGateSigmas * scan_.roughSigmaMm)
+    return roughEstimate(plan);
+  return est;
+}
+
+Result<AppleEstimate> Localizer::estimateFused(const ScanPlan& plan, const std::vector<LineObservation>& lines) const {
   std::vector<Eigen::Vector3d> all;
   std::vector<int> lineIds;
   std::vector<int> pieceIds;

@@ -48,6 +48,12 @@ struct ScanParams {
   // near the rough position is the target, not its neighbour; with one line only, it
   // helps place the centre.
   double roughSigmaMm = 15.0;
+  // What one line (or the paper's candidate) says is not taken when it puts the centre
+  // farther than this many roughSigmaMm from the rough position (a 3D distance of 4σ has a
+  // chance of 1e-3 from the rough position's error alone): a short arc of a leaf's edge
+  // or of a neighbour, not the target. The estimate is then the rough position's own, with
+  // its σ. 0: off. Multi-line spheres are not gated (their centre is measured).
+  double roughGateSigmas = 4.0;
   Status validate() const;
 };
 
@@ -118,6 +124,11 @@ class Localizer {
   image::Roi stopRoi(const ScanPlan& plan, double slideMm) const;
 
  private:
+  // estimate() before the rough-position gate.
+  Result<AppleEstimate> estimateFused(const ScanPlan& plan, const std::vector<LineObservation>& lines) const;
+  // The estimate from the rough position alone: centre there, a prior radius, σ its error.
+  AppleEstimate roughEstimate(const ScanPlan& plan) const;
+
   geometry::Calibration cal_;
   image::LleParams lle_;
   ScanParams scan_;

@@ -185,6 +185,34 @@ TEST_CASE("One line alone: the paper's single-line estimate", "[localize]") {
   CHECK(loc.estimate(*plan, {}).status().code() == Error::kNotFound);
 }
 
+TEST_CASE("One line far beyond the rough position's error is not the target", "[localize]") {
+  // The target is hidden; the only line lies on a fruit 80 mm to the side (within the
+  // 90 mm gate). Its sphere is no estimate of the target: the rough position's own is.
+  Case k;
+  k.scan.roughSigmaMm = 8.0;  // gate: 32 mm
+  std::mt19937 rng(29);
+  localize::Localizer loc(k.cal, image::LleParams{}, k.scan);
+  auto plan = loc.plan(k.center, 200.0);
+  REQUIRE(plan.isOk());
+  const Eigen::Vector3d other = k.center + Eigen::Vector3d(80.0, 0.0, 5.0);
+  const double slide = k.cal.laser.slideForPoint(other);
+  std::vector<localize::LineObservation> lines{lineOf(k.cal, other, 36.0, slide, 0.3, {}, rng)};
+  // The localizer without the gate takes the line's fruit.
+  localize::ScanParams open = k.scan;
+  open.roughGateSigmas = 0.0;
+  auto taken = localize::Localizer(k.cal, image::LleParams{}, open).estimate(*plan, lines);
+  REQUIRE(taken.isOk());
+  INFO("ungated centre " << taken->centerMm.transpose());
+  CHECK((taken->centerMm - k.center).norm() > 40.0);
+  auto est = loc.estimate(*plan, lines);
+  REQUIRE(est.isOk());
+  CHECK_FALSE(est->sphereFit);
+  CHECK(est->linesUsed == 0);
+  CHECK((est->centerMm - k.center).norm() < 1e-9);
+  CHECK(est->sigmaMm >= std::sqrt(3.0) * k.scan.roughSigmaMm);  // the rough position's error
+  CHECK(est->confidencePct < 50.0);
+}
+
 TEST_CASE("The paper's candidate score P = w1·N − w2·Δd", "[localize]") {
   std::vector<localize::PaperCandidate> c(3);
   c[0].pixelCount = 300;  // long line far from the expected centre
