@@ -37,6 +37,8 @@ Status LleParams::validate() const {
     return bad(Error::kInvalidArgument, "bridgePxPerRow must be in 0..16");
   if (smoothOrder < 0 || smoothOrder > 2) return bad(Error::kInvalidArgument, "smoothOrder must be in 0..2");
   if (smoothRows < 0 || smoothRows > 32) return bad(Error::kInvalidArgument, "smoothRows must be in 0..32");
+  if (edgeRatio != 0 && (edgeRatio < 2 || edgeRatio > 16))
+    return bad(Error::kInvalidArgument, "edgeRatio must be 0 or in 2..16");
   if (kernels != LleKernels::kAuto && kernels != LleKernels::kScalar)
     return bad(Error::kInvalidArgument, "unknown kernel choice");
   return Status::ok();

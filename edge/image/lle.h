@@ -81,6 +81,9 @@ struct LleParams {
   bool keepOtherSegments = true;  // also report segments that are not the line (other surfaces)
   int smoothOrder = 1;       // of that local fit: 0 mean, 1 line, 2 quadratic
   int smoothRows = 8;        // a row's column: local fit through the centroids within ±this many rows (0: none) (0..32)
+  int edgeRatio = 3;         // occluding edge: the background on one side of a run is darker than
+                             // edgeRatio x the other's (less 8 DN): the profile may be cut by an
+                             // occluder's edge; the row is kEdge (invalid) (0: off, 2..16)
   LleKernels kernels = LleKernels::kAuto;
 
   Status validate() const;
@@ -94,6 +97,8 @@ enum class RowStatus : uint8_t {
   kLine,     // on the line and accepted by its curve fit
   kOutlier,  // on the line's segments but rejected by the robust fit: INVALID, do not use
   kSegment,  // a laser segment that is not the line (another surface); valid, not fitted
+  kEdge,     // at an occluding edge (the background steps across the peak: part of the profile
+             // may be hidden, its centroid biased): INVALID, do not use
 };
 
 // One row of the extracted line, in full-frame pixels (pixel centres at integers).
@@ -108,7 +113,7 @@ struct RowSample {
   int32_t columnQ8 = 0;     // the fixed-point result, Q24.8 (1/256 px)
   int32_t centroidQ8 = 0;   // this row's own centroid before smoothing along the line, Q24.8
 
-  bool valid() const { return status != RowStatus::kOutlier; }
+  bool valid() const { return status != RowStatus::kOutlier && status != RowStatus::kEdge; }
 };
 
 // A run of rows linked by continuity.

@@ -62,6 +62,7 @@ struct RunSums {
   int32_t excess = 0; // largest excess (DN)
   int32_t margin = 0; // largest bRCE margin min(c - l, c - r) over the run (the red bRCE saw)
   bool saturated = false;
+  bool edge = false;   // the background steps across the run (an occluder's edge)
 };
 
 inline int redAt(const uint8_t* on, const uint8_t* off, int redOffset, int x) {
@@ -74,7 +75,8 @@ inline int brceRedAt(const uint8_t* on, const uint8_t* off, int redOffset, int x
   return std::max(0, redAt(on, off, redOffset, x));
 }
 
-inline RunSums runSums(const uint8_t* on, const uint8_t* off, int redOffset, int w, int a, int b, int step) {
+inline RunSums runSums(const uint8_t* on, const uint8_t* off, int redOffset, int w, int a, int b, int step,
+                       int edgeRatio) {
   RunSums s;
   for (int x = std::max(a, step); x <= std::min(b, w - 1 - step); ++x) {
     const int c = brceRedAt(on, off, redOffset, x);
@@ -87,6 +89,9 @@ inline RunSums runSums(const uint8_t* on, const uint8_t* off, int redOffset, int
   if (span <= 1) return s;
   const int64_t rl = redAt(on, off, redOffset, xl);
   const int64_t rr = redAt(on, off, redOffset, xr);
+  // An occluding edge next to the line: one side's background (a leaf, a gap) is several
+  // times darker than the other's (the skin the line is on). Integer test, 8 DN of slack.
+  if (edgeRatio > 0) s.edge = std::max(rl, rr) > edgeRatio * std::max<int64_t>(0, std::min(rl, rr)) + 8;
   int64_t maxW = 0;
   for (int x = xl + 1; x < xr; ++x)
     maxW = std::max(maxW, redAt(on, off, redOffset, x) * static_cast<int64_t>(span) - (rl * (xr - x) + rr * (x - xl)));
@@ -314,6 +319,7 @@ struct Peak {
   int32_t next;     // next peak of the same chain (row order), -1
   uint8_t saturated;
   uint8_t strong;   // its bRCE margin passes brceThreshold (not only the weak share)
+  uint8_t edge;     // at an occluding edge (RunSums::edge): reported kEdge, not smoothed over
 };
 
 struct Chain {
@@ -417,7 +423,7 @@ void focusRobust(const ImageView& frame, const ImageView* laserOff, const Roi& r
         }
         b = focus::nextClear(bits, w, nx) - 1;
       }
-      const RunSums s = runSums(on, off, redOff, w, a, b, step);
+      const RunSums s = runSums(on, off, redOff, w, a, b, step, p.edgeRatio);
       if (s.area <= 0) continue;
       if (n == kMax && s.area <= row[n - 1].area) continue;
       int i = n < kMax ? n++ : n - 1;
@@ -426,7 +432,8 @@ void focusRobust(const ImageView& frame, const ImageView* laserOff, const Roi& r
         --i;
       }
       row[i] = Peak{A::ratio(s.sumXW, s.sumW), Q::ratio(s.sumXW, s.sumW), s.area, s.excess, -1, -1,
-                    static_cast<uint8_t>(s.saturated ? 1 : 0), static_cast<uint8_t>(s.margin > p.brceThreshold ? 1 : 0)};
+                    static_cast<uint8_t>(s.saturated ? 1 : 0), static_cast<uint8_t>(s.margin > p.brceThreshold ? 1 : 0),
+                    static_cast<uint8_t>(s.edge ? 1 : 0)};
     }
     nPeaks[y] = n;
   }
@@ -625,6 +632,7 @@ void focusRobust(const ImageView& frame, const ImageView* laserOff, const Roi& r
     if (chains[c].segment >= 0)
       out.segments.push_back(LineSegment{roi.y + chains[c].first, roi.y + chains[c].last, 0, chains[c].onLine != 0});
   auto emit = [&](int y, const Peak& pk, RowStatus status, int fitTerm) {
+    if (pk.edge != 0 && status != RowStatus::kOutlier) status = RowStatus::kEdge;
     RowSample sm;
     sm.row = roi.y + y;
     const Col col = pk.col + A::fromInt(roi.x);
@@ -635,14 +643,17 @@ void focusRobust(const ImageView& frame, const ImageView* laserOff, const Roi& r
     sm.inlier = status == RowStatus::kLine;
     sm.saturated = pk.saturated != 0;
     sm.segment = chains[pk.chain].segment;
-    if (status != RowStatus::kOutlier) {
+    if (status != RowStatus::kOutlier && status != RowStatus::kEdge) {
       int conf = std::min(256, pk.excess * 256 / 96) * fitTerm / 256;
       if (sm.saturated) conf = conf * 3 / 4;
       sm.confidence = static_cast<float>(conf) / 256.0F;
     }
     if (sm.segment >= 0) out.segments[static_cast<size_t>(sm.segment)].rows += 1;
     outCol[out.rows.size()] = col;
-    outKey[out.rows.size()] = status == RowStatus::kLine ? -2 : status == RowStatus::kOutlier ? -3 : sm.segment;
+    outKey[out.rows.size()] = status == RowStatus::kLine      ? -2
+                              : status == RowStatus::kOutlier ? -3
+                              : status == RowStatus::kEdge    ? -4
+                                                              : sm.segment;
     out.rows.push_back(sm);
     if (status == RowStatus::kLine) {
       if (out.inliers == 0) out.firstLineRow = sm.row;
@@ -688,7 +699,7 @@ void focusRobust(const ImageView& frame, const ImageView* laserOff, const Roi& r
   if (p.smoothRows > 0) {
     const int nRows = static_cast<int>(out.rows.size());
     for (int k = 0; k < nRows; ++k) {
-      if (outKey[k] == -3) continue;
+      if (outKey[k] == -3 || outKey[k] == -4) continue;
       const int r0 = out.rows[static_cast<size_t>(k)].row;
       int lo = k;
       while (lo > 0 && r0 - out.rows[static_cast<size_t>(lo - 1)].row <= p.smoothRows) --lo;

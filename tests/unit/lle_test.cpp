@@ -477,3 +477,38 @@ TEST_CASE("Random images never crash the extractor", "[lle][edge]") {
     for (size_t k = 1; k < out.rows.size(); ++k) CHECK(out.rows[k - 1].row <= out.rows[k].row);
   }
 }
+
+TEST_CASE("A row whose background steps across the peak (an occluder's edge) is invalid, kEdge", "[lle][edge]") {
+  // A line on skin (red 60); in rows 40..59 a dark leaf (red 8) covers the columns left of
+  // 58, cutting the left part of the line's profile: the centroid there moves right.
+  Rgb img = lineImage(120, 100, [](int) { return 60.0; }, 1.2, 150.0, 60);
+  for (int y = 40; y < 60; ++y)
+    for (int x = 0; x < 58; ++x) img.red(x, y) = 8;
+  const LaserLine l = run(img);
+  REQUIRE(l.valid);
+  int edge = 0;
+  for (const auto& r : l.rows) {
+    if (r.row >= 40 && r.row < 60) {
+      CHECK(r.status == RowStatus::kEdge);
+      CHECK_FALSE(r.valid());
+      CHECK(r.confidence == 0.0F);
+      edge += 1;
+    } else {
+      CHECK(r.status == RowStatus::kLine);
+      CHECK(std::abs(r.column - 60.0F) < 0.05F);  // not pulled by the edge rows (not smoothed over)
+    }
+  }
+  CHECK(edge == 20);
+  CHECK(rowsWithStatus(l, RowStatus::kLine) == 80);
+  // Off: the same rows are on the line, their centroids biased.
+  LleParams p;
+  p.edgeRatio = 0;
+  const LaserLine o = run(img, p);
+  CHECK(rowsWithStatus(o, RowStatus::kEdge) == 0);
+  const RowSample* s = o.sampleAt(50);
+  REQUIRE(s != nullptr);
+  CHECK(s->valid());
+  CHECK(std::abs(s->centroidQ8 - 60 * 256) > 16);  // off by more than 1/16 px
+  p.edgeRatio = 1;
+  CHECK_FALSE(p.validate().isOk());
+}

@@ -138,6 +138,7 @@ constexpr sim::LightingKind kLights[] = {sim::LightingKind::kLab, sim::LightingK
                                          sim::LightingKind::kDirect, sim::LightingKind::kFullSun};
 
 image::LleParams gParams;  // --set overrides
+int gRowsCase = -1;        // --rows ID: print that case's rows
 
 bool setParam(image::LleParams& p, const std::string& kv) {
   const size_t eq = kv.find('=');
@@ -161,6 +162,7 @@ bool setParam(image::LleParams& p, const std::string& kv) {
   else if (k == "smooth") p.smoothRows = iv;
   else if (k == "sorder") p.smoothOrder = iv;
   else if (k == "weak") p.weakThresholdPct = iv;
+  else if (k == "edge") p.edgeRatio = iv;
   else return false;
   return true;
 }
@@ -280,6 +282,32 @@ CaseResult evaluate(const CaseInput& in, bool laserOff) {
   });
   for (const auto& [row, col] : chosen)
     if (visible.find(row) == visible.end()) res.extraRows += 1;
+  if (in.id == gRowsCase) {
+    // Per row: the truth (column, flags), what the localizer keeps and its error, then
+    // every sample of the row (L line, O outlier, E edge, S other segment; c = centroid).
+    std::printf("case %d (%s, %s, %.0f mm), ROI %d,%d %dx%d; row truth flags | kept err | samples\n", in.id,
+                in.light.c_str(), in.occluded ? "leaf" : "free", in.distanceMm, roi.x, roi.y, roi.width, roi.height);
+    std::map<int, std::pair<double, int>> tr;
+    for (const auto& t : in.truth) tr[t.row] = {t.column, t.flags};
+    for (int row = roi.y; row < roi.y + roi.height; ++row) {
+      auto t = tr.find(row);
+      auto c = chosen.find(row);
+      bool any = false;
+      for (const auto& s : ours.rows) any = any || s.row == row;
+      if (t == tr.end() && !any) continue;
+      std::printf("%5d", row);
+      if (t != tr.end()) std::printf(" %9.3f %2d", t->second.first, t->second.second);
+      else std::printf(" %9s %2s", "-", "-");
+      if (c != chosen.end() && t != tr.end()) std::printf(" | %9.3f %+6.3f |", c->second, c->second - t->second.first);
+      else std::printf(" | %9s %6s |", "-", "");
+      for (const auto& s : ours.rows)
+        if (s.row == row)
+          std::printf(" %c%d %.3f (c %.3f, conf %.2f%s)",
+                      s.status == image::RowStatus::kLine ? 'L' : s.status == image::RowStatus::kOutlier ? 'O' : s.status == image::RowStatus::kEdge ? 'E' : 'S',
+                      s.segment, s.column, s.centroidQ8 / 256.0, s.confidence, s.saturated ? ", sat" : "");
+      std::printf("\n");
+    }
+  }
   res.coverage = ours.coverage;
   res.ok = true;
 
@@ -515,6 +543,7 @@ int main(int argc, char** argv) {
     else if (a == "--line") showLine = true;
     else if (a == "--csv") csv = next();
     else if (a == "--dump") dump = next();
+    else if (a == "--rows") gRowsCase = std::atoi(next().c_str());
     else if (a == "--set-dir") sets.push_back(next());
     else if (a == "--set") {
       if (!setParam(gParams, next())) {
@@ -525,9 +554,9 @@ int main(int argc, char** argv) {
     else {
       std::fprintf(stderr,
                    "usage: alacs_lle_eval [--cases N] [--first K] [--set-dir DIR]... [--jobs J] [--laser-off] [--line]\n"
-                   "                      [--csv FILE] [--dump DIR]\n"
+                   "                      [--csv FILE] [--dump DIR] [--rows ID]\n"
                    "                      [--set step|th|theta|gamma|order|outlier|minrows|peaks|jump|gap|minseg|bridge|\n"
-                   "                             bridgerow|smooth=VALUE]...\n");
+                   "                             bridgerow|smooth|sorder|weak|edge=VALUE]...\n");
       return 2;
     }
   }
@@ -673,14 +702,14 @@ int main(int argc, char** argv) {
               extra, nOcc > 0 ? meanCoverageOcc / nOcc : 0.0, nOcc > 0 ? minCoverageOcc : 0.0);
   if (!csv.empty()) {
     std::ofstream f(csv);
-    f << "id,light,occluded,distance_mm,method";
+    f << "id,case,light,occluded,distance_mm,method";
     for (int k : kSegments) f << ",seg" << k;
     f << ",max_row,visible80,found80,visible,found,fixed_vs_float_px,simd_exact,coverage\n";
     for (const auto& r : results) {
       if (!r.ok) continue;
       for (int m = 0; m < 2; ++m) {
         const Score& s = m == 0 ? r.ours : r.paper;
-        f << r.id << "," << r.light << "," << (r.occluded ? 1 : 0) << "," << r.distanceMm << ","
+        f << r.id << "," << (setCases.empty() ? std::string("-") : setCases[static_cast<size_t>(r.id)].first) << "," << r.light << "," << (r.occluded ? 1 : 0) << "," << r.distanceMm << ","
           << (m == 0 ? "ours" : "paper");
         for (double v : s.segMean) f << "," << v;
         f << "," << s.maxRowErr << "," << s.visible80 << "," << s.found80 << "," << s.visible << "," << s.found << ","

@@ -44,6 +44,7 @@ const char* statusName(image::RowStatus s) {
     case image::RowStatus::kLine: return "line";
     case image::RowStatus::kOutlier: return "outlier";
     case image::RowStatus::kSegment: return "segment";
+    case image::RowStatus::kEdge: return "edge";
   }
   return "?";
 }
@@ -61,7 +62,7 @@ std::string lleJson(const LleRun& run, int frameWidth, int frameHeight, const im
     << ", \"brce_threshold\": " << p.brceThreshold << ", \"brce_form\": \"" << formName(p.brceForm)
     << "\", \"noise_theta\": " << p.noiseTheta << ", \"noise_gamma\": " << p.noiseGamma
     << ", \"poly_order\": " << p.polyOrder << ", \"outlier_px\": " << num(p.outlierPx, "%g")
-    << ", \"min_rows\": " << p.minRows << ", \"smooth_rows\": " << p.smoothRows
+    << ", \"min_rows\": " << p.minRows << ", \"smooth_rows\": " << p.smoothRows << ", \"edge_ratio\": " << p.edgeRatio
     << ", \"max_jump_px\": " << num(p.maxJumpPx, "%g") << ", \"max_gap_rows\": " << p.maxGapRows
     << ", \"min_segment_rows\": " << p.minSegmentRows << "},\n";
   // Every ROI row: a row without a valid sample says so (column null, valid false). A row's
@@ -130,6 +131,7 @@ cv::Mat lleOverlay(const cv::Mat& bgr, const image::Roi& roi, const image::Laser
   for (const auto& s : line.rows) {
     const cv::Scalar colour = s.status == image::RowStatus::kLine      ? cv::Scalar(0, 255, 0)
                               : s.status == image::RowStatus::kOutlier ? cv::Scalar(255, 0, 255)
+                              : s.status == image::RowStatus::kEdge    ? cv::Scalar(0, 128, 255)
                                                                         : cv::Scalar(255, 255, 0);
     const cv::Point p(static_cast<int>(std::lround((s.column - 3.0F) * kScale)), static_cast<int>(s.row * kScale));
     const cv::Point q(static_cast<int>(std::lround((s.column - 1.5F) * kScale)), static_cast<int>(s.row * kScale));
