@@ -7,6 +7,7 @@
 #include <chrono>
 #include <condition_variable>
 #include <cstring>
+#include <memory>
 #include <mutex>
 #include <vector>
 
@@ -63,7 +64,10 @@ class Impl final : public LibcameraSource {
     stride_ = sc.stride;
     width_ = static_cast<int>(sc.size.width);
     height_ = static_cast<int>(sc.size.height);
-    copy_.resize(static_cast<size_t>(stride_) * static_cast<size_t>(height_));
+    // Left uninitialised (new[] without a value): only the rows of each request's window
+    // are written, so only their pages become resident (docs/daemon.md, "Memory").
+    copySize_ = static_cast<size_t>(stride_) * static_cast<size_t>(height_);
+    copy_.reset(new uint8_t[copySize_]);
     return Status::ok();
   }
 
@@ -107,7 +111,7 @@ class Impl final : public LibcameraSource {
       const libcamera::FrameBuffer* fb = req->buffers().begin()->second;
       const auto& meta = fb->metadata();
       if (meta.status != libcamera::FrameMetadata::FrameSuccess || meta.planes().empty() ||
-          meta.planes()[0].bytesused < copy_.size()) {
+          meta.planes()[0].bytesused < copySize_) {
         last = Status(Error::kBadInput, "camera delivered a corrupted or short frame");
         continue;
       }
@@ -117,10 +121,10 @@ class Impl final : public LibcameraSource {
       const auto* src = static_cast<const uint8_t*>(maps_[index].first);
       const int y0 = r.window.empty() ? 0 : std::clamp(r.window.y, 0, height_);
       const int y1 = r.window.empty() ? height_ : std::clamp(r.window.y + r.window.height, y0, height_);
-      std::memcpy(copy_.data() + static_cast<size_t>(y0) * stride_, src + static_cast<size_t>(y0) * stride_,
+      std::memcpy(copy_.get() + static_cast<size_t>(y0) * stride_, src + static_cast<size_t>(y0) * stride_,
                   static_cast<size_t>(y1 - y0) * stride_);
       ports::CapturedFrame out;
-      out.view = {copy_.data(), width_, height_, stride_, image::PixelFormat::kBgr888};
+      out.view = {copy_.get(), width_, height_, stride_, image::PixelFormat::kBgr888};
       out.info.sequence = meta.sequence;
       out.info.exposureStartNs = static_cast<TimeNs>(meta.timestamp);
       out.info.exposureUs = r.exposureUs;
@@ -137,7 +141,8 @@ class Impl final : public LibcameraSource {
   std::unique_ptr<libcamera::FrameBufferAllocator> allocator_;
   std::vector<std::unique_ptr<libcamera::Request>> requests_;
   std::vector<std::pair<void*, size_t>> maps_;
-  std::vector<uint8_t> copy_;
+  std::unique_ptr<uint8_t[]> copy_;
+  size_t copySize_ = 0;
   size_t stride_ = 0;
   int width_ = 0;
   int height_ = 0;
