@@ -151,6 +151,13 @@ struct CaseResult {
   double approachErr = 1e9;
   double centreErr = 1e9;
   double diameterErr = 1e9;
+  double diameterEst = 0.0;    // signed comparison (bias), equatorial
+  double diameterTruth = 0.0;
+  double aspectEst = 1.0;
+  double aspectTruth = 1.0;
+  Eigen::Vector3d centreErrMm = Eigen::Vector3d::Zero();  // estimate − truth
+  double centreToRoughMm = 0.0;  // the estimate's centre from the rough position
+  double roughApproachErr = 0.0; // the approach point from the rough position alone (prior radius)
   double sigma = 0.0;
   double confidence = 0.0;
   double occlusionTruth = 0.0;
@@ -268,6 +275,8 @@ int localizeEval(const std::string& calPath, int cases, const std::vector<double
       r.occlusionTruth = oc->occlusionShare;
       r.approachTruth = sim::approachPoint(target);
       r.description = oc->description;
+      r.roughApproachErr =
+          (oc->roughMm - localize::ScanParams{}.priorRadiusMm * oc->roughMm.normalized() - r.approachTruth).norm();
       Result<localize::ScanPlan> plan = loc.plan(oc->roughMm, strokeMm);
       if (plan) {
         sim::Renderer renderer(oc->scene, rays);
@@ -360,6 +369,12 @@ int localizeEval(const std::string& calPath, int cases, const std::vector<double
           r.approachErr = (est->approachMm - r.approachTruth).norm();
           r.centreErr = (est->centerMm - target.centerMm).norm();
           r.diameterErr = std::abs(est->diameterMm - 2.0 * target.radiusMm);
+          r.diameterEst = est->diameterMm;
+          r.diameterTruth = 2.0 * target.radiusMm;
+          r.aspectEst = est->aspect;
+          r.aspectTruth = target.aspect;
+          r.centreErrMm = est->centerMm - target.centerMm;
+          r.centreToRoughMm = (est->centerMm - oc->roughMm).norm();
           r.sigma = est->sigmaMm;
           r.confidence = est->confidencePct;
           r.occlusionEst = est->occlusionPct;
@@ -378,11 +393,15 @@ int localizeEval(const std::string& calPath, int cases, const std::vector<double
   if (!csvPath.empty()) {
     std::ofstream csv(csvPath);
     csv << "case,distance_mm,found,sphere,approach_err_mm,centre_err_mm,diameter_err_mm,sigma_mm,confidence_pct,"
-           "occlusion_truth,occlusion_est_pct,lines,description\n";
+           "occlusion_truth,occlusion_est_pct,lines,diameter_est_mm,diameter_truth_mm,aspect_est,aspect_truth,"
+           "centre_dx_mm,centre_dy_mm,centre_dz_mm,centre_to_rough_mm,rough_approach_err_mm,description\n";
     for (const auto& r : results)
       csv << r.index << "," << r.distanceMm << "," << r.found << "," << r.sphere << "," << r.approachErr << "," << r.centreErr << ","
           << r.diameterErr << "," << r.sigma << "," << r.confidence << "," << r.occlusionTruth << "," << r.occlusionEst
-          << "," << r.lines << ",\"" << r.description << "\"\n";
+          << "," << r.lines << "," << r.diameterEst << "," << r.diameterTruth << "," << r.aspectEst << ","
+          << r.aspectTruth << "," << r.centreErrMm.x() << "," << r.centreErrMm.y() << "," << r.centreErrMm.z() << ","
+          << r.centreToRoughMm << "," << r.roughApproachErr << ",\""
+          << r.description << "\"\n";
   }
 
   // Report.
