@@ -75,7 +75,10 @@ int64_t autoExposureUs(const SimScene& s) {
   const double lensK = sen.lensTransmission / (4.0 * sen.fNumber * sen.fNumber);
   const double fullScaleE = std::min(sen.fullWellE, sen.fullWellE / std::pow(10.0, sen.gainDb / 20.0));
   const double lux = std::max(1.0, s.lighting.totalLux());
-  const double seconds = 0.6 * fullScaleE / (lux * lensK * sen.electronsPerLuxS);
+  // Through a band-pass filter the white patch is dimmer (most in its brightest channel,
+  // which the auto-exposure keeps at 60 %): the exposure grows by that factor.
+  const double filter = sen.ambientFilterRgb().maxCoeff();
+  const double seconds = 0.6 * fullScaleE / (lux * lensK * sen.electronsPerLuxS * filter);
   return std::clamp<int64_t>(std::llround(seconds * 1e6), 20, 3000);
 }
 
@@ -174,6 +177,7 @@ Result<OrchardCase> makeOrchardCase(const CaseSpec& spec, uint64_t seed) {
   s = defaultScene();
   s.seed = seed;
   s.sensor.bayer = spec.bayer;
+  s.sensor.bandpassFwhmNm = spec.bandpassFwhmNm;
   s.apples.clear();
   setLighting(s, spec.lighting, rng, &oc.lux);
   const auto& cam = s.truth.camera;

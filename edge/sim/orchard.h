@@ -24,6 +24,7 @@ struct CaseSpec {
   bool occluded = false;         // leaves in front of the target cover 15-50 % of it
   LightingKind lighting = LightingKind::kLab;
   bool bayer = true;             // render through the RGGB mosaic, as the real camera
+  double bandpassFwhmNm = 0.0;   // a 635 nm band-pass filter of this width in front of the lens (0: none)
   int maxNeighbours = 3;         // apples in the target's cluster
   double slideCentreMinMm = 45.0;   // the plane through the target's centre needs the
   double slideCentreMaxMm = 155.0;  // slide within these, so five stops 20 mm apart fit

@@ -230,6 +230,7 @@ void Renderer::shadeRegion(const FrameRequest& request, const cv::Rect& region, 
   const double lensK = sen.lensTransmission / (4.0 * sen.fNumber * sen.fNumber);
   const double ambientK = lensK * exposureS * sen.electronsPerLuxS;
   const double laserK = lensK * exposureS * sen.electronsPerWattS * std::clamp(request.laserFraction, 0.0, 1.0);
+  const Eigen::Vector3d ambientFilter = sen.ambientFilterRgb();  // the band-pass filter, if any
   const Eigen::Vector3d up(0.0, -1.0, 0.0);
   const Eigen::Vector3d sun = light.directDir.normalized();
   const bool haveSun = light.directLux > 0.0;
@@ -339,7 +340,7 @@ void Renderer::shadeRegion(const FrameRequest& request, const cv::Rect& region, 
           if (gap < skyThreshold_) {
             // Sky: luminance factor · E_diffuse / π, tinted.
             const double k = light.skyLuminanceFactor * light.diffuseLux * ambientK * cos4;
-            for (int c = 0; c < 3; ++c) out[3 * col + c] = static_cast<float>(k * light.skyRgb(c));
+            for (int c = 0; c < 3; ++c) out[3 * col + c] = static_cast<float>(k * light.skyRgb(c) * ambientFilter(c));
             continue;
           }
           const double clump = valueNoise(p.x() / bgd.textureCellMm, p.y() / bgd.textureCellMm, 99);
@@ -370,7 +371,7 @@ void Renderer::shadeRegion(const FrameRequest& request, const cv::Rect& region, 
         const double fresView = surf.specular + (1.0 - surf.specular) * std::pow(1.0 - cosView, 5);
         specE += 0.5 * fresView * light.skyLuminanceFactor * light.diffuseLux;
       }
-      for (int c = 0; c < 3; ++c) e[c] = (surf.albedo(c) * (diffuseE + directE) + specE) * ambientK * cos4;
+      for (int c = 0; c < 3; ++c) e[c] = (surf.albedo(c) * (diffuseE + directE) + specE) * ambientK * cos4 * ambientFilter(c);
 
       // Laser.
       if (!subs.empty() && surf.laserAlbedo > 0.0) {
@@ -405,7 +406,8 @@ void Renderer::shadeRegion(const FrameRequest& request, const cv::Rect& region, 
         if (irr > 0.0) {
           double sp = 1.0;
           if (s.laser.speckleContrast > 0.0) sp = speckle(u, v, s.laser.speckleCellPx, speckleSalt, looks);
-          const double red = surf.laserAlbedo * irr * laserK * cos4 * sp;
+          // The band-pass filter (if any) at this pixel's angle of incidence: 1 - c2 = sin²θ.
+          const double red = surf.laserAlbedo * irr * laserK * cos4 * sp * sen.laserFilter(1.0 - c2);
           for (int c = 0; c < 3; ++c) e[c] += red * s.laser.channelResponse(c);
         }
       }

@@ -3,6 +3,7 @@
 #include <opencv2/core.hpp>
 
 #include <Eigen/Geometry>
+#include <algorithm>
 #include <cmath>
 #include <cstdio>
 #include <fstream>
@@ -73,7 +74,35 @@ Status SimScene::validate() const {
   if (!(s.gainDb >= 0.0 && s.gainDb <= 48.0)) return fieldError("sensor.gain_db", "must be in 0..48");
   if (!(s.psfSigmaPx >= 0.0 && s.psfSigmaPx <= 5.0)) return fieldError("sensor.psf_sigma_px", "must be in 0..5");
   if (s.exposureUs <= 0 || s.exposureUs > 1000000) return fieldError("sensor.exposure_us", "must be in 1..1000000");
+  if (!(s.bandpassFwhmNm == 0.0 || (s.bandpassFwhmNm >= 5.0 && s.bandpassFwhmNm <= 80.0)))
+    return fieldError("sensor.bandpass_fwhm_nm", "must be 0 (no filter) or in 5..80");
+  if (!(s.bandpassPeak > 0.0 && s.bandpassPeak <= 1.0)) return fieldError("sensor.bandpass_peak", "must be in (0, 1]");
+  if (!(s.bandpassCwlNm >= 600.0 && s.bandpassCwlNm <= 680.0))
+    return fieldError("sensor.bandpass_cwl_nm", "must be in 600..680");
+  if (!(s.bandpassNeff >= 1.0 && s.bandpassNeff <= 3.0)) return fieldError("sensor.bandpass_neff", "must be in 1..3");
   return Status::ok();
+}
+
+double SimSensor::laserFilter(double sin2Theta) const {
+  if (bandpassFwhmNm <= 0.0) return 1.0;
+  const double cwl = bandpassCwlNm * std::sqrt(std::max(0.0, 1.0 - sin2Theta / (bandpassNeff * bandpassNeff)));
+  const double d = std::abs(635.0 - cwl) - (0.5 * bandpassFwhmNm - 1.0);  // beyond the flat top
+  return bandpassPeak * std::clamp(1.0 - 0.5 * d, 0.0, 1.0);  // peak inside, 1/2 at FWHM/2, 0 beyond FWHM/2 + 1 nm
+}
+
+Eigen::Vector3d SimSensor::ambientFilterRgb() const {
+  if (bandpassFwhmNm <= 0.0) return Eigen::Vector3d::Ones();
+  // A flat-topped pass band of FWHM nm at 635 nm over a daylight spectrum that is flat
+  // (±10 %) across 550-700 nm: channel c keeps peak · FWHM · s_c(635) / B_c of its ambient
+  // signal, s_c(635) its response at 635 nm relative to its peak (the laser's channel
+  // response 1, 0.08, 0.04) and B_c its equivalent bandwidth (∫ s_c dλ): red 80 nm
+  // (575-655 nm between the colour filter's rise and the IR-cut filter), green and blue
+  // 100 nm. Capped at 1.
+  const double bw[3] = {80.0, 100.0, 100.0};
+  const double resp[3] = {1.0, 0.08, 0.04};
+  Eigen::Vector3d f;
+  for (int c = 0; c < 3; ++c) f(c) = std::min(1.0, bandpassPeak * bandpassFwhmNm * resp[c] / bw[c]);
+  return f;
 }
 
 const SimApple* SimScene::apple(int id) const {
@@ -253,6 +282,10 @@ Result<SimScene> loadScene(const std::string& path) {
     x.bayer = r.num(sen, "bayer", x.bayer ? 1 : 0, "sensor") != 0.0;
     x.vignetting = r.num(sen, "vignetting", x.vignetting ? 1 : 0, "sensor") != 0.0;
     x.exposureUs = static_cast<int64_t>(r.num(sen, "exposure_us", static_cast<double>(x.exposureUs), "sensor"));
+    x.bandpassFwhmNm = r.num(sen, "bandpass_fwhm_nm", x.bandpassFwhmNm, "sensor");
+    x.bandpassPeak = r.num(sen, "bandpass_peak", x.bandpassPeak, "sensor");
+    x.bandpassCwlNm = r.num(sen, "bandpass_cwl_nm", x.bandpassCwlNm, "sensor");
+    x.bandpassNeff = r.num(sen, "bandpass_neff", x.bandpassNeff, "sensor");
   }
   const cv::FileNode li = root["lighting"];
   if (li.isMap()) {
@@ -381,7 +414,9 @@ std::string sceneJson(const SimScene& s) {
     << ", \"electrons_per_lux_s\": " << x.electronsPerLuxS << ", \"electrons_per_watt_s\": " << x.electronsPerWattS
     << ", \"full_well_e\": " << x.fullWellE << ", \"read_noise_e\": " << x.readNoiseE << ", \"gain_db\": " << x.gainDb
     << ", \"prnu\": " << x.prnu << ", \"psf_sigma_px\": " << x.psfSigmaPx << ", \"bayer\": " << (x.bayer ? 1 : 0)
-    << ", \"vignetting\": " << (x.vignetting ? 1 : 0) << ", \"exposure_us\": " << x.exposureUs << "},\n";
+    << ", \"vignetting\": " << (x.vignetting ? 1 : 0) << ", \"exposure_us\": " << x.exposureUs
+    << ", \"bandpass_fwhm_nm\": " << x.bandpassFwhmNm << ", \"bandpass_peak\": " << x.bandpassPeak
+    << ", \"bandpass_cwl_nm\": " << x.bandpassCwlNm << ", \"bandpass_neff\": " << x.bandpassNeff << "},\n";
   const auto& li = s.lighting;
   o << "  \"lighting\": {\"name\": \"" << li.name << "\", \"diffuse_lux\": " << li.diffuseLux
     << ", \"direct_lux\": " << li.directLux << ", \"direct_dir\": " << v3(li.directDir) << ", \"sky_rgb\": "

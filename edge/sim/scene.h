@@ -119,6 +119,19 @@ struct SimSensor {
   bool bayer = false;                    // RGGB mosaic + bilinear demosaic (the real camera)
   bool vignetting = true;                // cos⁴ fall-off
   int64_t exposureUs = 3000;             // used when a render does not say
+  // Optional band-pass interference filter in front of the lens, centred on the laser
+  // (635 nm): a flat top of `bandpassFwhmNm` (0: no filter) with `bandpassPeak`
+  // transmission, blocking outside. docs/simulation.md, "Band-pass filter".
+  double bandpassFwhmNm = 0.0;
+  double bandpassPeak = 0.9;
+  double bandpassCwlNm = 637.0;  // centre at normal incidence (a little above the laser's 635)
+  double bandpassNeff = 2.0;     // effective index: the centre moves to cwl·√(1 − sin²θ/n²) off axis
+  // What the filter passes: of the ambient (daylight-like, flat over 550-700 nm) light in
+  // each channel (R, G, B), and of the laser (635 nm) arriving at sin²θ off the axis: the
+  // pass band is flat to 1 nm inside its half-maximum points, with 2 nm linear edges.
+  // All 1 without a filter.
+  Eigen::Vector3d ambientFilterRgb() const;
+  double laserFilter(double sin2Theta) const;
 };
 
 struct SimScene {

@@ -38,7 +38,7 @@ bool exists(const std::string& path) {
 
 int generateMain(const Args& args) {
   if (Status s = args.allow({"set", "out", "count", "seed", "distance-mm", "occluded", "lighting", "bayer", "jobs",
-                             "motion-mm-s", "resume"});
+                             "motion-mm-s", "resume", "bandpass-nm"});
       !s) {
     std::fprintf(stderr, "alacs-twin generate: %s\n", s.reason().c_str());
     return 2;
@@ -59,6 +59,13 @@ int generateMain(const Args& args) {
   const bool bayer = args.integer("bayer", 1) != 0;
   const int jobs = static_cast<int>(args.integer("jobs", 2));
   const double motionMmS = args.num("motion-mm-s", 0.0);
+  // A 635 nm band-pass filter in front of the lens (its FWHM in nm; 0: none), as a
+  // laser-line sensor in sunlight has (docs/simulation.md, "Band-pass filter").
+  const double bandpassNm = args.num("bandpass-nm", 0.0);
+  if (!(bandpassNm == 0.0 || (bandpassNm >= 5.0 && bandpassNm <= 80.0))) {
+    std::fprintf(stderr, "alacs-twin generate: --bandpass-nm must be 0 or in 5..80\n");
+    return 2;
+  }
   const bool resume = args.has("resume") && args.integer("resume", 1) != 0;
   if (occ != "0" && occ != "1" && occ != "both" && occ != "mix") {
     std::fprintf(stderr, "alacs-twin generate: --occluded must be 0, 1, both or mix\n");
@@ -92,6 +99,7 @@ int generateMain(const Args& args) {
       j.spec.lighting = lights[static_cast<size_t>(i / static_cast<int>(distances.size())) % lights.size()];
       j.spec.occluded = occ == "1" || (occ == "mix" && (i / static_cast<int>(distances.size() * lights.size())) % 2 == 1);
       j.spec.bayer = bayer;
+      j.spec.bandpassFwhmNm = bandpassNm;
       j.seed = mixSeed(seed, 0x11EULL * 1000003ULL + static_cast<uint64_t>(i));
       j.single = true;
       cases.push_back(j);
@@ -112,6 +120,7 @@ int generateMain(const Args& args) {
           j.spec.occluded = o == 1;
           j.spec.lighting = lights[static_cast<size_t>(i) % lights.size()];
           j.spec.bayer = bayer;
+          j.spec.bandpassFwhmNm = bandpassNm;
           j.seed = mixSeed(seed, static_cast<uint64_t>(d) * 10 + static_cast<uint64_t>(o) + static_cast<uint64_t>(i) * 100003ULL);
           cases.push_back(j);
         }
@@ -168,10 +177,10 @@ int generateMain(const Args& args) {
         std::snprintf(buf, sizeof buf,
                       "{\"case\": \"%s\", \"dir\": \"%s\", \"set\": \"%s\", \"distance_mm\": %.0f, \"occluded\": %d, "
                       "\"lighting\": \"%s\", \"lux\": %.0f, \"occlusion_share\": %.4f, \"exposure_us\": %lld, "
-                      "\"diameter_mm\": %.2f, \"neighbours\": %zu, \"leaves\": %zu, \"seed\": %llu}",
+                      "\"bandpass_nm\": %.0f, \"diameter_mm\": %.2f, \"neighbours\": %zu, \"leaves\": %zu, \"seed\": %llu}",
                       job.name.c_str(), dir.c_str(), set.c_str(), job.spec.distanceMm, job.spec.occluded ? 1 : 0,
                       sim::lightingName(job.spec.lighting), oc->lux, oc->occlusionShare,
-                      static_cast<long long>(scene.sensor.exposureUs), 2.0 * target.radiusMm, scene.apples.size() - 1,
+                      static_cast<long long>(scene.sensor.exposureUs), scene.sensor.bandpassFwhmNm, 2.0 * target.radiusMm, scene.apples.size() - 1,
                       scene.leaves.size(), static_cast<unsigned long long>(job.seed));
         lines[static_cast<size_t>(i)] = buf;
         return Status::ok();

@@ -18,7 +18,7 @@ void usage(FILE* out) {
                "usage: alacs-twin COMMAND [options]\n"
                "  generate --set lle|loc --out DIR [--count N] [--seed S] [--distance-mm Z[,Z..]]\n"
                "           [--occluded 0|1|mix] [--lighting lab|overcast|direct|sun|outdoor] [--bayer 0|1]\n"
-               "           [--jobs N] [--motion-mm-s V]\n"
+               "           [--jobs N] [--motion-mm-s V] [--bandpass-nm FWHM (a 635 nm band-pass filter; 0 none)]\n"
                "      benchmark scan directories DIR/case_NNNN (one JSON line per case on stdout)\n"
                "  calib --out DIR [--seed S] [--views N] [--jobs N]\n"
                "      calibration scans: DIR/checkerboard_NN (laser off), DIR/laser_plane_NNNN\n"
