@@ -16,6 +16,9 @@
 
 namespace alacs::image::detail {
 
+// Largest weight of a row in the smoothing along the line (Q0, see focusRobust stage 5b).
+constexpr int64_t kMaxSmoothWeight = 4096;
+
 // Scale of the MAD to a 3σ rejection limit: 3 · 1.4826 ≈ 18218 / 4096, in both arithmetics.
 constexpr int64_t kMadToLimitQ12 = 18218;
 
@@ -173,23 +176,26 @@ struct FixedArith {
   }
   static Col absDiff(Col a, Col b) { return a > b ? a - b : b - a; }
 
-  // The least-squares quadratic through (u[i], c[i]) evaluated at u = 0 (Cramer's rule
-  // over exact integer sums); linear, then the mean, when the points cannot support it.
-  // Sums fit int64 (|u| <= 32, n <= 64, |c| < 2^31); the products of the 3x3 solve need
-  // __int128, those of the linear one do not.
-  static Col quadAtZero(const int* u, const Col* c, int n, int order) {
+  // The weighted least-squares quadratic through (u[i], c[i]) with integer weights wt[i]
+  // evaluated at u = 0 (Cramer's rule over exact integer sums); linear, then the mean, when
+  // the points cannot support it. Sums fit int64 (|u| <= 32, n <= 64, |c| < 2^31,
+  // 1 <= wt <= kMaxSmoothWeight = 2^12: Σ w·u²·c < 2^59); the products of the 3x3 solve
+  // need __int128 (< 2^118), those of the linear one only for t0·s2.
+  static Col quadAtZero(const int* u, const Col* c, const int32_t* wt, int n, int order) {
     int64_t s0 = 0, s1 = 0, s2 = 0, s3 = 0, s4 = 0, t0 = 0, t1 = 0, t2 = 0;
     for (int i = 0; i < n; ++i) {
       const int64_t x = u[i];
       const int64_t x2 = x * x;
-      s0 += 1;
-      s1 += x;
-      s2 += x2;
-      s3 += x2 * x;
-      s4 += x2 * x2;
-      t0 += c[i];
-      t1 += x * c[i];
-      t2 += x2 * c[i];
+      const int64_t w = wt[i];
+      const int64_t wc = w * c[i];
+      s0 += w;
+      s1 += w * x;
+      s2 += w * x2;
+      s3 += w * x2 * x;
+      s4 += w * x2 * x2;
+      t0 += wc;
+      t1 += x * wc;
+      t2 += x2 * wc;
     }
     auto div = [](Int128 a, Int128 b) {
       if (b < 0) {
@@ -238,18 +244,19 @@ struct FloatArith {
   static float toFloat(Col c) { return static_cast<float>(c); }
   static Col ratio(int64_t num, int64_t den) { return static_cast<double>(num) / static_cast<double>(den); }
   static Col absDiff(Col a, Col b) { return std::abs(a - b); }
-  static Col quadAtZero(const int* u, const Col* c, int n, int order) {
+  static Col quadAtZero(const int* u, const Col* c, const int32_t* wt, int n, int order) {
     double s0 = 0, s1 = 0, s2 = 0, s3 = 0, s4 = 0, t0 = 0, t1 = 0, t2 = 0;
     for (int i = 0; i < n; ++i) {
       const double x = u[i];
-      s0 += 1;
-      s1 += x;
-      s2 += x * x;
-      s3 += x * x * x;
-      s4 += x * x * x * x;
-      t0 += c[i];
-      t1 += x * c[i];
-      t2 += x * x * c[i];
+      const double w = wt[i];
+      s0 += w;
+      s1 += w * x;
+      s2 += w * x * x;
+      s3 += w * x * x * x;
+      s4 += w * x * x * x * x;
+      t0 += w * c[i];
+      t1 += w * x * c[i];
+      t2 += w * x * x * c[i];
     }
     const double det = s0 * (s2 * s4 - s3 * s3) - s1 * (s1 * s4 - s3 * s2) + s2 * (s1 * s3 - s2 * s2);
     if (order >= 2 && n >= 3 && det != 0.0)
@@ -376,6 +383,8 @@ void focusRobust(const ImageView& frame, const ImageView* laserOff, const Roi& r
   arena.reserve<Col>(64);
   arena.reserve<Col>(slots);       // output centroids
   arena.reserve<int32_t>(slots);   // output smoothing keys
+  arena.reserve<int32_t>(slots);   // output smoothing weights
+  arena.reserve<int32_t>(64);
   arena.commit();
   Peak* peaks = arena.take<Peak>(slots);
   int32_t* nPeaks = arena.take<int32_t>(uh);
@@ -397,6 +406,8 @@ void focusRobust(const ImageView& frame, const ImageView* laserOff, const Roi& r
   Col* smoothCols = arena.take<Col>(64);
   Col* outCol = arena.take<Col>(slots);
   int32_t* outKey = arena.take<int32_t>(slots);
+  int32_t* outWt = arena.take<int32_t>(slots);
+  int32_t* smoothWt = arena.take<int32_t>(64);
 
   const int redOff = redOffset(frame.format);
   const int step = p.brceStep;
@@ -650,6 +661,13 @@ void focusRobust(const ImageView& frame, const ImageView* laserOff, const Roi& r
     }
     if (sm.segment >= 0) out.segments[static_cast<size_t>(sm.segment)].rows += 1;
     outCol[out.rows.size()] = col;
+    // The smoothing weight: the peak's area cubed, area³ / 2^18 in 1..4096 (an integer: the
+    // sums of the weighted fit stay within int64). Rows where part of the profile is hidden
+    // (a leaf's edge crossing the line, a grazing limb) are weaker and count far less.
+    {
+      const int64_t a = std::max(1, pk.area);
+      outWt[out.rows.size()] = static_cast<int32_t>(std::clamp<int64_t>(a * a * a >> 18, 1, kMaxSmoothWeight));
+    }
     outKey[out.rows.size()] = status == RowStatus::kLine      ? -2
                               : status == RowStatus::kOutlier ? -3
                               : status == RowStatus::kEdge    ? -4
@@ -693,9 +711,11 @@ void focusRobust(const ImageView& frame, const ImageView* laserOff, const Roi& r
     }
     for (int i = 0; i < n2; ++i) emit(y, peaks[others[i]], RowStatus::kSegment, 128);
   }
-  // Stage 5b: along the line, each row's column is the local quadratic fit through the
-  // centroids within ±smoothRows rows of the same line or segment (speckle averages out
-  // over rows; the quadratic term keeps the curvature unbiased).
+  // Stage 5b: along the line, each row's column is the local fit (smoothOrder: mean, line,
+  // quadratic) through the centroids within ±smoothRows rows of the same line or segment,
+  // each weighted by its peak's area cubed (speckle averages out over rows; rows whose
+  // profile is partly hidden are weak and barely count). Rows at an occluding edge (kEdge)
+  // and rejected rows are neither smoothed nor used.
   if (p.smoothRows > 0) {
     const int nRows = static_cast<int>(out.rows.size());
     for (int k = 0; k < nRows; ++k) {
@@ -708,9 +728,10 @@ void focusRobust(const ImageView& frame, const ImageView* laserOff, const Roi& r
         if (outKey[j] != outKey[k]) continue;
         endRows[m] = out.rows[static_cast<size_t>(j)].row - r0;
         smoothCols[m] = outCol[j];
+        smoothWt[m] = outWt[j];
         if (++m == 64) break;
       }
-      const Col smooth = A::quadAtZero(endRows, smoothCols, m, p.smoothOrder);
+      const Col smooth = A::quadAtZero(endRows, smoothCols, smoothWt, m, p.smoothOrder);
       RowSample& sm = out.rows[static_cast<size_t>(k)];
       sm.columnQ8 = A::toQ8(smooth);
       sm.column = A::toFloat(smooth);

@@ -512,3 +512,23 @@ TEST_CASE("A row whose background steps across the peak (an occluder's edge) is 
   p.edgeRatio = 1;
   CHECK_FALSE(p.validate().isOk());
 }
+
+TEST_CASE("Smoothing along the line weighs rows by their peak's strength", "[lle][smooth]") {
+  // A straight line at column 60; rows 50..53 are dim and displaced by 1.5 px (a profile
+  // partly hidden). Weighted by area³ they barely pull their neighbours' smoothed columns.
+  Rgb img(120, 100, 20);
+  addLine(img, [](int) { return 60.0; }, 1.2, 150.0, 0, 50);
+  addLine(img, [](int) { return 61.5; }, 1.2, 70.0, 50, 54);
+  addLine(img, [](int) { return 60.0; }, 1.2, 150.0, 54, 100);
+  const LaserLine l = run(img);
+  REQUIRE(l.valid);
+  for (int row : {44, 46, 48, 49, 54, 55, 57, 59}) {
+    const RowSample* s = l.sampleAt(row);
+    REQUIRE(s != nullptr);
+    CHECK(s->valid());
+    CHECK(std::abs(s->column - 60.0F) < 0.1F);  // unweighted: 0.27-0.35 px
+  }
+  const RowSample* dim = l.sampleAt(51);
+  REQUIRE(dim != nullptr);
+  CHECK(std::abs(dim->centroidQ8 / 256.0 - 61.5) < 0.2);  // its own centroid is where it is
+}
