@@ -39,6 +39,7 @@ Status LleParams::validate() const {
   if (smoothRows < 0 || smoothRows > 32) return bad(Error::kInvalidArgument, "smoothRows must be in 0..32");
   if (edgeRatio != 0 && (edgeRatio < 2 || edgeRatio > 16))
     return bad(Error::kInvalidArgument, "edgeRatio must be 0 or in 2..16");
+  if (!(edgeAgreePx >= 0.0 && edgeAgreePx <= 8.0)) return bad(Error::kInvalidArgument, "edgeAgreePx must be in 0..8");
   if (kernels != LleKernels::kAuto && kernels != LleKernels::kScalar)
     return bad(Error::kInvalidArgument, "unknown kernel choice");
   return Status::ok();

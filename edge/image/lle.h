@@ -84,6 +84,8 @@ struct LleParams {
   int edgeRatio = 3;         // occluding edge: the background on one side of a run is darker than
                              // edgeRatio x the other's (less 8 DN): the profile may be cut by an
                              // occluder's edge; the row is kEdge (invalid) (0: off, 2..16)
+  double edgeAgreePx = 0.5;  // ... unless its centroid agrees within this with the straight line
+                             // through >= 4 other rows of its line or segment within ±smoothRows (0..8)
   LleKernels kernels = LleKernels::kAuto;
 
   Status validate() const;

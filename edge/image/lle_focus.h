@@ -384,6 +384,8 @@ void focusRobust(const ImageView& frame, const ImageView* laserOff, const Roi& r
   arena.reserve<Col>(slots);       // output centroids
   arena.reserve<int32_t>(slots);   // output smoothing keys
   arena.reserve<int32_t>(slots);   // output smoothing weights
+  arena.reserve<int32_t>(slots);   // output peak keys (Q8)
+  arena.reserve<uint8_t>(slots);   // output: at an occluding edge
   arena.reserve<int32_t>(64);
   arena.commit();
   Peak* peaks = arena.take<Peak>(slots);
@@ -407,6 +409,8 @@ void focusRobust(const ImageView& frame, const ImageView* laserOff, const Roi& r
   Col* outCol = arena.take<Col>(slots);
   int32_t* outKey = arena.take<int32_t>(slots);
   int32_t* outWt = arena.take<int32_t>(slots);
+  int32_t* outPeakKey = arena.take<int32_t>(slots);
+  uint8_t* outEdge = arena.take<uint8_t>(slots);
   int32_t* smoothWt = arena.take<int32_t>(64);
 
   const int redOff = redOffset(frame.format);
@@ -643,7 +647,6 @@ void focusRobust(const ImageView& frame, const ImageView* laserOff, const Roi& r
     if (chains[c].segment >= 0)
       out.segments.push_back(LineSegment{roi.y + chains[c].first, roi.y + chains[c].last, 0, chains[c].onLine != 0});
   auto emit = [&](int y, const Peak& pk, RowStatus status, int fitTerm) {
-    if (pk.edge != 0 && status != RowStatus::kOutlier) status = RowStatus::kEdge;
     RowSample sm;
     sm.row = roi.y + y;
     const Col col = pk.col + A::fromInt(roi.x);
@@ -654,7 +657,7 @@ void focusRobust(const ImageView& frame, const ImageView* laserOff, const Roi& r
     sm.inlier = status == RowStatus::kLine;
     sm.saturated = pk.saturated != 0;
     sm.segment = chains[pk.chain].segment;
-    if (status != RowStatus::kOutlier && status != RowStatus::kEdge) {
+    if (status != RowStatus::kOutlier) {
       int conf = std::min(256, pk.excess * 256 / 96) * fitTerm / 256;
       if (sm.saturated) conf = conf * 3 / 4;
       sm.confidence = static_cast<float>(conf) / 256.0F;
@@ -668,16 +671,10 @@ void focusRobust(const ImageView& frame, const ImageView* laserOff, const Roi& r
       const int64_t a = std::max(1, pk.area);
       outWt[out.rows.size()] = static_cast<int32_t>(std::clamp<int64_t>(a * a * a >> 18, 1, kMaxSmoothWeight));
     }
-    outKey[out.rows.size()] = status == RowStatus::kLine      ? -2
-                              : status == RowStatus::kOutlier ? -3
-                              : status == RowStatus::kEdge    ? -4
-                                                              : sm.segment;
+    outKey[out.rows.size()] = status == RowStatus::kLine ? -2 : status == RowStatus::kOutlier ? -3 : sm.segment;
+    outPeakKey[out.rows.size()] = pk.key;
+    outEdge[out.rows.size()] = static_cast<uint8_t>(pk.edge != 0 && status != RowStatus::kOutlier ? 1 : 0);
     out.rows.push_back(sm);
-    if (status == RowStatus::kLine) {
-      if (out.inliers == 0) out.firstLineRow = sm.row;
-      out.lastLineRow = sm.row;
-      out.inliers += 1;
-    }
   };
   double sumSq = 0.0;
   int fi = 0;
@@ -710,6 +707,38 @@ void focusRobust(const ImageView& frame, const ImageView* laserOff, const Roi& r
       others[i] = pi;
     }
     for (int i = 0; i < n2; ++i) emit(y, peaks[others[i]], RowStatus::kSegment, 128);
+  }
+  // Stage 5a: a sample at an occluding edge (RunSums::edge) is kept only when its centroid
+  // agrees with the straight line through the keys of the same line or segment within
+  // ±smoothRows rows that are not at an edge themselves (at least 4 of them), within
+  // edgeAgreePx; otherwise it is kEdge: invalid, not smoothed, not used for smoothing.
+  {
+    const int nRows = static_cast<int>(out.rows.size());
+    const int32_t edgeTolQ8 = Q::fromPx(p.edgeAgreePx);
+    for (int k = 0; k < nRows; ++k) {
+      if (outEdge[k] == 0) continue;
+      const int r0 = out.rows[static_cast<size_t>(k)].row;
+      int lo = k;
+      while (lo > 0 && r0 - out.rows[static_cast<size_t>(lo - 1)].row <= p.smoothRows) --lo;
+      int m = 0;
+      for (int j = lo; j < nRows && out.rows[static_cast<size_t>(j)].row - r0 <= p.smoothRows && m < 64; ++j) {
+        if (j == k || outEdge[j] != 0 || outKey[j] != outKey[k]) continue;
+        endRows[m] = out.rows[static_cast<size_t>(j)].row - r0;
+        endKeys[m++] = outPeakKey[j];
+      }
+      if (m >= 4 && Q::absDiff(Q::lineAt(endRows, endKeys, m, 0), outPeakKey[k]) <= edgeTolQ8) continue;
+      RowSample& sm = out.rows[static_cast<size_t>(k)];
+      sm.status = RowStatus::kEdge;
+      sm.inlier = false;
+      sm.confidence = 0.0F;
+      outKey[k] = -4;
+    }
+    for (const RowSample& sm : out.rows) {
+      if (sm.status != RowStatus::kLine) continue;
+      if (out.inliers == 0) out.firstLineRow = sm.row;
+      out.lastLineRow = sm.row;
+      out.inliers += 1;
+    }
   }
   // Stage 5b: along the line, each row's column is the local fit (smoothOrder: mean, line,
   // quadratic) through the centroids within ±smoothRows rows of the same line or segment,

@@ -480,10 +480,10 @@ TEST_CASE("Random images never crash the extractor", "[lle][edge]") {
 
 TEST_CASE("A row whose background steps across the peak (an occluder's edge) is invalid, kEdge", "[lle][edge]") {
   // A line on skin (red 60); in rows 40..59 a dark leaf (red 8) covers the columns left of
-  // 58, cutting the left part of the line's profile: the centroid there moves right.
+  // 60, hiding the left half of the line's profile: the centroid there moves right.
   Rgb img = lineImage(120, 100, [](int) { return 60.0; }, 1.2, 150.0, 60);
   for (int y = 40; y < 60; ++y)
-    for (int x = 0; x < 58; ++x) img.red(x, y) = 8;
+    for (int x = 0; x < 60; ++x) img.red(x, y) = 8;
   const LaserLine l = run(img);
   REQUIRE(l.valid);
   int edge = 0;
@@ -508,9 +508,36 @@ TEST_CASE("A row whose background steps across the peak (an occluder's edge) is 
   const RowSample* s = o.sampleAt(50);
   REQUIRE(s != nullptr);
   CHECK(s->valid());
-  CHECK(std::abs(s->centroidQ8 - 60 * 256) > 16);  // off by more than 1/16 px
+  CHECK(s->centroidQ8 > 60 * 256 + 128);  // more than 0.5 px off
   p.edgeRatio = 1;
   CHECK_FALSE(p.validate().isOk());
+  p.edgeRatio = 3;
+  p.edgeAgreePx = -1.0;
+  CHECK_FALSE(p.validate().isOk());
+}
+
+TEST_CASE("An edge row whose centroid agrees with its neighbours stays valid", "[lle][edge]") {
+  // The leaf stops 2 px short of the line (columns < 58): the background steps, but the
+  // profile is barely cut. Rows next to clean rows agree with them within edgeAgreePx and
+  // stay on the line; rows with fewer than 4 clean rows within ±smoothRows are kEdge.
+  Rgb img = lineImage(120, 100, [](int) { return 60.0; }, 1.2, 150.0, 60);
+  for (int y = 40; y < 60; ++y)
+    for (int x = 0; x < 58; ++x) img.red(x, y) = 8;
+  const LaserLine l = run(img);
+  REQUIRE(l.valid);
+  for (int row : {40, 41, 42, 43, 44, 55, 56, 57, 58, 59}) {
+    const RowSample* s = l.sampleAt(row);
+    REQUIRE(s != nullptr);
+    CHECK(s->status == RowStatus::kLine);
+  }
+  for (int row = 45; row < 55; ++row) {
+    const RowSample* s = l.sampleAt(row);
+    REQUIRE(s != nullptr);
+    CHECK(s->status == RowStatus::kEdge);
+  }
+  LleParams p;
+  p.edgeAgreePx = 0.0;  // nothing agrees exactly: every edge row is kEdge
+  CHECK(rowsWithStatus(run(img, p), RowStatus::kEdge) == 20);
 }
 
 TEST_CASE("Smoothing along the line weighs rows by their peak's strength", "[lle][smooth]") {

@@ -163,6 +163,7 @@ bool setParam(image::LleParams& p, const std::string& kv) {
   else if (k == "sorder") p.smoothOrder = iv;
   else if (k == "weak") p.weakThresholdPct = iv;
   else if (k == "edge") p.edgeRatio = iv;
+  else if (k == "edgeagree") p.edgeAgreePx = v;
   else return false;
   return true;
 }
@@ -556,7 +557,7 @@ int main(int argc, char** argv) {
                    "usage: alacs_lle_eval [--cases N] [--first K] [--set-dir DIR]... [--jobs J] [--laser-off] [--line]\n"
                    "                      [--csv FILE] [--dump DIR] [--rows ID]\n"
                    "                      [--set step|th|theta|gamma|order|outlier|minrows|peaks|jump|gap|minseg|bridge|\n"
-                   "                             bridgerow|smooth|sorder|weak|edge=VALUE]...\n");
+                   "                             bridgerow|smooth|sorder|weak|edge|edgeagree=VALUE]...\n");
       return 2;
     }
   }
