@@ -25,6 +25,8 @@ Status LleParams::validate() const {
   if (!(outlierPx >= 0.1 && outlierPx <= 100.0)) return bad(Error::kInvalidArgument, "outlierPx must be in 0.1..100");
   if (minRows < polyOrder + 1 || minRows > kLleMaxSidePx)
     return bad(Error::kInvalidArgument, "minRows must be in polyOrder+1..16384");
+  if (robustThresholdPct < 10 || robustThresholdPct > 100)
+    return bad(Error::kInvalidArgument, "robustThresholdPct must be in 10..100");
   if (weakThresholdPct < 10 || weakThresholdPct > 100)
     return bad(Error::kInvalidArgument, "weakThresholdPct must be in 10..100");
   if (maxPeaksPerRow < 1 || maxPeaksPerRow > 8) return bad(Error::kInvalidArgument, "maxPeaksPerRow must be in 1..8");

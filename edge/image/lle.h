@@ -69,9 +69,12 @@ struct LleParams {
   double outlierPx = 2.0;    // kRobust: residual beyond which a row is rejected from the fit (0.1..100)
   int minRows = 8;           // fewer line rows than this: no line (polyOrder+1..16384)
   // kRobust only:
-  int weakThresholdPct = 75; // hysteresis: candidates at this share of brceThreshold; a segment needs
-                             // two rows, and a quarter of its rows, whose margin exceeds brceThreshold
-                             // itself (10..100; 100: no hysteresis)
+  int robustThresholdPct = 100;  // kRobust's strong threshold: this share of brceThreshold
+                             // (10..100). 60 (40 -> 24) finds the line in full sun behind a
+                             // band-pass filter (docs/lle.md), at ~10 % more time per full frame
+  int weakThresholdPct = 75; // hysteresis: candidates at this share of the strong threshold; a
+                             // segment needs two rows, and a quarter of its rows, whose margin
+                             // exceeds the strong threshold itself (10..100; 100: no hysteresis)
   int maxPeaksPerRow = 4;    // strongest runs of a row considered by the continuity step (1..8)
   double maxJumpPx = 2.0;    // a peak continues a segment when within this of its prediction (0.25..64)
   int maxGapRows = 3;        // rows a segment may skip and still continue (0..64)
@@ -89,9 +92,13 @@ struct LleParams {
   LleKernels kernels = LleKernels::kAuto;
 
   Status validate() const;
-  // The threshold bRCE runs with: brceThreshold, or its weak share for kRobust.
+  // kRobust: the strong threshold, robustThresholdPct of brceThreshold; kPaper: brceThreshold.
+  int strongThreshold() const {
+    return method == LleMethod::kRobust ? brceThreshold * robustThresholdPct / 100 : brceThreshold;
+  }
+  // The threshold bRCE runs with: brceThreshold, or the weak share of the strong one for kRobust.
   int detectionThreshold() const {
-    return method == LleMethod::kRobust ? brceThreshold * weakThresholdPct / 100 : brceThreshold;
+    return method == LleMethod::kRobust ? strongThreshold() * weakThresholdPct / 100 : brceThreshold;
   }
 };
 

@@ -183,19 +183,32 @@ struct FixedArith {
   // need __int128 (< 2^118), those of the linear one only for t0·s2.
   static Col quadAtZero(const int* u, const Col* c, const int32_t* wt, int n, int order) {
     int64_t s0 = 0, s1 = 0, s2 = 0, s3 = 0, s4 = 0, t0 = 0, t1 = 0, t2 = 0;
-    for (int i = 0; i < n; ++i) {
-      const int64_t x = u[i];
-      const int64_t x2 = x * x;
-      const int64_t w = wt[i];
-      const int64_t wc = w * c[i];
-      s0 += w;
-      s1 += w * x;
-      s2 += w * x2;
-      s3 += w * x2 * x;
-      s4 += w * x2 * x2;
-      t0 += wc;
-      t1 += x * wc;
-      t2 += x2 * wc;
+    if (order >= 2) {
+      for (int i = 0; i < n; ++i) {
+        const int64_t x = u[i];
+        const int64_t x2 = x * x;
+        const int64_t w = wt[i];
+        const int64_t wc = w * c[i];
+        s0 += w;
+        s1 += w * x;
+        s2 += w * x2;
+        s3 += w * x2 * x;
+        s4 += w * x2 * x2;
+        t0 += wc;
+        t1 += x * wc;
+        t2 += x2 * wc;
+      }
+    } else {  // the linear fit (the default) needs no third or fourth moments
+      for (int i = 0; i < n; ++i) {
+        const int64_t x = u[i];
+        const int64_t w = wt[i];
+        const int64_t wx = w * x;
+        s0 += w;
+        s1 += wx;
+        s2 += wx * x;
+        t0 += w * c[i];
+        t1 += wx * c[i];
+      }
     }
     auto div = [](Int128 a, Int128 b) {
       if (b < 0) {
@@ -325,7 +338,7 @@ struct Peak {
   int32_t chain;
   int32_t next;     // next peak of the same chain (row order), -1
   uint8_t saturated;
-  uint8_t strong;   // its bRCE margin passes brceThreshold (not only the weak share)
+  uint8_t strong;   // its bRCE margin passes the strong threshold (not only the weak share)
   uint8_t edge;     // at an occluding edge (RunSums::edge): reported kEdge, not smoothed over
 };
 
@@ -416,6 +429,7 @@ void focusRobust(const ImageView& frame, const ImageView* laserOff, const Roi& r
   const int redOff = redOffset(frame.format);
   const int step = p.brceStep;
   const int mergeGap = std::max(1, step / 2);
+  const int strongTh = p.strongThreshold();
 
   // Stage 3: per row, every run of candidates is a peak (holes of up to mergeGap pixels,
   // speckle, are bridged); its centre is the centroid of the red excess. The strongest
@@ -447,7 +461,7 @@ void focusRobust(const ImageView& frame, const ImageView* laserOff, const Roi& r
         --i;
       }
       row[i] = Peak{A::ratio(s.sumXW, s.sumW), Q::ratio(s.sumXW, s.sumW), s.area, s.excess, -1, -1,
-                    static_cast<uint8_t>(s.saturated ? 1 : 0), static_cast<uint8_t>(s.margin > p.brceThreshold ? 1 : 0),
+                    static_cast<uint8_t>(s.saturated ? 1 : 0), static_cast<uint8_t>(s.margin > strongTh ? 1 : 0),
                     static_cast<uint8_t>(s.edge ? 1 : 0)};
     }
     nPeaks[y] = n;
@@ -504,7 +518,7 @@ void focusRobust(const ImageView& frame, const ImageView* laserOff, const Roi& r
   }
 
   // Segments: chains of at least minSegmentRows rows of which at least two, and a quarter,
-  // pass brceThreshold itself (hysteresis: a weak line needs strong parts; a faint laser
+  // pass the strong threshold itself (hysteresis: a weak line needs strong parts; a faint laser
   // line on a far background, never strong, stays out). Strongest first.
   auto isSegment = [&](const Chain& c) {
     return c.count >= p.minSegmentRows && c.strong >= std::min(2, c.count) && 4 * c.strong >= c.count;

@@ -269,6 +269,7 @@ TEST_CASE("Hysteresis: a weak line is kept when some rows pass the threshold, a 
   Rgb weak = lineImage(120, 80, [](int) { return 60.0; }, 1.0, 38, 30);
   LleParams p;
   p.smoothRows = 0;
+  p.robustThresholdPct = 100;  // the strong threshold is th = 40 itself here
   CHECK(run(weak, p).rows.empty());
   // The same line with a third of its rows brighter: the whole line is found.
   Rgb mixed = weak;

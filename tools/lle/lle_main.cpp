@@ -40,6 +40,7 @@ void usage(FILE* out) {
                "         --theta N (8)   --gamma N (3)   --order N (4)   --outlier PX (2)   --min-rows N (8)\n"
                "         --smooth N (8)   --jump PX (2)   --gap N (3)   --min-segment N (6)   --peaks N (4)\n"
                "         --edge N (3; 0 off: rows at an occluding edge are kept valid)\n"
+               "         --robust-pct N (60: the robust method's strong threshold, %% of --th)\n"
                "         --only-line (no other segments)   --scalar (scalar kernels)   --reference (float reference)\n"
                "exit status: 0 done, 1 an input or parameter was refused (the reason on stderr), 2 usage\n");
 }
@@ -156,6 +157,7 @@ int parseArgs(int argc, char** argv, Options& o) {
     else if (a == "--min-rows") ok = intOpt(p.minRows);
     else if (a == "--smooth") ok = intOpt(p.smoothRows);
     else if (a == "--edge") ok = intOpt(p.edgeRatio);
+    else if (a == "--robust-pct") ok = intOpt(p.robustThresholdPct);
     else if (a == "--jump") ok = numOpt(p.maxJumpPx);
     else if (a == "--gap") ok = intOpt(p.maxGapRows);
     else if (a == "--min-segment") ok = intOpt(p.minSegmentRows);
