@@ -3,7 +3,8 @@
 # in tests/fuzz/lle/run.sh):
 #   1. the numpy paper method (tools/paper_lle) = the C++ paper path, bit for bit (pytest)
 #   2. the twin's LLE benchmark sets (alacs-twin generate --set lle: 100 lab, 200 outdoor,
-#      100 full-sun cases, occluded and free, 0.8-1.6 m) through alacs_lle_eval: fixed
+#      100 full-sun cases, and 100 full-sun cases behind the camera's optional 635 nm
+#      band-pass filter; occluded and free, 0.8-1.6 m) through alacs_lle_eval: fixed
 #      point within 1/64 px of the float reference and SIMD = scalar on every case (it
 #      exits non-zero otherwise); the accuracy table is printed, not judged
 #   3. the command: JSON and overlay for an image, a scan directory (the twin's), refusals
@@ -47,8 +48,9 @@ trap 'rm -rf "$tmp"' EXIT
 twin="$build/tools/twin/alacs-twin"
 if "$twin" generate --set lle --lighting lab --count 100 --out "$tmp/lab" --jobs "$(nproc)" >/dev/null &&
   "$twin" generate --set lle --count 200 --out "$tmp/outdoor" --jobs "$(nproc)" >/dev/null &&
-  "$twin" generate --set lle --lighting sun --count 100 --out "$tmp/sun" --jobs "$(nproc)" >/dev/null; then
-  pass "alacs-twin generate --set lle (400 cases)"
+  "$twin" generate --set lle --lighting sun --count 100 --out "$tmp/sun" --jobs "$(nproc)" >/dev/null &&
+  "$twin" generate --set lle --lighting sun --count 100 --bandpass-nm 10 --out "$tmp/sun-bp10" --jobs "$(nproc)" >/dev/null; then
+  pass "alacs-twin generate --set lle (500 cases, 100 of them full sun behind a 635 nm band-pass filter)"
 else
   fail "alacs-twin generate"
   finish
@@ -60,6 +62,12 @@ else
   fail "alacs_lle_eval (see below)"
 fi
 cat "$tmp/eval.txt"
+if "$bin/alacs_lle_eval" --set-dir "$tmp/sun-bp10" --jobs "$(nproc)" >"$tmp/eval-bp.txt" 2>"$tmp/eval-bp.err"; then
+  pass "alacs_lle_eval, full sun with the band-pass filter: fixed = float, SIMD = scalar"
+else
+  fail "alacs_lle_eval, full sun with the band-pass filter"
+fi
+grep -E '^(method|ours|paper) +(cases|sun)' "$tmp/eval-bp.txt"
 
 step "the command"
 case0="$tmp/lab/lle_0000/frames/frame_0000.png"
