@@ -71,7 +71,7 @@ struct LleParams {
   // kRobust only:
   int robustThresholdPct = 100;  // kRobust's strong threshold: this share of brceThreshold
                              // (10..100). 60 (40 -> 24) finds the line in full sun behind a
-                             // band-pass filter (docs/lle.md), at ~10 % more time per full frame
+                             // band-pass filter (docs/lle.md), at ~5 % more time per full frame
   int weakThresholdPct = 75; // hysteresis: candidates at this share of the strong threshold; a
                              // segment needs two rows, and a quarter of its rows, whose margin
                              // exceeds the strong threshold itself (10..100; 100: no hysteresis)

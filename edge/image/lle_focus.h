@@ -661,7 +661,9 @@ void focusRobust(const ImageView& frame, const ImageView* laserOff, const Roi& r
     if (chains[c].segment >= 0)
       out.segments.push_back(LineSegment{roi.y + chains[c].first, roi.y + chains[c].last, 0, chains[c].onLine != 0});
   auto emit = [&](int y, const Peak& pk, RowStatus status, int fitTerm) {
-    RowSample sm;
+    // Built in place (out.rows is reserved: no allocation), not copied from the stack.
+    const size_t idx = out.rows.size();
+    RowSample& sm = out.rows.emplace_back();
     sm.row = roi.y + y;
     const Col col = pk.col + A::fromInt(roi.x);
     sm.centroidQ8 = A::toQ8(col);
@@ -677,18 +679,17 @@ void focusRobust(const ImageView& frame, const ImageView* laserOff, const Roi& r
       sm.confidence = static_cast<float>(conf) / 256.0F;
     }
     if (sm.segment >= 0) out.segments[static_cast<size_t>(sm.segment)].rows += 1;
-    outCol[out.rows.size()] = col;
+    outCol[idx] = col;
     // The smoothing weight: the peak's area cubed, area³ / 2^18 in 1..4096 (an integer: the
     // sums of the weighted fit stay within int64). Rows where part of the profile is hidden
     // (a leaf's edge crossing the line, a grazing limb) are weaker and count far less.
     {
       const int64_t a = std::max(1, pk.area);
-      outWt[out.rows.size()] = static_cast<int32_t>(std::clamp<int64_t>(a * a * a >> 18, 1, kMaxSmoothWeight));
+      outWt[idx] = static_cast<int32_t>(std::clamp<int64_t>(a * a * a >> 18, 1, kMaxSmoothWeight));
     }
-    outKey[out.rows.size()] = status == RowStatus::kLine ? -2 : status == RowStatus::kOutlier ? -3 : sm.segment;
-    outPeakKey[out.rows.size()] = pk.key;
-    outEdge[out.rows.size()] = static_cast<uint8_t>(pk.edge != 0 && status != RowStatus::kOutlier ? 1 : 0);
-    out.rows.push_back(sm);
+    outKey[idx] = status == RowStatus::kLine ? -2 : status == RowStatus::kOutlier ? -3 : sm.segment;
+    outPeakKey[idx] = pk.key;
+    outEdge[idx] = static_cast<uint8_t>(pk.edge != 0 && status != RowStatus::kOutlier ? 1 : 0);
   };
   double sumSq = 0.0;
   int fi = 0;
