@@ -380,9 +380,11 @@ int localizeEval(const std::string& calPath, int cases, const std::vector<double
           r.occlusionEst = est->occlusionPct;
           r.lines = est->linesUsed;
           if (debug)
-            std::printf("  estimate: sphere %d, c (%.1f %.1f %.1f) d %.1f, approach err %.2f, σ %.2f, lines %d, points %d\n",
+            std::printf("  estimate: sphere %d, c (%.1f %.1f %.1f) d %.1f aspect %.2f, approach err %.2f, σ %.2f, lines %d, "
+                        "points %d, rms %.2f mm, occlusion %.0f %%, confidence %.0f %%\n",
                         est->sphereFit ? 1 : 0, est->centerMm.x(), est->centerMm.y(), est->centerMm.z(), est->diameterMm,
-                        r.approachErr, est->sigmaMm, est->linesUsed, est->pointsUsed);
+                        est->aspect, r.approachErr, est->sigmaMm, est->linesUsed, est->pointsUsed, est->rmsMm,
+                        est->occlusionPct, est->confidencePct);
         }
       }
       results.push_back(r);
