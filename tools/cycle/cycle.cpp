@@ -160,6 +160,20 @@ double parkFor(int c, const localize::ScanPlan& plan, double strokeMm) {
   return std::clamp(plan.stopsMm.front() + offset, 0.0, strokeMm);
 }
 
+// The worker on the simulated slide (it counts the STEP pulses) with `camera` as its source.
+app::WorkerDeps workerDeps(const Clock& clock, Sleeper& sleeper, const motion::SlideLimits& limits, sim::SimSlide& slide,
+                           app::LaserGuard& laser, ports::FrameSource& camera) {
+  app::WorkerDeps deps;
+  deps.clock = &clock;
+  deps.sleeper = &sleeper;
+  deps.limits = limits;
+  deps.stepLines = {&slide.stepInput(), &slide.dirInput(), &slide.homeSwitch(), &slide.endSwitch()};
+  deps.enable = &slide.enableInput();
+  deps.laser = &laser;
+  deps.camera = &camera;
+  return deps;
+}
+
 int simulatedCycle(const Options& o) {
   MonotonicClock clock;
   MonotonicSleeper sleeper;
@@ -186,14 +200,7 @@ int simulatedCycle(const Options& o) {
       ports::FakeDigitalOut laserLine(clock);
       app::LaserGuard laser(laserLine, clock, 250 * kNsPerMs);
       sim::SimCamera camera(scene, clock, [&] { return laserLine.level(); }, [&] { return slide.positionMm(); });
-      app::WorkerDeps deps;
-      deps.clock = &clock;
-      deps.sleeper = &sleeper;
-      deps.limits = limits;
-      deps.stepLines = {&slide.stepInput(), &slide.dirInput(), &slide.homeSwitch(), &slide.endSwitch()};
-      deps.enable = &slide.enableInput();
-      deps.laser = &laser;
-      deps.camera = &camera;
+      app::WorkerDeps deps = workerDeps(clock, sleeper, limits, slide, laser, camera);
       deps.capture.exposureUs = std::min<int64_t>(sim::autoExposureUs(scene), 3000);
       const int efd = ::eventfd(0, EFD_CLOEXEC);
       app::ScanWorker worker(deps, loc, efd);
@@ -319,14 +326,7 @@ int replayCycle(const Options& o) {
         return 1;
       }
       replay::ReplaySource* rs = source->get();
-      app::WorkerDeps deps;
-      deps.clock = &clock;
-      deps.sleeper = &sleeper;
-      deps.limits = limits;
-      deps.stepLines = {&slide.stepInput(), &slide.dirInput(), &slide.homeSwitch(), &slide.endSwitch()};
-      deps.enable = &slide.enableInput();
-      deps.laser = &laser;
-      deps.camera = rs;
+      app::WorkerDeps deps = workerDeps(clock, sleeper, limits, slide, laser, *rs);
       deps.capture.exposureUs = m->frames.front().exposureUs;
       deps.frameSlideMm = [rs] { return rs->lastSlideMm(); };
       const int efd = ::eventfd(0, EFD_CLOEXEC);
