@@ -194,8 +194,9 @@ def markdown(res: dict[str, Any], figs: dict[str, Path], doc: Path, command: str
     L.append(f"- Five lines, face point: ours {_f(min(ours_clear), 1)}-{_f(max(ours_clear), 1)} mm mean without "
              f"occlusion and {_f(min(ours_occ), 1)}-{_f(max(ours_occ), 1)} mm with it (the paper published "
              "5.5-9.1 and 9.2-17.5 mm on real apples with a real calibration). The twin's apples are smooth "
-             "ellipsoids (height/width 0.82-0.98): a sphere fit to one is biased by a few mm, which is most of "
-             "our error; real apples are less regular.")
+             "spheroids (height/width 0.82-0.98), which the localizer's spheroid refinement models; the means "
+             "are set by a few cases (the std), mostly a target that leaves leave with one line, or a neighbour "
+             "taken for it. Real apples are less regular.")
     L.append(f"- The paper's method does worse on the twin ({_f(min(paper_clear), 1)}-{_f(max(paper_clear), 1)} mm "
              "mean, five lines, no occlusion) than published: the twin's ROI holds the target's neighbours in its "
              "cluster, canopy leaves and foliage that catch the laser, and the paper's line focusing averages "
