@@ -34,8 +34,13 @@ MoveReport StepRunner::runSteps(const TrapezoidMove& move, bool forward, const s
   if (Status s = lines_.dir->set(forward); !s) return {MoveOutcome::kIoError, 0, 0, s};
   ports::DigitalIn* aheadSwitch = forward ? lines_.end : lines_.home;
   const TimeNs start = clock_.now() + limits_.dirSetupNs;
+  // A late edge (the thread woke late) shifts the rest of the plan by its lateness instead
+  // of being caught up: catching up would fire the next edges back to back, a step-rate
+  // jump that stalls a real motor at speed. The move then ends that much later; the
+  // position is counted from the pulses, so nothing else depends on the plan's times.
+  TimeNs slipNs = 0;
   for (int64_t k = 1; k <= move.steps(); ++k) {
-    const TimeNs due = start + move.stepTimeNs(k);
+    const TimeNs due = start + move.stepTimeNs(k) + slipNs;
     sleeper_.sleepUntil(due);
     if (cancel.load(std::memory_order_relaxed)) {
       report.outcome = MoveOutcome::kCancelled;
@@ -57,9 +62,12 @@ MoveReport StepRunner::runSteps(const TrapezoidMove& move, bool forward, const s
         return report;
       }
     }
-    report.maxLatenessNs = std::max(report.maxLatenessNs, clock_.now() - due);
+    const TimeNs edgeNs = clock_.now();
+    const TimeNs latenessNs = edgeNs - due;
+    report.maxLatenessNs = std::max(report.maxLatenessNs, latenessNs);
+    if (latenessNs > 0) slipNs += latenessNs;
     if (Status s = lines_.step->set(true); !s) return {MoveOutcome::kIoError, report.stepsDone, report.maxLatenessNs, s};
-    sleeper_.sleepUntil(due + limits_.stepPulseNs);
+    sleeper_.sleepUntil(edgeNs + limits_.stepPulseNs);
     if (Status s = lines_.step->set(false); !s) return {MoveOutcome::kIoError, report.stepsDone, report.maxLatenessNs, s};
     ++report.stepsDone;
     if (position_ != nullptr) position_->fetch_add(forward ? 1 : -1, std::memory_order_relaxed);

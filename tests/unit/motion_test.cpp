@@ -133,3 +133,61 @@ TEST_CASE("The laser guard forces the laser off beyond its maximum on-time", "[l
   laser.reset();
   CHECK(laser.on().isOk());
 }
+
+namespace {
+// A sleeper that wakes `lateNs` late once, at its `lateAt`-th call: a thread the
+// scheduler ran late.
+class LateOnceSleeper final : public Sleeper {
+ public:
+  LateOnceSleeper(VirtualClock& clock, int lateAt, TimeNs lateNs) : clock_(clock), lateAt_(lateAt), lateNs_(lateNs) {}
+  void sleepUntil(TimeNs t) override {
+    const TimeNs wake = t + (++calls_ == lateAt_ ? lateNs_ : 0);
+    if (wake > clock_.now()) clock_.set(wake);
+  }
+
+ private:
+  VirtualClock& clock_;
+  int calls_ = 0;
+  int lateAt_;
+  TimeNs lateNs_;
+};
+}  // namespace
+
+TEST_CASE("A late edge shifts the rest of the move instead of a burst of catch-up steps", "[motion]") {
+  VirtualClock clock(1000);
+  SlideLimits lim;
+  // The sleep before step 401 (two sleeps per step: the edge and the pulse's end) wakes
+  // 2.4 ms late: mid-move, at its top speed, where 2.4 ms is ~24 planned steps.
+  LateOnceSleeper sleeper(clock, 2 * 400 + 1, 2'400'000);
+  sim::SimSlide slide(clock, lim.stepsPerMm, lim.strokeMm, 50.0);
+  ports::FakeDigitalOut step(clock);
+  ports::TeeDigitalOut tee(step, slide.stepInput());
+  REQUIRE(slide.enableInput().set(true).isOk());
+  StepRunner runner(lim, {&tee, &slide.dirInput(), &slide.homeSwitch(), &slide.endSwitch()}, clock, sleeper);
+  std::atomic<bool> cancel{false};
+  auto move = planMove(lim, lim.stepsFor(50.0), lim.stepsFor(70.0));
+  REQUIRE(move.isOk());
+  const MoveReport r = runner.run(*move, true, cancel);
+  CHECK(r.outcome == MoveOutcome::kCompleted);
+  CHECK(r.stepsDone == 800);
+  CHECK(slide.positionMm() == Approx(70.0));
+  CHECK(r.maxLatenessNs == 2'400'000);
+  const auto edges = step.edges();
+  REQUIRE(edges.size() == 1600);
+  // Every interval between rising edges is at least its planned one (the late one is
+  // longer by the delay), and every pulse keeps its width.
+  double shortest = 1e9;
+  for (int64_t k = 2; k <= 800; ++k) {
+    const TimeNs actual = edges[static_cast<size_t>(2 * (k - 1))].timeNs - edges[static_cast<size_t>(2 * (k - 2))].timeNs;
+    const TimeNs planned = move->stepTimeNs(k) - move->stepTimeNs(k - 1);
+    shortest = std::min(shortest, static_cast<double>(actual) / static_cast<double>(planned));
+    if (k == 401) CHECK(actual == planned + 2'400'000);
+    const auto& rise = edges[static_cast<size_t>(2 * (k - 1))];
+    const auto& fall = edges[static_cast<size_t>(2 * (k - 1) + 1)];
+    CHECK(fall.timeNs - rise.timeNs == lim.stepPulseNs);
+  }
+  CHECK(shortest >= 1.0);
+  // The move ends the delay later than planned.
+  CHECK(edges.back().timeNs - edges.front().timeNs ==
+        move->stepTimeNs(800) - move->stepTimeNs(1) + 2'400'000 + lim.stepPulseNs);
+}
