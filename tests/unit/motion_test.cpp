@@ -35,15 +35,31 @@ TEST_CASE("Soft limits refuse targets outside the stroke", "[motion]") {
   CHECK(planMove(lim, 0, lim.stepsFor(200.0)).isOk());
 }
 
+namespace {
+// The step runner on the simulated slide (at 50 mm, enabled), its STEP line recorded.
+struct RecordedRunner {
+  RecordedRunner(VirtualClock& clock, Sleeper& sleeper)
+      : slide(clock, lim.stepsPerMm, lim.strokeMm, 50.0),
+        step(clock),
+        tee(step, slide.stepInput()),
+        runner(lim, {&tee, &slide.dirInput(), &slide.homeSwitch(), &slide.endSwitch()}, clock, sleeper) {
+    enabled = slide.enableInput().set(true).isOk();
+  }
+  SlideLimits lim;
+  sim::SimSlide slide;
+  ports::FakeDigitalOut step;
+  ports::TeeDigitalOut tee;
+  StepRunner runner;
+  bool enabled = false;
+};
+}  // namespace
+
 TEST_CASE("The step runner emits the planned pulses in virtual time", "[motion]") {
   VirtualClock clock(1000);
   VirtualSleeper sleeper(clock);
-  SlideLimits lim;
-  sim::SimSlide slide(clock, lim.stepsPerMm, lim.strokeMm, 50.0);
-  ports::FakeDigitalOut step(clock);
-  ports::TeeDigitalOut tee(step, slide.stepInput());
-  REQUIRE(slide.enableInput().set(true).isOk());
-  StepRunner runner(lim, {&tee, &slide.dirInput(), &slide.homeSwitch(), &slide.endSwitch()}, clock, sleeper);
+  RecordedRunner rig(clock, sleeper);
+  auto& [lim, slide, step, tee, runner, enabled] = rig;
+  REQUIRE(enabled);
   std::atomic<bool> cancel{false};
   auto move = planMove(lim, lim.stepsFor(50.0), lim.stepsFor(70.0));
   REQUIRE(move.isOk());
@@ -155,15 +171,12 @@ class LateOnceSleeper final : public Sleeper {
 
 TEST_CASE("A late edge shifts the rest of the move instead of a burst of catch-up steps", "[motion]") {
   VirtualClock clock(1000);
-  SlideLimits lim;
   // The sleep before step 401 (two sleeps per step: the edge and the pulse's end) wakes
   // 2.4 ms late: mid-move, at its top speed, where 2.4 ms is ~24 planned steps.
   LateOnceSleeper sleeper(clock, 2 * 400 + 1, 2'400'000);
-  sim::SimSlide slide(clock, lim.stepsPerMm, lim.strokeMm, 50.0);
-  ports::FakeDigitalOut step(clock);
-  ports::TeeDigitalOut tee(step, slide.stepInput());
-  REQUIRE(slide.enableInput().set(true).isOk());
-  StepRunner runner(lim, {&tee, &slide.dirInput(), &slide.homeSwitch(), &slide.endSwitch()}, clock, sleeper);
+  RecordedRunner rig(clock, sleeper);
+  auto& [lim, slide, step, tee, runner, enabled] = rig;
+  REQUIRE(enabled);
   std::atomic<bool> cancel{false};
   auto move = planMove(lim, lim.stepsFor(50.0), lim.stepsFor(70.0));
   REQUIRE(move.isOk());
