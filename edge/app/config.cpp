@@ -117,6 +117,8 @@ Result<DaemonConfig> loadConfig(const std::string& path) {
   r.number("scan.stop_spacing_mm", &c.scan.stopSpacingMm, 0.5, 50);
   r.number("scan.roi_margin_mm", &c.scan.roiMarginMm, 0, 300);
   r.number("scan.gate_mm", &c.scan.gateMm, 10, 500);
+  r.integer("scan.follow_up_min_lines", &c.scan.followUpMinLines, 1, 15);
+  r.integer("scan.follow_up_max_stops", &c.scan.followUpMaxStops, 0, 16);
   r.integer("lle.brce_step", &c.lle.brceStep, 1, 64);
   r.integer("lle.brce_threshold", &c.lle.brceThreshold, 0, 254);
   r.integer("lle.noise_theta", &c.lle.noiseTheta, 0, 100000);

@@ -128,6 +128,14 @@ void ScanWorker::post(WorkerEvent ev) {
   [[maybe_unused]] ssize_t w = ::write(eventFd_, &one, sizeof one);
 }
 
+Status ScanWorker::settleBraking(WorkerEvent& ev) {
+  if (!braking_) return Status::ok();
+  braking_->thread.join();
+  const motion::MoveReport report = braking_->report;
+  braking_.reset();
+  return moveOutcome(report, ev);
+}
+
 void ScanWorker::finishBraking(const WorkerJob& job) {
   braking_->thread.join();
   const motion::MoveReport report = braking_->report;
@@ -320,19 +328,48 @@ WorkerEvent ScanWorker::doLocalize(const WorkerJob& job) {
     ev.faultBit = protocol::kFaultInternal;
     return ev;
   }
-  pipeline_.begin(localizer, plan);
-  const Status scanned = job.localize.mode == protocol::ScanMode::kContinuous ? sweepStops(plan, capture, ev)
-                                                                             : stopAndGo(plan, capture, ev);
-  // Whatever happened, let the frames already handed over finish before reporting.
-  const TimeNs motionDone = deps_.clock->now();
-  std::vector<localize::LineObservation> lines = pipeline_.finish();
+  const bool continuous = job.localize.mode == protocol::ScanMode::kContinuous;
+  // One pass over some stops; the frames' image work overlaps the motion.
+  TimeNs motionDone = 0;
+  const auto pass = [&](const localize::ScanPlan& p, std::vector<localize::LineObservation>& lines) {
+    pipeline_.begin(localizer, p);
+    const Status scanned = continuous ? sweepStops(p, capture, ev) : stopAndGo(p, capture, ev);
+    motionDone = deps_.clock->now();
+    // Whatever happened, let the frames already handed over finish before reporting.
+    std::vector<localize::LineObservation> got = pipeline_.finish();
+    lines.insert(lines.end(), std::make_move_iterator(got.begin()), std::make_move_iterator(got.end()));
+    return scanned;
+  };
+  std::vector<localize::LineObservation> lines;
+  Status scanned = pass(plan, lines);
+  Result<localize::AppleEstimate> est = scanned ? localizer.estimate(plan, lines) : Result<localize::AppleEstimate>(scanned);
+  // Adaptive scan: too few lines on the fruit for its centre; a second pass in between.
+  if (std::vector<double> more = localizer.followUpStops(plan, est, deps_.limits.strokeMm);
+      scanned && !more.empty() && !cancel_.load()) {
+    localize::ScanPlan second = plan;
+    second.stopsMm = std::move(more);
+    scanned = settleBraking(ev);
+    const size_t firstPass = lines.size();
+    if (scanned) scanned = pass(second, lines);
+    // A replayed scan holds no frame at these stops: the replay gives the nearest recorded
+    // one, which the first pass has already seen (the same line twice is not two lines).
+    lines.erase(std::remove_if(lines.begin() + static_cast<std::ptrdiff_t>(firstPass), lines.end(),
+                               [&](const localize::LineObservation& l) {
+                                 return std::any_of(lines.begin(), lines.begin() + static_cast<std::ptrdiff_t>(firstPass),
+                                                    [&](const localize::LineObservation& f) {
+                                                      return std::abs(f.slideMm - l.slideMm) < 0.05;
+                                                    });
+                               }),
+                lines.end());
+    ev.followUpStops = static_cast<int>(second.stopsMm.size());
+    if (scanned) est = localizer.estimate(plan, lines);
+  }
   if (!scanned) {
     ev.status = scanned;
     if (ev.resultStatus == protocol::ResultStatus::kValid) ev.resultStatus = protocol::ResultStatus::kFailed;
     return ev;
   }
   if (!deps_.debugDir.empty()) writeOverlay(deps_.debugDir, pipeline_.lastFrame(), plan, lines);
-  Result<localize::AppleEstimate> est = localizer.estimate(plan, lines);
   ev.processingTailNs = deps_.clock->now() - motionDone;
   if (!est) {
     ev.status = Status::ok();  // the scan worked; there was no apple where we were told

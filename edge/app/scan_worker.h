@@ -51,6 +51,7 @@ struct WorkerEvent {
   TimeNs maxStepLatenessNs = 0;
   std::vector<ExposureWindow> exposures;  // of this job, in order
   TimeNs processingTailNs = 0;  // image work left after the last frame (not overlapped with motion)
+  int followUpStops = 0;         // localize: stops of the adaptive second pass (0: none taken)
   // A continuous scan's result is posted as soon as it is known, while the slide still
   // brakes past the last stop; if that braking then ends badly (limit switch, I/O error,
   // STOP), a second event of the same job follows with this set: the result stands, only
@@ -118,6 +119,9 @@ class ScanWorker {
   // Waits for the braking after a continuous scan's last frame; a second event when it
   // did not complete.
   void finishBraking(const WorkerJob& job);
+  // Waits for a continuous sweep still braking (before the slide moves again within the
+  // same job); its outcome, as moveOutcome.
+  Status settleBraking(WorkerEvent& ev);
 
   // The sweep's motion, on a thread of its own while the worker exposes the frames; it
   // outlives sweepStops() when the slide brakes after the last frame.

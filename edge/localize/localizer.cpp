@@ -4,6 +4,7 @@
 #include <Eigen/Geometry>
 #include <algorithm>
 #include <cmath>
+#include <functional>
 
 #include "geometry/spheroid_fit.h"
 
@@ -40,6 +41,8 @@ Status ScanParams::validate() const {
   if (!(roughSigmaMm >= 0.0 && roughSigmaMm <= 500.0)) return {Error::kInvalidArgument, "scan.rough_sigma_mm must be in 0..500"};
   if (!(roughGateSigmas >= 0.0 && roughGateSigmas <= 100.0))
     return {Error::kInvalidArgument, "scan.rough_gate_sigmas must be in 0..100"};
+  if (followUpMinLines < 1 || followUpMinLines > 15) return {Error::kInvalidArgument, "scan.follow_up_min_lines must be in 1..15"};
+  if (followUpMaxStops < 0 || followUpMaxStops > 16) return {Error::kInvalidArgument, "scan.follow_up_max_stops must be in 0..16"};
   return Status::ok();
 }
 
@@ -88,6 +91,41 @@ Result<ScanPlan> Localizer::plan(const Eigen::Vector3d& roughMm, double strokeMm
   if (plan.roi.width < 16 || plan.roi.height < 16)
     return Status(Error::kOutOfRange, "target is outside the camera's view");
   return plan;
+}
+
+std::vector<double> Localizer::followUpStops(const ScanPlan& plan, const Result<AppleEstimate>& first,
+                                             double strokeMm) const {
+  if (scan_.followUpMaxStops <= 0 || plan.stopsMm.empty()) return {};
+  // A fit on enough lines needs no more. A scan that found nothing, or failed, gets none
+  // either: no line lit anything near the rough position at five stops, more in between
+  // will not.
+  if (!first || first->linesUsed >= scan_.followUpMinLines) return {};
+  std::vector<double> taken = plan.stopsMm;
+  std::sort(taken.begin(), taken.end());
+  const double half = taken.size() > 1 ? 0.5 * (taken[1] - taken[0]) : 0.5 * scan_.stopSpacingMm;
+  std::vector<double> more;
+  more.push_back(taken.front() - half);
+  for (size_t i = 0; i + 1 < taken.size(); ++i) more.push_back(0.5 * (taken[i] + taken[i + 1]));
+  more.push_back(taken.back() + half);
+  // Inside the stroke and not (nearly) a stop already taken: a clamped end stop can land
+  // on the first pass's.
+  const double minApartMm = 0.25 * std::max(half, 0.5);
+  std::vector<double> out;
+  for (double s : more) {
+    s = std::clamp(s, 0.0, strokeMm);
+    const auto near = [&](double t) { return std::abs(t - s) < minApartMm; };
+    if (std::none_of(taken.begin(), taken.end(), near) && std::none_of(out.begin(), out.end(), near)) out.push_back(s);
+  }
+  // Nearest the rough position's slide first when there are more than allowed; then one
+  // sweep back from where the first pass ended (it went forward: from the far end down).
+  const double centreMm = cal_.laser.slideForPoint(plan.roughMm);
+  std::sort(out.begin(), out.end(), [&](double a, double b) { return std::abs(a - centreMm) < std::abs(b - centreMm); });
+  if (out.size() > static_cast<size_t>(scan_.followUpMaxStops)) out.resize(static_cast<size_t>(scan_.followUpMaxStops));
+  if (plan.stopsMm.back() >= plan.stopsMm.front())
+    std::sort(out.begin(), out.end(), std::greater<>());
+  else
+    std::sort(out.begin(), out.end());
+  return out;
 }
 
 image::Roi Localizer::stopRoi(const ScanPlan& plan, double slideMm) const {

@@ -54,6 +54,13 @@ struct ScanParams {
   // or of a neighbour, not the target. The estimate is then the rough position's own, with
   // its σ. 0: off. Multi-line spheres are not gated (their centre is measured).
   double roughGateSigmas = 4.0;
+  // Adaptive scan: when fewer than `followUpMinLines` lines reach the fit (a leaf hides the
+  // others, or the rough position centred the stops beside the fruit), one or two lines
+  // leave the centre to the priors; the sensor then takes a second pass of stops halfway
+  // between the first pass's and half a spacing beyond each end (followUpStops), at most
+  // `followUpMaxStops` of them, and fuses all the lines. 0 stops: off (the paper's scan).
+  int followUpMinLines = 3;
+  int followUpMaxStops = 6;
   Status validate() const;
 };
 
@@ -107,6 +114,13 @@ class Localizer {
   // Processes one frame taken at `slideMm`. Errors: those of LLE (bad frame or ROI).
   Result<LineObservation> observe(const image::ImageView& frame, const ScanPlan& plan, double slideMm,
                                   image::LleWorkspace& ws) const;
+
+  // The second pass of an adaptive scan: the stops to add when the first pass's estimate
+  // (`first`, or its error) rests on fewer than followUpMinLines lines; empty when it does
+  // not, when following up is off, or when every such stop is outside [0, strokeMm].
+  // Ordered from the first pass's last stop outwards, so the slide sweeps back through them.
+  // Pure: the caller scans them (observe) and calls estimate() with all the lines.
+  std::vector<double> followUpStops(const ScanPlan& plan, const Result<AppleEstimate>& first, double strokeMm) const;
 
   // Fuses the observations. Errors: kNotFound when no line hit the target.
   Result<AppleEstimate> estimate(const ScanPlan& plan, const std::vector<LineObservation>& lines) const;

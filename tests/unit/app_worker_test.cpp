@@ -13,7 +13,9 @@
 #include "app/laser_guard.h"
 #include "app/scan_worker.h"
 #include "ports/digital_io_fake.h"
+#include "sim/orchard.h"
 #include "sim/scene.h"
+#include "sim/sim_camera.h"
 #include "sim/sim_slide.h"
 
 using namespace alacs;
@@ -194,4 +196,105 @@ TEST_CASE("The frame pipeline keeps only the window's pages of a 5 MP frame resi
   CHECK(n <= 200);
   pipeline.begin(loc, plan);
   CHECK(resident(buffer) == 0);
+}
+
+namespace {
+// A localize job on the twin's default scene, seen by the simulated camera (it renders the
+// plan's window at the slide's position, with the laser as the laser line really was).
+struct SceneRun {
+  std::optional<app::WorkerEvent> event;
+  std::vector<double> planStopsMm;
+  std::vector<double> followUpMm;  // what the localizer asks for after the first pass
+  std::vector<ports::Edge> laserEdges;
+  double finalMm = 0.0;
+};
+
+SceneRun localizeOnScene(const localize::ScanParams& sp, protocol::ScanMode mode) {
+  Rig rig(2.0);
+  const sim::SimScene scene = sim::defaultScene();
+  sim::SimCamera camera(scene, rig.clock, [&] { return rig.laserLine.level(); }, [&] { return rig.slide.positionMm(); });
+  rig.deps.camera = &camera;
+  rig.deps.capture.exposureUs = sim::autoExposureUs(scene);
+  const localize::Localizer loc(scene.truth, image::LleParams{}, sp);
+  app::ScanWorker worker(rig.deps, loc, rig.efd);
+  SceneRun run;
+  worker.submit(jobOf(app::WorkerJob::Kind::kHome));
+  std::optional<app::WorkerEvent> homed = rig.next(worker);
+  if (!homed || !homed->status.isOk()) return run;
+  const Eigen::Vector3d roughMm = scene.apples[0].centerMm + Eigen::Vector3d(-12, 9, -20);
+  Result<localize::ScanPlan> plan = loc.plan(roughMm, rig.limits().strokeMm);
+  if (!plan) return run;
+  run.planStopsMm = plan->stopsMm;
+  app::WorkerJob job = jobOf(app::WorkerJob::Kind::kLocalize);
+  job.localize.mode = mode;
+  job.plan = *plan;
+  rig.laserLine.clearEdges();
+  worker.submit(job);
+  for (int i = 0; i < 60000 && !run.event; ++i) {  // up to a minute: every frame is rendered
+    run.event = worker.takeEvent();
+    if (!run.event) std::this_thread::sleep_for(std::chrono::milliseconds(1));
+  }
+  // Let a continuous sweep's braking finish before reading where the slide is.
+  worker.submit(jobOf(app::WorkerJob::Kind::kMoveTo, 100.0));
+  (void)rig.next(worker);
+  run.laserEdges = rig.laserLine.edges();
+  run.finalMm = rig.slide.positionMm();
+  return run;
+}
+
+// The laser is on only inside an exposure of the job.
+bool laserOnlyInExposures(const SceneRun& run) {
+  const auto& ex = run.event->exposures;
+  for (size_t i = 0; i < run.laserEdges.size(); ++i) {
+    if (!run.laserEdges[i].level) continue;
+    const TimeNs on = run.laserEdges[i].timeNs;
+    const TimeNs off = i + 1 < run.laserEdges.size() ? run.laserEdges[i + 1].timeNs : -1;
+    // Switched on just before the exposure starts, off as soon as it ends (1 ms slack:
+    // this machine's scheduling).
+    const bool inside = std::any_of(ex.begin(), ex.end(), [&](const app::ExposureWindow& w) {
+      return on >= w.startNs - kNsPerMs && off >= 0 && off <= w.endNs + kNsPerMs;
+    });
+    if (!inside) return false;
+  }
+  return true;
+}
+}  // namespace
+
+TEST_CASE("Too few lines on the fruit: the worker takes the localizer's second pass, in both modes", "[app][worker][render]") {
+  localize::ScanParams sp;
+  sp.followUpMinLines = 15;  // more than five stops can give: the second pass is always taken
+  for (protocol::ScanMode mode : {protocol::ScanMode::kStopAndGo, protocol::ScanMode::kContinuous}) {
+    INFO("mode " << static_cast<int>(mode));
+    const SceneRun run = localizeOnScene(sp, mode);
+    REQUIRE(run.event);
+    REQUIRE(run.event->status.isOk());
+    REQUIRE(run.planStopsMm.size() == 5);
+    // Four stops between the five and one beyond each end.
+    CHECK(run.event->followUpStops == 6);
+    CHECK(run.event->exposures.size() == 11);
+    REQUIRE(run.event->estimates.size() == 1);
+    const localize::AppleEstimate& est = run.event->estimates[0];
+    const sim::SimScene scene = sim::defaultScene();
+    const sim::SimApple& apple = scene.apples[0];
+    INFO("lines " << est.linesUsed << ", centre error " << (est.centerMm - apple.centerMm).norm() << " mm");
+    CHECK(est.linesUsed > 5);  // the second pass's lines reached the fit
+    CHECK((est.centerMm - apple.centerMm).norm() < 2.0);
+    CHECK(laserOnlyInExposures(run));
+    CHECK(run.finalMm == Approx(100.0).margin(0.03));
+  }
+}
+
+TEST_CASE("Enough lines on the fruit: no second pass", "[app][worker][render]") {
+  const SceneRun run = localizeOnScene(localize::ScanParams{}, protocol::ScanMode::kStopAndGo);
+  REQUIRE(run.event);
+  REQUIRE(run.event->status.isOk());
+  CHECK(run.event->followUpStops == 0);
+  CHECK(run.event->exposures.size() == run.planStopsMm.size());
+  REQUIRE(run.event->estimates.size() == 1);
+  CHECK(run.event->estimates[0].linesUsed >= 3);
+  const sim::SimScene scene = sim::defaultScene();
+  const sim::SimApple& apple = scene.apples[0];
+  INFO("lines " << run.event->estimates[0].linesUsed << ", centre error " << (run.event->estimates[0].centerMm - apple.centerMm).norm() << " mm");
+  CHECK((run.event->estimates[0].centerMm - apple.centerMm).norm() < 5.0);
+  CHECK(laserOnlyInExposures(run));
 }

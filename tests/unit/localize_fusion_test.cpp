@@ -241,6 +241,56 @@ TEST_CASE("The paper's candidate score P = w1·N − w2·Δd", "[localize]") {
   CHECK(cands[best].line == plan->stopsMm.size() / 2);
 }
 
+TEST_CASE("The adaptive second pass: stops in between and beyond, only when too few lines reach the fit", "[localize]") {
+  // The hidden-fruit case of the paper's scan: a leaf leaves one line on the target.
+  Case k;
+  std::mt19937 rng(31);
+  const localize::Localizer loc(k.cal, image::LleParams{}, k.scan);
+  auto plan = loc.plan(k.center, 200.0);
+  REQUIRE(plan.isOk());
+  REQUIRE(plan->stopsMm.size() == 5);
+  const double middle = plan->stopsMm[2];
+  std::vector<localize::LineObservation> lines{lineOf(k.cal, k.center, k.radius, middle, 0.4, {}, rng)};
+  const Result<localize::AppleEstimate> one = loc.estimate(*plan, lines);
+  REQUIRE(one.isOk());
+  REQUIRE(one->linesUsed == 1);
+  const std::vector<double> more = loc.followUpStops(*plan, one, 200.0);
+  // Halfway between the five stops and half a spacing beyond each end: one sweep back
+  // from the far end (the first pass went forward).
+  const double s0 = plan->stopsMm.front();
+  const std::vector<double> expected{s0 + 90.0, s0 + 70.0, s0 + 50.0, s0 + 30.0, s0 + 10.0, s0 - 10.0};
+  REQUIRE(more.size() == expected.size());
+  for (size_t i = 0; i < more.size(); ++i) CHECK(more[i] == Approx(expected[i]).margin(1e-9));
+  // Those stops give the fruit the lines it lacked: the estimate now rests on several.
+  for (double s : more) lines.push_back(lineOf(k.cal, k.center, k.radius, s, 0.4, {}, rng));
+  const Result<localize::AppleEstimate> all = loc.estimate(*plan, lines);
+  REQUIRE(all.isOk());
+  CHECK(all->sphereFit);
+  CHECK(all->linesUsed >= 4);
+  CHECK((all->centerMm - k.center).norm() < (one->centerMm - k.center).norm());
+  CHECK((all->centerMm - k.center).norm() < 3.0);
+  // Enough lines: nothing more. No estimate (nothing lit near the rough position): nothing
+  // more either. Off: nothing.
+  CHECK(loc.followUpStops(*plan, all, 200.0).empty());
+  CHECK(loc.followUpStops(*plan, Result<localize::AppleEstimate>(Status(Error::kNotFound, "none")), 200.0).empty());
+  localize::ScanParams off = k.scan;
+  off.followUpMaxStops = 0;
+  CHECK(localize::Localizer(k.cal, image::LleParams{}, off).followUpStops(*plan, one, 200.0).empty());
+  // At most followUpMaxStops, the ones nearest the rough position's slide.
+  localize::ScanParams few = k.scan;
+  few.followUpMaxStops = 2;
+  const std::vector<double> two = localize::Localizer(k.cal, image::LleParams{}, few).followUpStops(*plan, one, 200.0);
+  REQUIRE(two.size() == 2);
+  CHECK(two[0] == Approx(s0 + 50.0));
+  CHECK(two[1] == Approx(s0 + 30.0));
+  // At the end of the stroke, a stop beyond it is clamped onto it, or dropped when a stop
+  // of the first pass is already there.
+  localize::ScanPlan atEnd = *plan;
+  atEnd.stopsMm = {120.0, 140.0, 160.0, 180.0, 200.0};
+  const std::vector<double> clamped = loc.followUpStops(atEnd, one, 200.0);
+  CHECK(clamped == std::vector<double>{190.0, 170.0, 150.0, 130.0, 110.0});
+}
+
 TEST_CASE("Scan parameters are validated", "[localize]") {
   localize::ScanParams p;
   CHECK(p.validate().isOk());
@@ -250,4 +300,10 @@ TEST_CASE("Scan parameters are validated", "[localize]") {
   p = {};
   p.priorRadiusMm = 5.0;
   CHECK(p.validate().reason().find("prior_radius_mm") != std::string::npos);
+  p = {};
+  p.followUpMaxStops = 17;
+  CHECK(p.validate().reason().find("follow_up_max_stops") != std::string::npos);
+  p = {};
+  p.followUpMinLines = 0;
+  CHECK(p.validate().reason().find("follow_up_min_lines") != std::string::npos);
 }

@@ -44,6 +44,8 @@ void usage(FILE* out) {
                "                           [--stops N] [--spacing-mm MM] [--only CASE (debug one case)]\n"
                "                           [--within-pct P (share within 20 mm required, default 99.5)]\n"
                "                           [--prior-radius-sigma-mm MM (the fruit-size prior's 1σ; default: ScanParams')]\n"
+               "                           [--follow-up-max-stops N (the adaptive second pass; 0: off; default: ScanParams')]\n"
+               "                           [--follow-up-min-lines N (the pass is taken below N lines; default: ScanParams')]\n"
                "       alacs_geometry_eval check-calibration --calibration FILE --truth FILE [--max-mean-mm MM]\n"
                "\n"
                "  localize exits 0 when every target of issue 5 is met, 4 when one is not, 1 on errors.\n"
@@ -159,10 +161,12 @@ struct CaseResult {
   double centreToRoughMm = 0.0;  // the estimate's centre from the rough position
   double roughApproachErr = 0.0; // the approach point from the rough position alone (prior radius)
   double sigma = 0.0;
+  double diameterSigma = 0.0;
   double confidence = 0.0;
   double occlusionTruth = 0.0;
   double occlusionEst = 0.0;
   int lines = 0;
+  int stops = 0;                 // frames taken: the plan's, plus the adaptive follow-up's
   // The paper's candidates, for the cross-validation of ω2/ω1.
   std::vector<localize::PaperCandidate> candidates;
   Eigen::Vector3d approachTruth = Eigen::Vector3d::Zero();
@@ -232,7 +236,7 @@ image::ImageView viewOf(const cv::Mat& m) { return {m.data, m.cols, m.rows, m.st
 int localizeEval(const std::string& calPath, int cases, const std::vector<double>& distances, bool occluded,
                  sim::LightingKind lighting, uint64_t seed, const std::string& reportPath, const std::string& csvPath,
                  int minCases, int only, bool debug, int stops, double spacingMm, double withinTargetPct,
-                 double priorRadiusSigmaMm) {
+                 double priorRadiusSigmaMm, int followUpMaxStops, int followUpMinLines) {
   Result<geometry::Calibration> cal = geometry::loadCalibration(calPath);
   if (!cal) {
     std::fprintf(stderr, "calibration: %s\n", cal.status().toString().c_str());
@@ -244,6 +248,8 @@ int localizeEval(const std::string& calPath, int cases, const std::vector<double
   localize::ScanParams scan;
   scan.stops = stops;
   scan.stopSpacingMm = spacingMm;
+  if (followUpMaxStops >= 0) scan.followUpMaxStops = followUpMaxStops;
+  if (followUpMinLines > 0) scan.followUpMinLines = followUpMinLines;
   if (priorRadiusSigmaMm > 0.0) scan.priorRadiusSigmaMm = priorRadiusSigmaMm;
   if (Status st = scan.validate(); !st) {
     std::fprintf(stderr, "%s\n", st.toString().c_str());
@@ -282,17 +288,22 @@ int localizeEval(const std::string& calPath, int cases, const std::vector<double
         sim::Renderer renderer(oc->scene, rays);
         const cv::Rect roi(plan->roi.x, plan->roi.y, plan->roi.width, plan->roi.height);
         std::vector<localize::LineObservation> lines;
-        for (size_t i = 0; i < plan->stopsMm.size(); ++i) {
-          sim::FrameRequest req;
-          req.slideStartMm = req.slideEndMm = plan->stopsMm[i];
-          req.laserFraction = 1.0;
-          req.exposureUs = sim::autoExposureUs(oc->scene);
-          req.frameIndex = i;
-          renderer.renderRegion(req, roi, crop);
-          crop.copyTo(full(roi));
-          Result<localize::LineObservation> obs = loc.observe(viewOf(full), *plan, plan->stopsMm[i], ws);
-          if (obs) lines.push_back(std::move(*obs));
-        }
+        const auto scanStops = [&](const std::vector<double>& stopsMm) {
+          for (double stopMm : stopsMm) {
+            sim::FrameRequest req;
+            req.slideStartMm = req.slideEndMm = stopMm;
+            req.laserFraction = 1.0;
+            req.exposureUs = sim::autoExposureUs(oc->scene);
+            req.frameIndex = static_cast<uint64_t>(r.stops++);
+            renderer.renderRegion(req, roi, crop);
+            crop.copyTo(full(roi));
+            Result<localize::LineObservation> obs = loc.observe(viewOf(full), *plan, stopMm, ws);
+            if (obs) lines.push_back(std::move(*obs));
+          }
+        };
+        scanStops(plan->stopsMm);
+        // The adaptive second pass, as the daemon's scan worker takes it.
+        scanStops(loc.followUpStops(*plan, loc.estimate(*plan, lines), strokeMm));
         if (debug) {
           std::printf("case %d at %.0f: %s\n  rough err %.1f mm, target c (%.1f %.1f %.1f) r %.1f\n", k, dist,
                       oc->description.c_str(), (oc->roughMm - target.centerMm).norm(), target.centerMm.x(),
@@ -376,6 +387,7 @@ int localizeEval(const std::string& calPath, int cases, const std::vector<double
           r.centreErrMm = est->centerMm - target.centerMm;
           r.centreToRoughMm = (est->centerMm - oc->roughMm).norm();
           r.sigma = est->sigmaMm;
+          r.diameterSigma = est->diameterSigmaMm;
           r.confidence = est->confidencePct;
           r.occlusionEst = est->occlusionPct;
           r.lines = est->linesUsed;
@@ -396,12 +408,12 @@ int localizeEval(const std::string& calPath, int cases, const std::vector<double
     std::ofstream csv(csvPath);
     csv << "case,distance_mm,found,sphere,approach_err_mm,centre_err_mm,diameter_err_mm,sigma_mm,confidence_pct,"
            "occlusion_truth,occlusion_est_pct,lines,diameter_est_mm,diameter_truth_mm,aspect_est,aspect_truth,"
-           "centre_dx_mm,centre_dy_mm,centre_dz_mm,centre_to_rough_mm,rough_approach_err_mm,description\n";
+           "stops,diameter_sigma_mm,centre_dx_mm,centre_dy_mm,centre_dz_mm,centre_to_rough_mm,rough_approach_err_mm,description\n";
     for (const auto& r : results)
       csv << r.index << "," << r.distanceMm << "," << r.found << "," << r.sphere << "," << r.approachErr << "," << r.centreErr << ","
           << r.diameterErr << "," << r.sigma << "," << r.confidence << "," << r.occlusionTruth << "," << r.occlusionEst
           << "," << r.lines << "," << r.diameterEst << "," << r.diameterTruth << "," << r.aspectEst << ","
-          << r.aspectTruth << "," << r.centreErrMm.x() << "," << r.centreErrMm.y() << "," << r.centreErrMm.z() << ","
+          << r.aspectTruth << "," << r.stops << "," << r.diameterSigma << "," << r.centreErrMm.x() << "," << r.centreErrMm.y() << "," << r.centreErrMm.z() << ","
           << r.centreToRoughMm << "," << r.roughApproachErr << ",\""
           << r.description << "\"\n";
   }
@@ -480,7 +492,16 @@ int localizeEval(const std::string& calPath, int cases, const std::vector<double
   md << ").\n";
   md << "\nCalibration: `" << calPath << "` (" << (cal->quality.fromTruth ? "the twin's TRUTH" : "estimated") << ", gate "
      << (cal->quality.gate == geometry::CalibrationQuality::Gate::kPassed ? "passed" : "not passed") << ").\n";
-  md << "Scan: " << scan.stops << " stops " << scan.stopSpacingMm << " mm apart.\n";
+  size_t followedUp = 0;
+  double framesTaken = 0.0;
+  for (const auto& r : results) {
+    followedUp += r.stops > scan.stops ? 1U : 0U;
+    framesTaken += r.stops;
+  }
+  md << "Scan: " << scan.stops << " stops " << scan.stopSpacingMm << " mm apart; adaptive follow-up (up to "
+     << scan.followUpMaxStops << " stops when fewer than " << scan.followUpMinLines << " lines reach the fit) on "
+     << followedUp << " of " << results.size() << " cases, " << framesTaken / static_cast<double>(std::max<size_t>(1, results.size()))
+     << " frames per case on average.\n";
   md << "Condition: " << (occluded ? "with occlusion (leaves hide 15–50 % of the target)" : "without occlusion")
      << ", lighting " << sim::lightingName(lighting) << ", seed " << seed << ".\n";
   const std::string text = md.str();
@@ -590,7 +611,9 @@ int main(int argc, char** argv) {
                         std::atoi(get("only", "-1").c_str()), opt.count("only") > 0,
                         std::atoi(get("stops", "5").c_str()), std::atof(get("spacing-mm", "20").c_str()),
                         std::atof(get("within-pct", "99.5").c_str()),
-                        std::atof(get("prior-radius-sigma-mm", "0").c_str()));
+                        std::atof(get("prior-radius-sigma-mm", "0").c_str()),
+                        std::atoi(get("follow-up-max-stops", "-1").c_str()),
+                        std::atoi(get("follow-up-min-lines", "0").c_str()));
   }
   usage(stderr);
   return 2;
