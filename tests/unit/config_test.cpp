@@ -29,6 +29,14 @@ TEST_CASE("Config: defaults, overrides and errors that name the key", "[config]"
   CHECK(range.status().reason().find("can.node_id") != std::string::npos);
   auto type = app::loadConfig(write(R"({"motion": {"stroke_mm": "long"}})"));
   CHECK(type.status().reason().find("motion.stroke_mm") != std::string::npos);
+  auto followUp = app::loadConfig(write(R"({"scan": {"follow_up_min_lines": 4, "follow_up_max_stops": 0}})"));
+  REQUIRE(followUp.isOk());
+  CHECK(followUp->scan.followUpMinLines == 4);
+  CHECK(followUp->scan.followUpMaxStops == 0);
+  CHECK(ok->scan.followUpMinLines == 3);
+  CHECK(ok->scan.followUpMaxStops == 6);
+  auto tooMany = app::loadConfig(write(R"({"scan": {"follow_up_max_stops": 40}})"));
+  CHECK(tooMany.status().reason().find("scan.follow_up_max_stops") != std::string::npos);
   auto frac = app::loadConfig(write(R"({"scan": {"stops": 2.5}})"));
   CHECK(frac.status().reason().find("scan.stops") != std::string::npos);
   auto cross = app::loadConfig(write(R"({"camera": {"exposure_us": 200000}, "laser": {"max_on_ms": 100}})"));
