@@ -118,6 +118,7 @@ Result<DaemonConfig> loadConfig(const std::string& path) {
   r.number("scan.roi_margin_mm", &c.scan.roiMarginMm, 0, 300);
   r.number("scan.gate_mm", &c.scan.gateMm, 10, 500);
   r.integer("scan.follow_up_min_lines", &c.scan.followUpMinLines, 1, 15);
+  r.number("scan.follow_up_diameter_sigma_mm", &c.scan.followUpDiameterSigmaMm, 0, 100);
   r.integer("scan.follow_up_max_stops", &c.scan.followUpMaxStops, 0, 16);
   r.integer("lle.brce_step", &c.lle.brceStep, 1, 64);
   r.integer("lle.brce_threshold", &c.lle.brceThreshold, 0, 254);

@@ -43,6 +43,8 @@ Status ScanParams::validate() const {
     return {Error::kInvalidArgument, "scan.rough_gate_sigmas must be in 0..100"};
   if (followUpMinLines < 1 || followUpMinLines > 15) return {Error::kInvalidArgument, "scan.follow_up_min_lines must be in 1..15"};
   if (followUpMaxStops < 0 || followUpMaxStops > 16) return {Error::kInvalidArgument, "scan.follow_up_max_stops must be in 0..16"};
+  if (!(followUpDiameterSigmaMm >= 0.0 && followUpDiameterSigmaMm <= 100.0))
+    return {Error::kInvalidArgument, "scan.follow_up_diameter_sigma_mm must be in 0..100"};
   return Status::ok();
 }
 
@@ -96,10 +98,13 @@ Result<ScanPlan> Localizer::plan(const Eigen::Vector3d& roughMm, double strokeMm
 std::vector<double> Localizer::followUpStops(const ScanPlan& plan, const Result<AppleEstimate>& first,
                                              double strokeMm) const {
   if (scan_.followUpMaxStops <= 0 || plan.stopsMm.empty()) return {};
-  // A fit on enough lines needs no more. A scan that found nothing, or failed, gets none
-  // either: no line lit anything near the rough position at five stops, more in between
-  // will not.
-  if (!first || first->linesUsed >= scan_.followUpMinLines) return {};
+  // A fit on enough lines, sure of the fruit's size, needs no more. A scan that found
+  // nothing, or failed, gets none either: no line lit anything near the rough position at
+  // five stops, more in between will not.
+  if (!first) return {};
+  const bool fewLines = first->linesUsed < scan_.followUpMinLines;
+  const bool unsureSize = scan_.followUpDiameterSigmaMm > 0.0 && first->diameterSigmaMm > scan_.followUpDiameterSigmaMm;
+  if (!fewLines && !unsureSize) return {};
   std::vector<double> taken = plan.stopsMm;
   std::sort(taken.begin(), taken.end());
   const double half = taken.size() > 1 ? 0.5 * (taken[1] - taken[0]) : 0.5 * scan_.stopSpacingMm;

@@ -59,7 +59,10 @@ struct ScanParams {
   // leave the centre to the priors; the sensor then takes a second pass of stops halfway
   // between the first pass's and half a spacing beyond each end (followUpStops), at most
   // `followUpMaxStops` of them, and fuses all the lines. 0 stops: off (the paper's scan).
+  // The same second pass when the fit's diameter is unsure: its 1σ above this (three lines
+  // far away leave the diameter to ±4 mm and more). 0: lines only.
   int followUpMinLines = 3;
+  double followUpDiameterSigmaMm = 4.0;
   int followUpMaxStops = 6;
   Status validate() const;
 };
@@ -116,8 +119,9 @@ class Localizer {
                                   image::LleWorkspace& ws) const;
 
   // The second pass of an adaptive scan: the stops to add when the first pass's estimate
-  // (`first`, or its error) rests on fewer than followUpMinLines lines; empty when it does
-  // not, when following up is off, or when every such stop is outside [0, strokeMm].
+  // (`first`, or its error) rests on fewer than followUpMinLines lines or its diameter's σ
+  // exceeds followUpDiameterSigmaMm; empty when neither, when `first` is an error, when
+  // following up is off, or when every such stop is outside [0, strokeMm].
   // Ordered from the first pass's last stop outwards, so the slide sweeps back through them.
   // Pure: the caller scans them (observe) and calls estimate() with all the lines.
   std::vector<double> followUpStops(const ScanPlan& plan, const Result<AppleEstimate>& first, double strokeMm) const;

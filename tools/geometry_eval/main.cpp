@@ -46,6 +46,7 @@ void usage(FILE* out) {
                "                           [--prior-radius-sigma-mm MM (the fruit-size prior's 1σ; default: ScanParams')]\n"
                "                           [--follow-up-max-stops N (the adaptive second pass; 0: off; default: ScanParams')]\n"
                "                           [--follow-up-min-lines N (the pass is taken below N lines; default: ScanParams')]\n"
+               "                           [--follow-up-diameter-sigma-mm MM (... or above this diameter σ; 0: off)]\n"
                "       alacs_geometry_eval check-calibration --calibration FILE --truth FILE [--max-mean-mm MM]\n"
                "\n"
                "  localize exits 0 when every target of issue 5 is met, 4 when one is not, 1 on errors.\n"
@@ -236,7 +237,7 @@ image::ImageView viewOf(const cv::Mat& m) { return {m.data, m.cols, m.rows, m.st
 int localizeEval(const std::string& calPath, int cases, const std::vector<double>& distances, bool occluded,
                  sim::LightingKind lighting, uint64_t seed, const std::string& reportPath, const std::string& csvPath,
                  int minCases, int only, bool debug, int stops, double spacingMm, double withinTargetPct,
-                 double priorRadiusSigmaMm, int followUpMaxStops, int followUpMinLines) {
+                 double priorRadiusSigmaMm, int followUpMaxStops, int followUpMinLines, double followUpDiameterSigmaMm) {
   Result<geometry::Calibration> cal = geometry::loadCalibration(calPath);
   if (!cal) {
     std::fprintf(stderr, "calibration: %s\n", cal.status().toString().c_str());
@@ -250,6 +251,7 @@ int localizeEval(const std::string& calPath, int cases, const std::vector<double
   scan.stopSpacingMm = spacingMm;
   if (followUpMaxStops >= 0) scan.followUpMaxStops = followUpMaxStops;
   if (followUpMinLines > 0) scan.followUpMinLines = followUpMinLines;
+  if (followUpDiameterSigmaMm >= 0.0) scan.followUpDiameterSigmaMm = followUpDiameterSigmaMm;
   if (priorRadiusSigmaMm > 0.0) scan.priorRadiusSigmaMm = priorRadiusSigmaMm;
   if (Status st = scan.validate(); !st) {
     std::fprintf(stderr, "%s\n", st.toString().c_str());
@@ -499,7 +501,8 @@ int localizeEval(const std::string& calPath, int cases, const std::vector<double
     framesTaken += r.stops;
   }
   md << "Scan: " << scan.stops << " stops " << scan.stopSpacingMm << " mm apart; adaptive follow-up (up to "
-     << scan.followUpMaxStops << " stops when fewer than " << scan.followUpMinLines << " lines reach the fit) on "
+     << scan.followUpMaxStops << " stops when fewer than " << scan.followUpMinLines
+     << " lines reach the fit or the diameter's σ exceeds " << scan.followUpDiameterSigmaMm << " mm) on "
      << followedUp << " of " << results.size() << " cases, " << framesTaken / static_cast<double>(std::max<size_t>(1, results.size()))
      << " frames per case on average.\n";
   md << "Condition: " << (occluded ? "with occlusion (leaves hide 15–50 % of the target)" : "without occlusion")
@@ -613,7 +616,8 @@ int main(int argc, char** argv) {
                         std::atof(get("within-pct", "99.5").c_str()),
                         std::atof(get("prior-radius-sigma-mm", "0").c_str()),
                         std::atoi(get("follow-up-max-stops", "-1").c_str()),
-                        std::atoi(get("follow-up-min-lines", "0").c_str()));
+                        std::atoi(get("follow-up-min-lines", "0").c_str()),
+                        std::atof(get("follow-up-diameter-sigma-mm", "-1").c_str()));
   }
   usage(stderr);
   return 2;
