@@ -107,6 +107,14 @@ Status validateCalibration(const Calibration& cal) {
       {"quality.offset_sigma_mm", q.offsetSigmaMm},         {"quality.scale_sigma", q.scaleSigma},
       {"quality.depth_sigma_mm_at_1000", q.depthSigmaMmAt1000},
       {"quality.depth_sigma_mm_at_1600", q.depthSigmaMmAt1600},
+      {"quality.depth_sigma_total_mm_at_1000", q.depthSigmaTotalMmAt1000},
+      {"quality.depth_sigma_total_mm_at_1200", q.depthSigmaTotalMmAt1200},
+      {"quality.depth_sigma_total_mm_at_1400", q.depthSigmaTotalMmAt1400},
+      {"quality.depth_sigma_total_mm_at_1600", q.depthSigmaTotalMmAt1600},
+      {"quality.sigma_3d_total_mm_at_1000", q.sigma3dTotalMmAt1000},
+      {"quality.sigma_3d_total_mm_at_1200", q.sigma3dTotalMmAt1200},
+      {"quality.sigma_3d_total_mm_at_1400", q.sigma3dTotalMmAt1400},
+      {"quality.sigma_3d_total_mm_at_1600", q.sigma3dTotalMmAt1600},
   };
   for (const auto& [name, v] : figures)
     if (!(v >= 0.0 && v < 1e6)) return fieldError(name, "must be a non-negative number");
@@ -173,6 +181,14 @@ Result<Calibration> loadCalibration(const std::string& path) {
         {"normal_sigma_mrad", &cq.normalSigmaMrad},     {"offset_sigma_mm", &cq.offsetSigmaMm},
         {"scale_sigma", &cq.scaleSigma},                {"depth_sigma_mm_at_1000", &cq.depthSigmaMmAt1000},
         {"depth_sigma_mm_at_1600", &cq.depthSigmaMmAt1600},
+        {"depth_sigma_total_mm_at_1000", &cq.depthSigmaTotalMmAt1000},
+        {"depth_sigma_total_mm_at_1200", &cq.depthSigmaTotalMmAt1200},
+        {"depth_sigma_total_mm_at_1400", &cq.depthSigmaTotalMmAt1400},
+        {"depth_sigma_total_mm_at_1600", &cq.depthSigmaTotalMmAt1600},
+        {"sigma_3d_total_mm_at_1000", &cq.sigma3dTotalMmAt1000},
+        {"sigma_3d_total_mm_at_1200", &cq.sigma3dTotalMmAt1200},
+        {"sigma_3d_total_mm_at_1400", &cq.sigma3dTotalMmAt1400},
+        {"sigma_3d_total_mm_at_1600", &cq.sigma3dTotalMmAt1600},
     };
     for (const auto& f : optional) {
       if (q[f.key].empty()) continue;
@@ -240,6 +256,14 @@ std::string calibrationJson(const Calibration& cal) {
     << ", \"offset_sigma_mm\": " << q.offsetSigmaMm << ", \"scale_sigma\": " << q.scaleSigma
     << ",\n              \"depth_sigma_mm_at_1000\": " << q.depthSigmaMmAt1000
     << ", \"depth_sigma_mm_at_1600\": " << q.depthSigmaMmAt1600
+    << ",\n              \"depth_sigma_total_mm_at_1000\": " << q.depthSigmaTotalMmAt1000
+    << ", \"depth_sigma_total_mm_at_1200\": " << q.depthSigmaTotalMmAt1200
+    << ", \"depth_sigma_total_mm_at_1400\": " << q.depthSigmaTotalMmAt1400
+    << ", \"depth_sigma_total_mm_at_1600\": " << q.depthSigmaTotalMmAt1600
+    << ",\n              \"sigma_3d_total_mm_at_1000\": " << q.sigma3dTotalMmAt1000
+    << ", \"sigma_3d_total_mm_at_1200\": " << q.sigma3dTotalMmAt1200
+    << ", \"sigma_3d_total_mm_at_1400\": " << q.sigma3dTotalMmAt1400
+    << ", \"sigma_3d_total_mm_at_1600\": " << q.sigma3dTotalMmAt1600
     << ",\n              \"gate\": \"" << gateName(q.gate) << "\""
     << ", \"from_truth\": " << (q.fromTruth ? "true" : "false") << "}\n}\n";
   return o.str();

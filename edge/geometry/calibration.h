@@ -61,8 +61,21 @@ struct CalibrationQuality {
   double normalSigmaMrad = 0.0;
   double offsetSigmaMm = 0.0;
   double scaleSigma = 0.0;          // 1σ of slide_scale (dimensionless)
-  double depthSigmaMmAt1000 = 0.0;  // depth 1σ from the laser parameters' covariance
+  // Depth 1σ on the optical axis from the laser parameters' covariance ALONE, the
+  // intrinsics taken as exact: a lower bound, blind to a focal-length (depth-scale) error.
+  double depthSigmaMmAt1000 = 0.0;
   double depthSigmaMmAt1600 = 0.0;
+  // Total 1σ (calibration_uncertainty.h): laser parameters plus the intrinsics' covariance
+  // carried through the board poses and the laser refit; RMS over pixels on the laser
+  // planes across the stroke and the frame's height at that depth. Depth (z) and 3D.
+  double depthSigmaTotalMmAt1000 = 0.0;
+  double depthSigmaTotalMmAt1200 = 0.0;
+  double depthSigmaTotalMmAt1400 = 0.0;
+  double depthSigmaTotalMmAt1600 = 0.0;
+  double sigma3dTotalMmAt1000 = 0.0;
+  double sigma3dTotalMmAt1200 = 0.0;
+  double sigma3dTotalMmAt1400 = 0.0;
+  double sigma3dTotalMmAt1600 = 0.0;
   enum class Gate : uint8_t { kNotRun, kPassed, kRefused };
   Gate gate = Gate::kNotRun;  // the calibrate tool's quality gate; a refused file never loads
   bool fromTruth = false;     // written by the simulator from its own truth

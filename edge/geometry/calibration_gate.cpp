@@ -52,6 +52,8 @@ GateVerdict checkCalibrationQuality(const CalibrationQuality& q, const Calibrati
   atMost("scale_sigma", q.scaleSigma, l.maxScaleSigma);
   atMost("depth_sigma_mm_at_1000", q.depthSigmaMmAt1000, l.maxDepthSigmaMmAt1000);
   atMost("depth_sigma_mm_at_1600", q.depthSigmaMmAt1600, l.maxDepthSigmaMmAt1600);
+  atMost("depth_sigma_total_mm_at_1000", q.depthSigmaTotalMmAt1000, l.maxDepthSigmaTotalMmAt1000);
+  atMost("depth_sigma_total_mm_at_1600", q.depthSigmaTotalMmAt1600, l.maxDepthSigmaTotalMmAt1600);
   return v;
 }
 
@@ -68,6 +70,8 @@ Result<CalibrationLimits> CalibrationLimits::load(const std::string& path) {
       {"max_normal_sigma_mrad", &l.maxNormalSigmaMrad},     {"max_offset_sigma_mm", &l.maxOffsetSigmaMm},
       {"max_scale_sigma", &l.maxScaleSigma},                {"max_depth_sigma_mm_at_1000", &l.maxDepthSigmaMmAt1000},
       {"max_depth_sigma_mm_at_1600", &l.maxDepthSigmaMmAt1600},
+      {"max_depth_sigma_total_mm_at_1000", &l.maxDepthSigmaTotalMmAt1000},
+      {"max_depth_sigma_total_mm_at_1600", &l.maxDepthSigmaTotalMmAt1600},
   };
   for (const auto& f : nums) {
     const cv::FileNode n = root[f.key];

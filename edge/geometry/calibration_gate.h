@@ -29,6 +29,9 @@ struct CalibrationLimits {
   double maxScaleSigma = 0.002;
   double maxDepthSigmaMmAt1000 = 0.5;
   double maxDepthSigmaMmAt1600 = 1.0;
+  // The total depth σ (intrinsics included), the figure that sees a depth-scale error.
+  double maxDepthSigmaTotalMmAt1000 = 1.0;
+  double maxDepthSigmaTotalMmAt1600 = 1.6;
 
   // Reads limits from a JSON object; keys as in docs/calibration.md, missing keys keep
   // the defaults. Errors name the key.

@@ -2,6 +2,7 @@
 
 #include <opencv2/calib3d.hpp>
 
+#include <Eigen/Dense>
 #include <cmath>
 #include <string>
 
@@ -50,7 +51,76 @@ cv::Matx33d cameraMatrix(const CameraIntrinsics& cam) {
   return {cam.fxPx, 0.0, cam.cxPx, 0.0, cam.fyPx, cam.cyPx, 0.0, 0.0, 1.0};
 }
 
+// The intrinsics' covariance as calib3d forms its σ, σ²·(JᵀJ)⁻¹, but kept whole: the 6
+// pose parameters of each view are eliminated per view (Schur complement), which leaves
+// the 9×9 block of the inverse exactly. σ² = Σr²/(N − free parameters) with N the number
+// of *corners*, as calib3d divides (not 2N residuals): that is √2 more conservative than
+// the textbook per-coordinate variance, and keeps the diagonal equal to the fx_sigma_px
+// etc. that calib3d reports and the gate checks (docs/calibration.md, "Total σ").
+IntrinsicsCovariance intrinsicsCovariance(const std::vector<std::vector<cv::Point3f>>& obj,
+                                          const std::vector<std::vector<cv::Point2f>>& img,
+                                          const std::vector<cv::Mat>& rvecs, const std::vector<cv::Mat>& tvecs,
+                                          const cv::Mat& k, const cv::Mat& dist, const std::array<bool, 9>& isFree) {
+  using Mat96 = Eigen::Matrix<double, 9, 6>;
+  using Mat66 = Eigen::Matrix<double, 6, 6>;
+  Eigen::Matrix<double, 9, 9> a = Eigen::Matrix<double, 9, 9>::Zero();
+  double sumSq = 0.0;
+  size_t observations = 0;
+  for (size_t v = 0; v < obj.size(); ++v) {
+    std::vector<cv::Point3d> o(obj[v].begin(), obj[v].end());
+    std::vector<cv::Point2d> proj;
+    cv::Mat jac;  // 2N × (3 rvec, 3 tvec, fx, fy, cx, cy, 5 distortion)
+    cv::projectPoints(o, rvecs[v], tvecs[v], k, dist, proj, jac);
+    Mat96 b = Mat96::Zero();
+    Mat66 c = Mat66::Zero();
+    for (int r = 0; r < jac.rows; ++r) {
+      Eigen::Matrix<double, 6, 1> je;
+      Eigen::Matrix<double, 9, 1> ji;
+      for (int j = 0; j < 6; ++j) je(j) = jac.at<double>(r, j);
+      for (int j = 0; j < 9; ++j) ji(j) = isFree[static_cast<size_t>(j)] ? jac.at<double>(r, 6 + j) : 0.0;
+      a += ji * ji.transpose();
+      b += ji * je.transpose();
+      c += je * je.transpose();
+    }
+    a -= b * c.ldlt().solve(b.transpose());
+    for (size_t i = 0; i < proj.size(); ++i) {
+      const cv::Point2d d = proj[i] - cv::Point2d(img[v][i]);
+      sumSq += d.dot(d);
+    }
+    observations += 2 * proj.size();
+  }
+  int nFree = 0;
+  for (bool f : isFree) nFree += f ? 1 : 0;
+  const double dof =
+      static_cast<double>(observations / 2) - static_cast<double>(nFree + 6 * static_cast<int>(obj.size()));
+  IntrinsicsCovariance cov = IntrinsicsCovariance::Zero();
+  if (!(dof > 0.0)) return cov;
+  // Invert only the free block; a fixed parameter has no variance.
+  std::vector<int> idx;
+  for (int i = 0; i < 9; ++i)
+    if (isFree[static_cast<size_t>(i)]) idx.push_back(i);
+  Eigen::MatrixXd sub(idx.size(), idx.size());
+  for (size_t i = 0; i < idx.size(); ++i)
+    for (size_t j = 0; j < idx.size(); ++j) sub(static_cast<Eigen::Index>(i), static_cast<Eigen::Index>(j)) = a(idx[i], idx[j]);
+  const Eigen::MatrixXd inv = sub.ldlt().solve(Eigen::MatrixXd::Identity(sub.rows(), sub.cols()));
+  const double sigma2 = sumSq / dof;
+  for (size_t i = 0; i < idx.size(); ++i)
+    for (size_t j = 0; j < idx.size(); ++j)
+      cov(idx[i], idx[j]) = sigma2 * inv(static_cast<Eigen::Index>(i), static_cast<Eigen::Index>(j));
+  return cov;
+}
+
 }  // namespace
+
+CameraIntrinsics perturbIntrinsics(const CameraIntrinsics& camera, const IntrinsicsVector& delta) {
+  CameraIntrinsics c = camera;
+  c.fxPx += delta(0);
+  c.fyPx += delta(1);
+  c.cxPx += delta(2);
+  c.cyPx += delta(3);
+  for (size_t i = 0; i < 5; ++i) c.distortion[i] += delta(static_cast<Eigen::Index>(4 + i));
+  return c;
+}
 
 std::vector<Eigen::Vector3d> checkerboardCorners(int cols, int rows, double pitchMm) {
   std::vector<Eigen::Vector3d> out;
@@ -117,6 +187,11 @@ Result<CameraFit> calibrateCamera(const std::vector<TargetView>& views, int widt
   for (int i = 0; i < 5; ++i) fit.camera.distortion[static_cast<size_t>(i)] = dist.at<double>(i);
   for (int i = 0; i < 4; ++i) fit.sigmaPx[static_cast<size_t>(i)] = stdIntrinsics.at<double>(i);
   for (int i = 0; i < 5; ++i) fit.sigmaDistortion[static_cast<size_t>(i)] = stdIntrinsics.at<double>(4 + i);
+  std::array<bool, 9> isFree{};
+  isFree.fill(true);
+  if (options.fixK3) isFree[8] = false;
+  if (options.fixTangential) isFree[6] = isFree[7] = false;
+  fit.covariance = intrinsicsCovariance(obj, img, rvecs, tvecs, k, dist, isFree);
   for (size_t v = 0; v < views.size(); ++v) {
     TargetPose pose = poseFrom(rvecs[v], tvecs[v]);
     pose.rmsPx = perView.at<double>(static_cast<int>(v));

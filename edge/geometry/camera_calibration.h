@@ -41,11 +41,24 @@ struct CameraFitOptions {
   size_t minCornersPerView = 12;
 };
 
+// Order of the intrinsic parameters in a covariance: fx, fy, cx, cy, k1, k2, p1, p2, k3.
+using IntrinsicsCovariance = Eigen::Matrix<double, 9, 9>;
+using IntrinsicsVector = Eigen::Matrix<double, 9, 1>;
+
+// `camera` with its intrinsics moved by `delta` (same order as IntrinsicsCovariance).
+CameraIntrinsics perturbIntrinsics(const CameraIntrinsics& camera, const IntrinsicsVector& delta);
+
 struct CameraFit {
   CameraIntrinsics camera;
   double rmsPx = 0.0;                      // over all corners of all views
   std::array<double, 4> sigmaPx{};         // 1σ of fx, fy, cx, cy
   std::array<double, 5> sigmaDistortion{};  // 1σ of k1, k2, p1, p2, k3
+  // Full covariance of (fx, fy, cx, cy [px], k1, k2, p1, p2, k3) with the board poses
+  // marginalised out (Schur complement of the normal matrix), scaled by the residual
+  // variance as calib3d scales its σ. Rows and columns of fixed parameters are zero.
+  // calib3d only reports the diagonal; the off-diagonal terms matter (fx and fy move
+  // together: a common focal-length error is a depth-scale error).
+  IntrinsicsCovariance covariance = IntrinsicsCovariance::Zero();
   std::vector<TargetPose> poses;           // one per view, in input order
 };
 

@@ -226,6 +226,39 @@ Plane fromGeometry(const LaserGeometry& g) {
   return p;
 }
 
+// Every usable pixel of the samples with its ray's point on the target, grouped by line.
+Status collectPixels(const std::vector<LaserLineSample>& samples, std::vector<Pixel>* pxOut,
+                     std::vector<std::vector<size_t>>* linesOut, std::set<int>* placementsOut,
+                     std::set<long long>* slidesOut, int* maxPlacementOut) {
+  std::vector<Pixel>& px = *pxOut;
+  std::vector<std::vector<size_t>>& lines = *linesOut;
+  std::set<int>& placements = *placementsOut;
+  std::set<long long>& slides = *slidesOut;
+  int& maxPlacement = *maxPlacementOut;
+  for (const auto& smp : samples) {
+    if (smp.placement < 0) return Status(Error::kInvalidArgument, "placement ids must be non-negative");
+    if (!smp.targetNormal.allFinite() || std::abs(smp.targetNormal.norm() - 1.0) > 1e-6 ||
+        !std::isfinite(smp.targetOffsetMm) || !std::isfinite(smp.slideMm))
+      return Status(Error::kBadInput, "laser sample with a bad target plane or slide position");
+    std::vector<size_t> members;
+    for (const auto& xn : smp.normalized) {
+      const Eigen::Vector3d ray(xn.x(), xn.y(), 1.0);
+      const double denom = smp.targetNormal.dot(ray);
+      if (!ray.allFinite() || std::abs(denom) < 1e-6) continue;
+      const double depth = smp.targetOffsetMm / denom;
+      if (!(depth > 0.0)) continue;
+      members.push_back(px.size());
+      px.push_back({ray, depth * ray, smp.targetNormal, smp.targetOffsetMm, smp.slideMm, smp.placement, lines.size()});
+    }
+    if (members.empty()) continue;
+    lines.push_back(std::move(members));
+    placements.insert(smp.placement);
+    slides.insert(std::llround(smp.slideMm * 1000.0));
+    maxPlacement = std::max(maxPlacement, smp.placement);
+  }
+  return Status::ok();
+}
+
 }  // namespace
 
 double laserResidualPx(const LaserGeometry& laser, const LaserLineSample& sample, const Eigen::Vector2d& xn,
@@ -264,27 +297,7 @@ Result<LaserFit> calibrateLaser(const std::vector<LaserLineSample>& samples, con
   std::set<int> placements;
   std::set<long long> slides;
   int maxPlacement = 0;
-  for (const auto& smp : samples) {
-    if (smp.placement < 0) return Status(Error::kInvalidArgument, "placement ids must be non-negative");
-    if (!smp.targetNormal.allFinite() || std::abs(smp.targetNormal.norm() - 1.0) > 1e-6 ||
-        !std::isfinite(smp.targetOffsetMm) || !std::isfinite(smp.slideMm))
-      return Status(Error::kBadInput, "laser sample with a bad target plane or slide position");
-    std::vector<size_t> members;
-    for (const auto& xn : smp.normalized) {
-      const Eigen::Vector3d ray(xn.x(), xn.y(), 1.0);
-      const double denom = smp.targetNormal.dot(ray);
-      if (!ray.allFinite() || std::abs(denom) < 1e-6) continue;
-      const double depth = smp.targetOffsetMm / denom;
-      if (!(depth > 0.0)) continue;
-      members.push_back(px.size());
-      px.push_back({ray, depth * ray, smp.targetNormal, smp.targetOffsetMm, smp.slideMm, smp.placement, lines.size()});
-    }
-    if (members.empty()) continue;
-    lines.push_back(std::move(members));
-    placements.insert(smp.placement);
-    slides.insert(std::llround(smp.slideMm * 1000.0));
-    maxPlacement = std::max(maxPlacement, smp.placement);
-  }
+  if (Status st = collectPixels(samples, &px, &lines, &placements, &slides, &maxPlacement); !st) return st;
   if (px.size() < o.minPoints)
     return Status(Error::kBadInput, "laser calibration: only " + std::to_string(px.size()) + " usable line pixels");
   if (slides.size() < 2)
@@ -393,6 +406,39 @@ Result<LaserFit> calibrateLaser(const std::vector<LaserLineSample>& samples, con
   fit.depthSigmaMmAt1000 = depthSigmaOnAxis(fit.laser, cov, 1000.0);
   fit.depthSigmaMmAt1600 = depthSigmaOnAxis(fit.laser, cov, 1600.0);
   return fit;
+}
+
+}  // namespace alacs::geometry
+
+namespace alacs::geometry {
+
+Result<LaserGeometry> refineLaser(const std::vector<LaserLineSample>& samples, const LaserGeometry& start,
+                                  const LaserFitOptions& o) {
+  const Eigen::Vector3d axis = o.nominalSlideAxis.normalized();
+  if (!axis.allFinite()) return Status(Error::kInvalidArgument, "nominal slide axis must be a non-zero vector");
+  std::vector<Pixel> px;
+  std::vector<std::vector<size_t>> lines;
+  std::set<int> placements;
+  std::set<long long> slides;
+  int maxPlacement = 0;
+  if (Status st = collectPixels(samples, &px, &lines, &placements, &slides, &maxPlacement); !st) return st;
+  if (px.size() < o.minPoints)
+    return Status(Error::kBadInput, "laser refinement: only " + std::to_string(px.size()) + " usable line pixels");
+  const LmResult lm = levenbergMarquardt(px, std::vector<bool>(px.size(), true), fromGeometry(start), o);
+  if (lm.used < o.minPoints) return Status(Error::kBadInput, "laser refinement: too few inliers");
+  return toGeometry(lm.plane, axis);
+}
+
+LaserGeometry perturbLaser(const LaserGeometry& laser, const Eigen::Vector4d& delta) {
+  const Plane p = fromGeometry(laser);
+  Eigen::Vector3d e1;
+  Eigen::Vector3d e2;
+  tangentBasis(p.n, &e1, &e2);
+  Plane q;
+  q.n = (p.n + delta(0) * e1 + delta(1) * e2).normalized();
+  q.d0 = p.d0 + delta(2);
+  q.k = p.k + delta(3);
+  return toGeometry(q, laser.slideAxis);
 }
 
 }  // namespace alacs::geometry

@@ -68,6 +68,17 @@ struct LaserFit {
 // Errors: kBadInput for too few points, fewer than two slide positions, or no consensus.
 Result<LaserFit> calibrateLaser(const std::vector<LaserLineSample>& samples, const LaserFitOptions& options = {});
 
+// Levenberg–Marquardt only (no RANSAC, no covariance), from `start`: the plane that the
+// same samples give when something upstream moved a little, e.g. the target poses under
+// perturbed intrinsics (calibration_uncertainty.h). Errors: kBadInput for too few points
+// or too few inliers after refinement.
+Result<LaserGeometry> refineLaser(const std::vector<LaserLineSample>& samples, const LaserGeometry& start,
+                                  const LaserFitOptions& options = {});
+
+// `laser` moved by `delta` in the coordinates of LaserFit::covariance: (α, β) tilt the
+// normal along the tangent basis the fit uses, then d0 and k (= scale·(n·axis)) shift.
+LaserGeometry perturbLaser(const LaserGeometry& laser, const Eigen::Vector4d& delta);
+
 // Image residual (px, perpendicular to the predicted line) of one normalized point of a
 // sample under `laser`: the predicted line is where the laser plane at the sample's slide
 // position meets the target plane.

@@ -11,6 +11,7 @@
 
 #include "geometry/calibration.h"
 #include "geometry/calibration_gate.h"
+#include "geometry/calibration_uncertainty.h"
 #include "geometry/camera_calibration.h"
 #include "geometry/laser_calibration.h"
 #include "geometry/triangulation.h"
@@ -52,14 +53,9 @@ TargetView viewOf(const CameraIntrinsics& cam, const TargetPose& pose, const std
 
 // The laser line on a flat target: laser plane at `slideMm` ∩ target plane, sampled
 // every image row it crosses, projected with distortion, column noise added (the line
-// extraction errs along the row), then undistorted again as the calibrate tool does.
-LaserLineSample lineOn(const Calibration& truth, const TargetPose& target, const TargetPose& measuredTarget,
-                       int placement, double slideMm, double noisePx, double outlierShare, std::mt19937& rng) {
-  LaserLineSample s;
-  s.placement = placement;
-  s.targetNormal = measuredTarget.planeNormal();
-  s.targetOffsetMm = measuredTarget.planeOffsetMm();
-  s.slideMm = slideMm;
+// extraction errs along the row). lineOn undistorts them again as the calibrate tool does.
+std::vector<PixelPoint> linePixels(const Calibration& truth, const TargetPose& target, double slideMm, double noisePx,
+                                   double outlierShare, std::mt19937& rng) {
   const Eigen::Vector3d nl = truth.laser.planeNormal;
   const double dl = truth.laser.planeOffsetAt(slideMm);
   const Eigen::Vector3d nt = target.planeNormal();
@@ -88,7 +84,17 @@ LaserLineSample lineOn(const Calibration& truth, const TargetPose& target, const
     if (u01(rng) < outlierShare) col += 5.0 + 40.0 * u01(rng);  // a reflection beside the line
     kept.push_back({col, p.rowPx});
   }
-  s.normalized = undistortPixels(truth.camera, kept);
+  return kept;
+}
+
+LaserLineSample lineOn(const Calibration& truth, const TargetPose& target, const TargetPose& measuredTarget,
+                       int placement, double slideMm, double noisePx, double outlierShare, std::mt19937& rng) {
+  LaserLineSample s;
+  s.placement = placement;
+  s.targetNormal = measuredTarget.planeNormal();
+  s.targetOffsetMm = measuredTarget.planeOffsetMm();
+  s.slideMm = slideMm;
+  s.normalized = undistortPixels(truth.camera, linePixels(truth, target, slideMm, noisePx, outlierShare, rng));
   return s;
 }
 
@@ -102,6 +108,80 @@ std::vector<TargetPose> placements() {
   return {makePose(800, 18, -8, {0, 0}, {200, 140}),   makePose(1000, -15, 10, {-40, 20}, {200, 140}),
           makePose(1200, 22, 6, {30, -30}, {200, 140}),  makePose(1400, -20, -12, {0, 40}, {200, 140}),
           makePose(1600, 12, 15, {-20, 0}, {200, 140}),  makePose(1800, -10, -6, {20, 10}, {200, 140})};
+}
+
+// A whole synthetic calibration as alacs_calibrate runs it: checkerboard views plus the
+// placements' boards for the camera, then the poses and the laser lines in the estimated
+// camera. Noise 0.1 px on corners, 0.15 px on line columns.
+struct SyntheticCalibration {
+  CameraFit camera;
+  LaserFit laser;
+  CalibrationObservations observations;
+};
+
+SyntheticCalibration calibrateSynthetic(const Rig& rig, unsigned seed, int cameraViews) {
+  std::mt19937 rng(seed);
+  std::vector<TargetView> views;
+  for (int i = 0; i < cameraViews; ++i) {
+    const double yaw = -30.0 + 60.0 * (i % 5) / 4.0;
+    const double pitch = -25.0 + 50.0 * (i % 3) / 2.0;
+    const Eigen::Vector2d off(-150.0 + 300.0 * (i % 4) / 3.0, -100.0 + 200.0 * (i % 2));
+    views.push_back(viewOf(rig.truth.camera, makePose(600.0 + 40.0 * i, yaw, pitch, off, rig.gridCentre), rig.corners,
+                           0.1, rng));
+  }
+  const std::vector<TargetPose> poses = placements();
+  SyntheticCalibration out;
+  for (const auto& pose : poses) {
+    out.observations.placementViews.push_back(viewOf(rig.truth.camera, pose, rig.corners, 0.1, rng));
+    views.push_back(out.observations.placementViews.back());
+  }
+  auto cam = calibrateCamera(views, rig.truth.camera.widthPx, rig.truth.camera.heightPx);
+  REQUIRE(cam.isOk());
+  out.camera = *cam;
+  std::vector<LaserLineSample> samples;
+  for (size_t p = 0; p < poses.size(); ++p) {
+    auto measured = locateTarget(cam->camera, out.observations.placementViews[p]);
+    REQUIRE(measured.isOk());
+    for (double slide : {0.0, 50.0, 100.0, 150.0, 200.0}) {
+      LaserPixelLine line{static_cast<int>(p), slide, linePixels(rig.truth, poses[p], slide, 0.15, 0.0, rng)};
+      LaserLineSample s;
+      s.placement = static_cast<int>(p);
+      s.targetNormal = measured->planeNormal();
+      s.targetOffsetMm = measured->planeOffsetMm();
+      s.slideMm = slide;
+      s.normalized = undistortPixels(cam->camera, line.pixels);
+      samples.push_back(std::move(s));
+      out.observations.lines.push_back(std::move(line));
+    }
+  }
+  LaserFitOptions lo;
+  lo.focalPx = cam->camera.fxPx;
+  auto laser = calibrateLaser(samples, lo);
+  REQUIRE(laser.isOk());
+  out.laser = *laser;
+  return out;
+}
+
+// RMS depth error of `est` on pixels of points on the true laser planes at depth z
+// (check-calibration's grid: the whole stroke, ±0.3·z of height).
+double rmsDepthErrorMm(const Calibration& truth, const Calibration& est, double z) {
+  const LaserGeometry& t = truth.laser;
+  double sum = 0.0;
+  int count = 0;
+  for (double slide = 0.0; slide <= 200.0; slide += 25.0) {
+    for (double y = -0.3 * z; y <= 0.3 * z + 1e-9; y += 0.05 * z) {
+      const double x = (t.planeOffsetAt(slide) - t.planeNormal.y() * y - t.planeNormal.z() * z) / t.planeNormal.x();
+      const PixelPoint px = projectPoint(truth.camera, Eigen::Vector3d(x, y, z));
+      if (px.columnPx < 0 || px.rowPx < 0 || px.columnPx > truth.camera.widthPx - 1 ||
+          px.rowPx > truth.camera.heightPx - 1)
+        continue;
+      const TriangulatedPoint q = triangulate(est.laser, slide, undistortPixels(est.camera, {px})[0]);
+      if (!q.valid) continue;
+      sum += std::pow(q.pointMm.z() - z, 2);
+      ++count;
+    }
+  }
+  return count > 0 ? std::sqrt(sum / count) : 1e9;
 }
 
 }  // namespace
@@ -315,5 +395,136 @@ TEST_CASE("Quality figures round-trip; a refused calibration never loads", "[cal
   cal.quality.gate = CalibrationQuality::Gate::kPassed;
   cal.camera.distortion = {-0.9, 0.0, 0.0, 0.0, 0.0};
   CHECK(validateCalibration(cal).reason().find("camera.distortion") != std::string::npos);
+  std::remove(path.c_str());
+}
+
+TEST_CASE("The intrinsics' full covariance agrees with calib3d's sigma and keeps the fx-fy coupling", "[calibration]") {
+  Rig rig;
+  const SyntheticCalibration run = calibrateSynthetic(rig, 21, 10);
+  const IntrinsicsCovariance& c = run.camera.covariance;
+  for (int i = 0; i < 4; ++i) {
+    INFO("parameter " << i);
+    CHECK(std::sqrt(c(i, i)) == Approx(run.camera.sigmaPx[static_cast<size_t>(i)]).epsilon(0.02));
+  }
+  CHECK(std::sqrt(c(4, 4)) == Approx(run.camera.sigmaDistortion[0]).epsilon(0.02));
+  CHECK(c(8, 8) == 0.0);  // k3 fixed: no variance
+  // A common focal error: fx and fy move together.
+  CHECK(c(0, 1) / std::sqrt(c(0, 0) * c(1, 1)) > 0.8);
+}
+
+TEST_CASE("The total depth sigma includes the intrinsics, grows with depth and predicts the real error",
+          "[calibration]") {
+  Rig rig;
+  double sumZ2 = 0.0;
+  int count = 0;
+  for (unsigned seed = 1; seed <= 6; ++seed) {
+    const SyntheticCalibration run = calibrateSynthetic(rig, seed, 10);
+    auto unc = propagateCalibrationUncertainty(run.camera.camera, run.camera.covariance, run.laser, run.observations);
+    REQUIRE(unc.isOk());
+    REQUIRE(unc->byDepth.size() == 4);
+    CHECK(unc->solves == 16);  // ±1σ along 8 free intrinsics
+    Calibration est;
+    est.camera = run.camera.camera;
+    est.laser = run.laser.laser;
+    for (size_t d = 0; d < unc->byDepth.size(); ++d) {
+      const DepthUncertainty& u = unc->byDepth[d];
+      const double err = rmsDepthErrorMm(rig.truth, est, u.depthMm);
+      INFO("seed " << seed << " depth " << u.depthMm << ": laser-only " << u.depthSigmaLaserMm << " intrinsics "
+                   << u.depthSigmaIntrinsicsMm << " total " << u.depthSigmaTotalMm << " 3D " << u.sigma3dTotalMm
+                   << ", real RMS depth error " << err << " mm");
+      CHECK(u.points > 50);
+      // The intrinsics dominate: the laser-only figure alone is blind to them.
+      CHECK(u.depthSigmaIntrinsicsMm > u.depthSigmaLaserMm);
+      CHECK(u.depthSigmaTotalMm > u.depthSigmaLaserMm);
+      CHECK(u.sigma3dTotalMm >= u.depthSigmaTotalMm);
+      if (d > 0) CHECK(u.depthSigmaTotalMm > unc->byDepth[d - 1].depthSigmaTotalMm);
+      CHECK(err < 4.0 * u.depthSigmaTotalMm);
+      sumZ2 += std::pow(err / u.depthSigmaTotalMm, 2);
+      ++count;
+    }
+    // On the optical axis the old laser-only figure is far below the total.
+    CHECK(run.laser.depthSigmaMmAt1600 < unc->byDepth[3].depthSigmaTotalMm);
+  }
+  // Over the seeds the error is of the order of σ: neither blind (≫ 1) nor vacuous (≪ 1).
+  // (calib3d's σ convention is √2 conservative for independent corner noise: expect ~0.7.)
+  const double rmsZ = std::sqrt(sumZ2 / count);
+  INFO("RMS of error/σ over seeds and depths: " << rmsZ);
+  CHECK(rmsZ > 0.25);
+  CHECK(rmsZ < 2.0);
+}
+
+TEST_CASE("The Monte Carlo of the intrinsics agrees with the linearised total sigma", "[calibration]") {
+  Rig rig;
+  const SyntheticCalibration run = calibrateSynthetic(rig, 3, 10);
+  auto linear = propagateCalibrationUncertainty(run.camera.camera, run.camera.covariance, run.laser, run.observations);
+  UncertaintyOptions mc;
+  mc.draws = 100;
+  mc.seed = 7;
+  auto sampled =
+      propagateCalibrationUncertainty(run.camera.camera, run.camera.covariance, run.laser, run.observations, mc);
+  REQUIRE(linear.isOk());
+  REQUIRE(sampled.isOk());
+  CHECK(sampled->solves == 100);
+  for (size_t d = 0; d < 4; ++d) {
+    INFO("depth " << linear->byDepth[d].depthMm << ": linear " << linear->byDepth[d].depthSigmaTotalMm << " Monte Carlo "
+                  << sampled->byDepth[d].depthSigmaTotalMm);
+    // 100 draws: the sampled σ is good to ~7 % (1σ).
+    CHECK(sampled->byDepth[d].depthSigmaTotalMm == Approx(linear->byDepth[d].depthSigmaTotalMm).epsilon(0.25));
+  }
+}
+
+TEST_CASE("The gate refuses a large total depth sigma and names the field", "[calibration]") {
+  CalibrationQuality q;
+  q.reprojectionRmsPx = 0.12;
+  q.cameraViews = 14;
+  q.fxSigmaPx = 2.5;  // inside its own limit (4 px) ...
+  q.fySigmaPx = 2.5;
+  q.laserRmsPx = 0.15;
+  q.planeRmsMm = 0.1;
+  q.inlierShare = 0.97;
+  q.targetPlacements = 6;
+  q.slidePositions = 5;
+  q.depthSigmaMmAt1000 = 0.05;  // ... and the laser-only figures look fine,
+  q.depthSigmaMmAt1600 = 0.2;
+  q.depthSigmaTotalMmAt1000 = 1.1;  // but the total says 1 mm of depth at 1 m
+  q.depthSigmaTotalMmAt1600 = 1.7;
+  const CalibrationLimits defaults;
+  const GateVerdict v = checkCalibrationQuality(q, defaults);
+  REQUIRE(v.failures.size() == 2);
+  CHECK(v.status().reason().find("quality.depth_sigma_total_mm_at_1000 1.1 exceeds 1") != std::string::npos);
+  CHECK(v.status().reason().find("quality.depth_sigma_total_mm_at_1600 1.7 exceeds 1.6") != std::string::npos);
+  q.depthSigmaTotalMmAt1000 = 0.5;
+  q.depthSigmaTotalMmAt1600 = 0.9;
+  CHECK(checkCalibrationQuality(q, defaults).passed());
+
+  const std::string path = "/tmp/alacs_test_limits_total.json";
+  std::ofstream(path) << R"({"max_depth_sigma_total_mm_at_1600": 0.8})";
+  auto limits = CalibrationLimits::load(path);
+  REQUIRE(limits.isOk());
+  CHECK(limits->maxDepthSigmaTotalMmAt1600 == Approx(0.8));
+  CHECK(limits->maxDepthSigmaTotalMmAt1000 == Approx(defaults.maxDepthSigmaTotalMmAt1000));
+  const GateVerdict tight = checkCalibrationQuality(q, *limits);
+  REQUIRE(tight.failures.size() == 1);
+  CHECK(tight.failures[0].find("quality.depth_sigma_total_mm_at_1600") == 0);
+  std::ofstream(path) << R"({"max_depth_sigma_total_mm_at_1000": -1})";
+  CHECK(CalibrationLimits::load(path).status().reason().find("max_depth_sigma_total_mm_at_1000") != std::string::npos);
+  std::remove(path.c_str());
+}
+
+TEST_CASE("The total sigma figures round-trip through calibration.json", "[calibration]") {
+  Calibration cal = sim::defaultScene().truth;
+  cal.quality.fromTruth = false;
+  cal.quality.depthSigmaTotalMmAt1000 = 0.52;
+  cal.quality.depthSigmaTotalMmAt1400 = 0.75;
+  cal.quality.sigma3dTotalMmAt1600 = 1.43;
+  const std::string path = "/tmp/alacs_test_cal_total_sigma.json";
+  REQUIRE(saveCalibration(cal, path).isOk());
+  auto back = loadCalibration(path);
+  REQUIRE(back.isOk());
+  CHECK(back->quality.depthSigmaTotalMmAt1000 == Approx(0.52));
+  CHECK(back->quality.depthSigmaTotalMmAt1400 == Approx(0.75));
+  CHECK(back->quality.sigma3dTotalMmAt1600 == Approx(1.43));
+  cal.quality.depthSigmaTotalMmAt1600 = -1.0;
+  CHECK(validateCalibration(cal).reason().find("quality.depth_sigma_total_mm_at_1600") != std::string::npos);
   std::remove(path.c_str());
 }

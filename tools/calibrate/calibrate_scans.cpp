@@ -84,6 +84,17 @@ Result<CalibrationRun> runCalibration(const CalibrationInput& in, const ImageLoa
   run.camera = *cam;
   run.log.push_back("camera: " + std::to_string(views.size()) + " views, reprojection RMS " +
                     fmt("%.3f px", cam->rmsPx));
+  {
+    // The full covariance must agree with calib3d's σ on its diagonal; its off-diagonal
+    // fx–fy term is what turns a focal error into a depth-scale error.
+    const auto& c = cam->covariance;
+    std::ostringstream msg;
+    msg.precision(3);
+    msg << "camera: σ fx " << std::sqrt(c(0, 0)) << " px (calib3d " << cam->sigmaPx[0] << "), σ fy "
+        << std::sqrt(c(1, 1)) << " px (calib3d " << cam->sigmaPx[1] << "), corr(fx, fy) "
+        << c(0, 1) / std::sqrt(c(0, 0) * c(1, 1));
+    run.log.push_back(msg.str());
+  }
 
   // 2. Per placement: the board's plane, then the laser line on it at every slide position.
   const BoardSpec& b = in.board;
@@ -92,6 +103,9 @@ Result<CalibrationRun> runCalibration(const CalibrationInput& in, const ImageLoa
   const double y0 = -b.squareMm - b.marginMm + in.boardEdgeGuardMm;
   const double y1 = (b.squaresY - 1) * b.squareMm + b.marginMm - in.boardEdgeGuardMm;
   std::vector<geometry::LaserLineSample> samples;
+  // The same lines in pixels, with the board's corners, for the total σ.
+  geometry::CalibrationObservations observations;
+  std::vector<int> observedPlacement(in.placements.size(), -1);
   image::LleWorkspace ws;
   for (size_t p = 0; p < in.placements.size(); ++p) {
     const PlacementRef& pl = in.placements[p];
@@ -145,21 +159,33 @@ Result<CalibrationRun> runCalibration(const CalibrationInput& in, const ImageLoa
       std::vector<geometry::PixelPoint> px;
       for (const auto& r : line->rows) px.push_back({static_cast<double>(r.column), static_cast<double>(r.row)});
       const std::vector<Eigen::Vector2d> xn = geometry::undistortPixels(cam->camera, px);
+      if (observedPlacement[p] < 0) {
+        observedPlacement[p] = static_cast<int>(observations.placementViews.size());
+        observations.placementViews.push_back(views[static_cast<size_t>(vi)]);
+      }
+      geometry::LaserPixelLine pixelLine;
+      pixelLine.placement = observedPlacement[p];
+      pixelLine.slideMm = f.slideMm;
       geometry::LaserLineSample s;
       s.placement = static_cast<int>(p);
       s.targetNormal = pose->planeNormal();
       s.targetOffsetMm = pose->planeOffsetMm();
       s.slideMm = f.slideMm;
-      for (const auto& x : xn) {
+      for (size_t i = 0; i < xn.size(); ++i) {
+        const Eigen::Vector2d& x = xn[i];
         const Eigen::Vector3d ray(x.x(), x.y(), 1.0);
         const double t = s.targetOffsetMm / s.targetNormal.dot(ray);
         if (!(t > 0.0)) continue;
         const Eigen::Vector3d onBoard = rt * (t * ray - pose->translationMm);
         if (onBoard.x() < x0 || onBoard.x() > x1 || onBoard.y() < y0 || onBoard.y() > y1) continue;
         s.normalized.push_back(x);
+        pixelLine.pixels.push_back(px[i]);
       }
       used += static_cast<int>(s.normalized.size());
-      if (!s.normalized.empty()) samples.push_back(std::move(s));
+      if (!s.normalized.empty()) {
+        samples.push_back(std::move(s));
+        observations.lines.push_back(std::move(pixelLine));
+      }
     }
     std::ostringstream msg;
     msg << pl.name << ": board at " << std::lround(pose->translationMm.z()) << " mm, "
@@ -172,6 +198,29 @@ Result<CalibrationRun> runCalibration(const CalibrationInput& in, const ImageLoa
   Result<geometry::LaserFit> laser = geometry::calibrateLaser(samples, lo);
   if (!laser) return Status(laser.status().code(), "laser: " + laser.status().reason());
   run.laser = *laser;
+
+  // 3. The total σ: the intrinsics' covariance carried through the poses and the laser
+  // refit, over the working distances and the stroke the scans covered.
+  geometry::UncertaintyOptions uo;
+  uo.laser = lo;
+  uo.draws = in.uncertaintyDraws;
+  uo.strokeStartMm = 1e9;
+  uo.strokeEndMm = -1e9;
+  for (const auto& line : observations.lines) {
+    uo.strokeStartMm = std::min(uo.strokeStartMm, line.slideMm);
+    uo.strokeEndMm = std::max(uo.strokeEndMm, line.slideMm);
+  }
+  Result<geometry::CalibrationUncertainty> unc =
+      geometry::propagateCalibrationUncertainty(cam->camera, cam->covariance, *laser, observations, uo);
+  if (!unc) return Status(unc.status().code(), "total σ: " + unc.status().reason());
+  run.uncertainty = *unc;
+  {
+    std::ostringstream msg;
+    msg << "total σ: " << unc->solves << " re-solves of poses and laser plane ("
+        << (uo.draws > 0 ? "Monte Carlo" : "±1σ per direction") << "), stroke " << uo.strokeStartMm << ".."
+        << uo.strokeEndMm << " mm";
+    run.log.push_back(msg.str());
+  }
 
   geometry::Calibration& cal = run.calibration;
   cal.camera = cam->camera;
@@ -193,6 +242,21 @@ Result<CalibrationRun> runCalibration(const CalibrationInput& in, const ImageLoa
   q.scaleSigma = laser->scaleSigma;
   q.depthSigmaMmAt1000 = laser->depthSigmaMmAt1000;
   q.depthSigmaMmAt1600 = laser->depthSigmaMmAt1600;
+  for (const auto& u : unc->byDepth) {
+    const long mm = std::lround(u.depthMm);
+    double* depth = mm == 1000 ? &q.depthSigmaTotalMmAt1000
+                    : mm == 1200 ? &q.depthSigmaTotalMmAt1200
+                    : mm == 1400 ? &q.depthSigmaTotalMmAt1400
+                    : mm == 1600 ? &q.depthSigmaTotalMmAt1600
+                                 : nullptr;
+    double* full = mm == 1000 ? &q.sigma3dTotalMmAt1000
+                   : mm == 1200 ? &q.sigma3dTotalMmAt1200
+                   : mm == 1400 ? &q.sigma3dTotalMmAt1400
+                   : mm == 1600 ? &q.sigma3dTotalMmAt1600
+                                : nullptr;
+    if (depth != nullptr) *depth = u.depthSigmaTotalMm;
+    if (full != nullptr) *full = u.sigma3dTotalMm;
+  }
   q.fromTruth = false;
   return run;
 }

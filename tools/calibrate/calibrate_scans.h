@@ -14,6 +14,7 @@
 
 #include "common/result.h"
 #include "geometry/calibration.h"
+#include "geometry/calibration_uncertainty.h"
 #include "geometry/camera_calibration.h"
 #include "geometry/laser_calibration.h"
 #include "image/lle.h"
@@ -55,12 +56,14 @@ struct CalibrationInput {
   geometry::CameraFitOptions cameraOptions;
   image::LleParams lle;
   double boardEdgeGuardMm = 8.0;  // laser pixels this close to the board's edge are not used
+  int uncertaintyDraws = 0;       // 0: linearised total σ; > 0: Monte Carlo with this many draws
 };
 
 struct CalibrationRun {
   geometry::Calibration calibration;  // with its quality figures (gate not yet applied)
   geometry::CameraFit camera;
   geometry::LaserFit laser;
+  geometry::CalibrationUncertainty uncertainty;  // total σ per working distance
   std::vector<std::string> log;       // what was used and what was skipped, and why
 };
 

@@ -22,7 +22,8 @@ namespace {
 void usage(FILE* out) {
   std::fprintf(out,
                "usage: alacs_calibrate --scans DIR [--out FILE] [--limits FILE] [--board SXxSYxMM]\n"
-               "                       [--margin-mm MM] [--slide-axis X,Y,Z] [--free-k3] [--verbose]\n"
+               "                       [--margin-mm MM] [--slide-axis X,Y,Z] [--free-k3]\n"
+               "                       [--sigma-draws N] [--verbose]\n"
                "\n"
                "  --scans DIR       a directory of scan directories (docs/scan-format.md):\n"
                "                    kind \"checkerboard\": every laser-off frame is a camera view;\n"
@@ -38,6 +39,8 @@ void usage(FILE* out) {
                "                    (default 1,0,0; only its component along the laser normal is\n"
                "                    observable, see docs/calibration.md)\n"
                "  --free-k3         estimate the sixth-order radial term too\n"
+               "  --sigma-draws N   total σ by a Monte Carlo of N intrinsics draws (seeded) instead\n"
+               "                    of the default ±1σ per direction; for checking, N × slower\n"
                "\n"
                "exit status: 0 calibrated and accepted, 3 refused by the quality gate, 1 failed, 2 usage\n");
 }
@@ -63,8 +66,21 @@ void printQuality(const geometry::CalibrationQuality& q) {
   std::printf("  normal_sigma_mrad       %.4f\n", q.normalSigmaMrad);
   std::printf("  offset_sigma_mm         %.4f\n", q.offsetSigmaMm);
   std::printf("  scale_sigma             %.6f\n", q.scaleSigma);
-  std::printf("  depth_sigma_mm_at_1000  %.4f\n", q.depthSigmaMmAt1000);
-  std::printf("  depth_sigma_mm_at_1600  %.4f\n", q.depthSigmaMmAt1600);
+  std::printf("  depth_sigma_mm_at_1000  %.4f   (laser plane only, intrinsics taken as exact)\n", q.depthSigmaMmAt1000);
+  std::printf("  depth_sigma_mm_at_1600  %.4f   (laser plane only)\n", q.depthSigmaMmAt1600);
+  std::printf("  depth_sigma_total_mm_at_1000/1200/1400/1600  %.3f / %.3f / %.3f / %.3f\n", q.depthSigmaTotalMmAt1000,
+              q.depthSigmaTotalMmAt1200, q.depthSigmaTotalMmAt1400, q.depthSigmaTotalMmAt1600);
+  std::printf("  sigma_3d_total_mm_at_1000/1200/1400/1600     %.3f / %.3f / %.3f / %.3f\n", q.sigma3dTotalMmAt1000,
+              q.sigma3dTotalMmAt1200, q.sigma3dTotalMmAt1400, q.sigma3dTotalMmAt1600);
+}
+
+// Where the total σ comes from, per working distance (the --verbose breakdown).
+void printUncertainty(const geometry::CalibrationUncertainty& u) {
+  std::printf("total σ by working distance (RMS over the grid; depth = z):\n");
+  std::printf("  depth    points  laser-only  intrinsics  total depth  total 3D  [mm]\n");
+  for (const auto& d : u.byDepth)
+    std::printf("  %4.0f mm  %5d   %8.3f   %9.3f   %10.3f  %8.3f\n", d.depthMm, d.points, d.depthSigmaLaserMm,
+                d.depthSigmaIntrinsicsMm, d.depthSigmaTotalMm, d.sigma3dTotalMm);
 }
 
 }  // namespace
@@ -110,6 +126,12 @@ int main(int argc, char** argv) {
       input.nominalSlideAxis.normalize();
     } else if (k == "--free-k3") {
       input.cameraOptions.fixK3 = false;
+    } else if (k == "--sigma-draws") {
+      input.uncertaintyDraws = std::atoi(value());
+      if (input.uncertaintyDraws < 0) {
+        std::fprintf(stderr, "alacs_calibrate: --sigma-draws wants N >= 0\n");
+        return 2;
+      }
     } else if (k == "--verbose") {
       verbose = true;
     } else if (k == "--help" || k == "-h") {
@@ -221,6 +243,7 @@ int main(int argc, char** argv) {
               l.planeNormal.x(), l.planeNormal.y(), l.planeNormal.z(), l.planeOffsetMm, l.slideAxis.x(),
               l.slideAxis.y(), l.slideAxis.z(), l.slideScale);
   printQuality(cal.quality);
+  if (verbose) printUncertainty(run->uncertainty);
   const geometry::GateVerdict verdict = geometry::checkCalibrationQuality(cal.quality, limits);
   if (!verdict.passed()) {
     cal.quality.gate = geometry::CalibrationQuality::Gate::kRefused;
