@@ -5,6 +5,7 @@
 #include <algorithm>
 #include <cmath>
 #include <functional>
+#include <limits>
 
 #include "geometry/spheroid_fit.h"
 
@@ -115,8 +116,24 @@ std::vector<double> Localizer::followUpStops(const ScanPlan& plan, const Result<
   // Inside the stroke and not (nearly) a stop already taken: a clamped end stop can land
   // on the first pass's.
   const double minApartMm = 0.25 * std::max(half, 0.5);
+  // Only the size in doubt (the fit rests on enough lines, so its centre is known to a few
+  // millimetres): the stops whose plane cuts the fruit well inside its limb are the ones
+  // that add to it; the others would cost a slide move and show leaves.
+  double fromMm = -std::numeric_limits<double>::infinity();
+  double toMm = std::numeric_limits<double>::infinity();
+  if (!fewLines) {
+    const Eigen::Vector3d& n = cal_.laser.planeNormal;
+    const double radius = 0.5 * first->diameterMm;
+    const double a = cal_.laser.slideForPoint(first->centerMm - 0.8 * radius * n);
+    const double b = cal_.laser.slideForPoint(first->centerMm + 0.8 * radius * n);
+    if (std::isfinite(a) && std::isfinite(b)) {
+      fromMm = std::min(a, b);
+      toMm = std::max(a, b);
+    }
+  }
   std::vector<double> out;
   for (double s : more) {
+    if (s < fromMm || s > toMm) continue;
     s = std::clamp(s, 0.0, strokeMm);
     const auto near = [&](double t) { return std::abs(t - s) < minApartMm; };
     if (std::none_of(taken.begin(), taken.end(), near) && std::none_of(out.begin(), out.end(), near)) out.push_back(s);

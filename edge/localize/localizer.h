@@ -60,9 +60,11 @@ struct ScanParams {
   // between the first pass's and half a spacing beyond each end (followUpStops), at most
   // `followUpMaxStops` of them, and fuses all the lines. 0 stops: off (the paper's scan).
   // The same second pass when the fit's diameter is unsure: its 1σ above this (three lines
-  // far away leave the diameter to ±4 mm and more). 0: lines only.
+  // far away leave the diameter to ±4 mm and more). 0 (the default): lines only; 4 meets
+  // the diameter targets at 1.6 m, at the price of a second pass on ~45 % of the scans
+  // (docs/geometry.md, docs/daemon.md).
   int followUpMinLines = 3;
-  double followUpDiameterSigmaMm = 4.0;
+  double followUpDiameterSigmaMm = 0.0;
   int followUpMaxStops = 6;
   Status validate() const;
 };

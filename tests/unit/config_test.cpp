@@ -35,6 +35,7 @@ TEST_CASE("Config: defaults, overrides and errors that name the key", "[config]"
   CHECK(followUp->scan.followUpMaxStops == 0);
   CHECK(ok->scan.followUpMinLines == 3);
   CHECK(ok->scan.followUpMaxStops == 6);
+  CHECK(ok->scan.followUpDiameterSigmaMm == 0.0);
   auto tooMany = app::loadConfig(write(R"({"scan": {"follow_up_max_stops": 40}})"));
   CHECK(tooMany.status().reason().find("scan.follow_up_max_stops") != std::string::npos);
   auto frac = app::loadConfig(write(R"({"scan": {"stops": 2.5}})"));

@@ -283,6 +283,22 @@ TEST_CASE("The adaptive second pass: stops in between and beyond, only when too 
   REQUIRE(two.size() == 2);
   CHECK(two[0] == Approx(s0 + 50.0));
   CHECK(two[1] == Approx(s0 + 30.0));
+  // Enough lines but the size in doubt (its σ over the limit): only the stops whose plane
+  // cuts the fruit well inside its limb, not the ones beyond the first pass's ends.
+  localize::ScanParams unsure = k.scan;
+  unsure.followUpDiameterSigmaMm = 0.01;
+  const localize::Localizer sizeLoc(k.cal, image::LleParams{}, unsure);
+  REQUIRE(all->diameterSigmaMm > 0.01);
+  const std::vector<double> inside = sizeLoc.followUpStops(*plan, all, 200.0);
+  CHECK(inside.size() >= 2);
+  CHECK(inside.size() <= 4);
+  const double centreSlide = k.cal.laser.slideForPoint(all->centerMm);
+  for (double s : inside) {
+    CHECK(std::abs(s - centreSlide) < 0.8 * k.radius / k.cal.laser.planeNormal.x() + 1.0);
+    CHECK(s > s0);
+    CHECK(s < s0 + 80.0);
+  }
+  CHECK(std::is_sorted(inside.rbegin(), inside.rend()));
   // At the end of the stroke, a stop beyond it is clamped onto it, or dropped when a stop
   // of the first pass is already there.
   localize::ScanPlan atEnd = *plan;
@@ -303,6 +319,9 @@ TEST_CASE("Scan parameters are validated", "[localize]") {
   p = {};
   p.followUpMaxStops = 17;
   CHECK(p.validate().reason().find("follow_up_max_stops") != std::string::npos);
+  p = {};
+  p.followUpDiameterSigmaMm = -1.0;
+  CHECK(p.validate().reason().find("follow_up_diameter_sigma_mm") != std::string::npos);
   p = {};
   p.followUpMinLines = 0;
   CHECK(p.validate().reason().find("follow_up_min_lines") != std::string::npos);

@@ -48,10 +48,20 @@ struct Options {
   int widthPx = 0;
   int heightPx = 0;
   bool verbose = false;
+  int followUpMaxStops = -1;              // -1: ScanParams' default
+  double followUpDiameterSigmaMm = -1.0;  // -1: ScanParams' default
   std::string exportDir;
   bool replay = false;
   std::vector<std::string> dirs;
 };
+
+// The localizer's scan parameters: the defaults, with the adaptive second pass as asked.
+localize::ScanParams scanParamsOf(const Options& o) {
+  localize::ScanParams sp;
+  if (o.followUpMaxStops >= 0) sp.followUpMaxStops = o.followUpMaxStops;
+  if (o.followUpDiameterSigmaMm >= 0.0) sp.followUpDiameterSigmaMm = o.followUpDiameterSigmaMm;
+  return sp;
+}
 
 struct Trial {
   double cycleMs = 0;
@@ -188,7 +198,7 @@ int simulatedCycle(const Options& o) {
   MonotonicSleeper sleeper;
   motion::SlideLimits limits;  // the daemon's defaults: docs/daemon.md
   image::LleParams lle;
-  localize::ScanParams scanParams;
+  localize::ScanParams scanParams = scanParamsOf(o);
   std::printf("localize cycle: %d orchard cases (1.0-1.4 m, occluded, overcast), motor %.0f mm/s, %.0f mm/s², "
               "%.0f steps/mm, slide parked -20/-5/+5/+20 mm from the scan's first stop\n",
               o.cases, limits.maxSpeedMmPerS, limits.accelMmPerS2, limits.stepsPerMm);
@@ -242,7 +252,7 @@ int simulatedCycle(const Options& o) {
 int exportScans(const Options& o) {
   motion::SlideLimits limits;
   image::LleParams lle;
-  localize::ScanParams scanParams;
+  localize::ScanParams scanParams = scanParamsOf(o);
   std::shared_ptr<const sim::RayTable> rays;
   for (int c = 0; c < o.cases; ++c) {
     Result<sim::OrchardCase> oc = orchardCase(c);
@@ -294,7 +304,7 @@ int replayCycle(const Options& o) {
   MonotonicSleeper sleeper;
   motion::SlideLimits limits;
   image::LleParams lle;
-  localize::ScanParams scanParams;
+  localize::ScanParams scanParams = scanParamsOf(o);
   const std::string modes = o.modes.empty() ? "stop-and-go" : o.modes;
   const double startMb = app::peakResidentMb();
   int widthPx = 0, heightPx = 0;
@@ -381,6 +391,7 @@ int main(int argc, char** argv) {
   Options o;
   const char* usage =
       "usage: alacs_cycle [--cases N] [--mode stop-and-go|continuous|both] [--width W --height H] [--verbose]\n"
+      "                   [--follow-up-max-stops N (0: no second pass)] [--follow-up-diameter-sigma-mm MM (0: lines only)]\n"
       "       alacs_cycle --export DIR [--cases N] [--width W --height H]\n"
       "       alacs_cycle --replay [--mode stop-and-go|continuous|scan-all|both|all] [--verbose] DIR...\n";
   for (int i = 1; i < argc; ++i) {
@@ -390,6 +401,8 @@ int main(int argc, char** argv) {
     else if (a == "--width" && i + 1 < argc) o.widthPx = std::atoi(argv[++i]);
     else if (a == "--height" && i + 1 < argc) o.heightPx = std::atoi(argv[++i]);
     else if (a == "--verbose") o.verbose = true;
+    else if (a == "--follow-up-max-stops" && i + 1 < argc) o.followUpMaxStops = std::atoi(argv[++i]);
+    else if (a == "--follow-up-diameter-sigma-mm" && i + 1 < argc) o.followUpDiameterSigmaMm = std::atof(argv[++i]);
     else if (a == "--export" && i + 1 < argc) o.exportDir = argv[++i];
     else if (a == "--replay") o.replay = true;
     else if (o.replay && a.rfind("--", 0) != 0) o.dirs.push_back(a);
