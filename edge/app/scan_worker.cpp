@@ -137,14 +137,11 @@ Status ScanWorker::settleBraking(WorkerEvent& ev) {
 }
 
 void ScanWorker::finishBraking(const WorkerJob& job) {
-  braking_->thread.join();
-  const motion::MoveReport report = braking_->report;
-  braking_.reset();
-  if (report.outcome == motion::MoveOutcome::kCompleted) return;
   WorkerEvent late;
   late.job = job;
   late.afterResult = true;
-  late.status = moveOutcome(report, late);
+  late.status = settleBraking(late);
+  if (late.status.isOk()) return;
   ALACS_LOG_WARN("motion", "braking after the scan's last frame: %s", late.status.toString().c_str());
   post(std::move(late));
 }

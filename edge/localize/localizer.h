@@ -124,7 +124,7 @@ class Localizer {
   // (`first`, or its error) rests on fewer than followUpMinLines lines or its diameter's σ
   // exceeds followUpDiameterSigmaMm; empty when neither, when `first` is an error, when
   // following up is off, or when every such stop is outside [0, strokeMm].
-  // Ordered from the first pass's last stop outwards, so the slide sweeps back through them.
+  // Ordered as one sweep back from where the first pass ended.
   // Pure: the caller scans them (observe) and calls estimate() with all the lines.
   std::vector<double> followUpStops(const ScanPlan& plan, const Result<AppleEstimate>& first, double strokeMm) const;
 
