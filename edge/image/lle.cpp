@@ -27,6 +27,10 @@ Status LleParams::validate() const {
     return bad(Error::kInvalidArgument, "minRows must be in polyOrder+1..16384");
   if (robustThresholdPct < 10 || robustThresholdPct > 100)
     return bad(Error::kInvalidArgument, "robustThresholdPct must be in 10..100");
+  if (weakLineThresholdPct < 10 || weakLineThresholdPct > 100)
+    return bad(Error::kInvalidArgument, "weakLineThresholdPct must be in 10..100");
+  if (weakLineExcessDn < 0 || weakLineExcessDn > 255)
+    return bad(Error::kInvalidArgument, "weakLineExcessDn must be in 0..255");
   if (weakThresholdPct < 10 || weakThresholdPct > 100)
     return bad(Error::kInvalidArgument, "weakThresholdPct must be in 10..100");
   if (maxPeaksPerRow < 1 || maxPeaksPerRow > 8) return bad(Error::kInvalidArgument, "maxPeaksPerRow must be in 1..8");
@@ -122,11 +126,12 @@ Status extractLine(const ImageView& frame, const Roi& roi, const LleParams& para
   if (Status s = detail::validateInputs(frame, roi, params, laserOff); !s) return s;
   detail::reserveOutput(roi, params, out);
   const detail::SimdKernels* kernels = params.kernels == LleKernels::kAuto ? detail::simdKernels() : nullptr;
-  detail::candidateMask(frame, laserOff, roi, params, kernels, ws);
-  if (params.method == LleMethod::kPaper)
+  if (params.method == LleMethod::kPaper) {
+    detail::candidateMask(frame, laserOff, roi, params, kernels, ws);
     detail::focusPaper<detail::FixedArith>(roi, params, ws, out);
-  else
-    detail::focusRobust<detail::FixedArith>(frame, laserOff, roi, params, ws, out);
+  } else {
+    detail::extractRobust<detail::FixedArith>(frame, laserOff, roi, params, kernels, ws, out);
+  }
   return Status::ok();
 }
 

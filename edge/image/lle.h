@@ -72,6 +72,10 @@ struct LleParams {
   int robustThresholdPct = 100;  // kRobust's strong threshold: this share of brceThreshold
                              // (10..100). 60 (40 -> 24) finds the line in full sun behind a
                              // band-pass filter (docs/lle.md), at ~5 % more time per full frame
+  int weakLineExcessDn = 64; // adaptive: when the line found is weak (median peak excess of its
+                             // rows below this, DN, or no line), run again with the strong
+                             // threshold at weakLineThresholdPct of brceThreshold (0: off, ..255)
+  int weakLineThresholdPct = 60;  // (10..100)
   int weakThresholdPct = 75; // hysteresis: candidates at this share of the strong threshold; a
                              // segment needs two rows, and a quarter of its rows, whose margin
                              // exceeds the strong threshold itself (10..100; 100: no hysteresis)

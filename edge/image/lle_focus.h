@@ -291,9 +291,10 @@ struct FloatArith {
   };
 };
 
-// Stages 3-5 of kRobust over the candidate mask in ws.bits.
+// Stages 3-5 of kRobust over the candidate mask in ws.bits. Returns the median peak excess
+// (DN) of the line's kLine rows, 0 without a line: how strong the line is.
 template <class A>
-void focusRobust(const ImageView& frame, const ImageView* laserOff, const Roi& roi, const LleParams& p,
+int focusRobust(const ImageView& frame, const ImageView* laserOff, const Roi& roi, const LleParams& p,
                  LleWorkspace& ws, LaserLine& out);
 // The paper's stages 3-4 over the candidate mask in ws.bits.
 template <class A>
@@ -360,8 +361,8 @@ struct Chain {
 }  // namespace focus
 
 template <class A>
-void focusRobust(const ImageView& frame, const ImageView* laserOff, const Roi& roi, const LleParams& p,
-                 LleWorkspace& ws, LaserLine& out) {
+int focusRobust(const ImageView& frame, const ImageView* laserOff, const Roi& roi, const LleParams& p,
+                LleWorkspace& ws, LaserLine& out) {
   // Decisions use Q = KeyArith on the exact Q8 keys (shared by both arithmetics);
   // output values use A.
   using Q = KeyArith;
@@ -787,6 +788,35 @@ void focusRobust(const ImageView& frame, const ImageView* laserOff, const Roi& r
     out.rmsResidualPx = out.inliers > 0 ? std::sqrt(sumSq / out.inliers) : 0.0;
   }
   if (out.inliers > 0) out.coverage = static_cast<double>(out.inliers) / (out.lastLineRow - out.firstLineRow + 1);
+  // The line's strength: the median excess of its kLine rows' peaks (an integer, the same
+  // in both arithmetics).
+  int nLine = 0;
+  fi = 0;
+  for (int y = 0; y < h; ++y) {
+    if (owner[y] < 0) continue;
+    if (fitted && use[fi] != 0) sorted[nLine++] = peaks[owner[y]].excess;
+    ++fi;
+  }
+  if (nLine == 0) return 0;
+  std::nth_element(sorted, sorted + nLine / 2, sorted + nLine);
+  return sorted[nLine / 2];
+}
+
+// kRobust from the candidate mask to the output, both arithmetics: when the line found at
+// the strong threshold is weak (its median peak excess below weakLineExcessDn, or no line),
+// the frame is run again with the strong threshold at weakLineThresholdPct of brceThreshold.
+template <class A>
+void extractRobust(const ImageView& frame, const ImageView* laserOff, const Roi& roi, const LleParams& p,
+                   const SimdKernels* kernels, LleWorkspace& ws, LaserLine& out) {
+  candidateMask(frame, laserOff, roi, p, kernels, ws);
+  const int strength = focusRobust<A>(frame, laserOff, roi, p, ws, out);
+  if (p.weakLineExcessDn <= 0 || strength >= p.weakLineExcessDn || p.weakLineThresholdPct >= p.robustThresholdPct)
+    return;
+  LleParams low = p;
+  low.robustThresholdPct = p.weakLineThresholdPct;
+  reserveOutput(roi, low, out);
+  candidateMask(frame, laserOff, roi, low, kernels, ws);
+  focusRobust<A>(frame, laserOff, roi, low, ws, out);
 }
 
 template <class A>

@@ -66,11 +66,12 @@ Status extractLineReference(const ImageView& frame, const Roi& roi, const LlePar
   if (Status s = detail::validateInputs(frame, roi, params, laserOff); !s) return s;
   detail::reserveOutput(roi, params, out);
   LleWorkspace ws;
-  detail::candidateMask(frame, laserOff, roi, params, nullptr, ws);
-  if (params.method == LleMethod::kPaper)
+  if (params.method == LleMethod::kPaper) {
+    detail::candidateMask(frame, laserOff, roi, params, nullptr, ws);
     detail::focusPaper<detail::FloatArith>(roi, params, ws, out);
-  else
-    detail::focusRobust<detail::FloatArith>(frame, laserOff, roi, params, ws, out);
+  } else {
+    detail::extractRobust<detail::FloatArith>(frame, laserOff, roi, params, nullptr, ws, out);
+  }
   return Status::ok();
 }
 

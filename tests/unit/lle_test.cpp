@@ -270,6 +270,7 @@ TEST_CASE("Hysteresis: a weak line is kept when some rows pass the threshold, a 
   LleParams p;
   p.smoothRows = 0;
   p.robustThresholdPct = 100;  // the strong threshold is th = 40 itself here
+  p.weakLineExcessDn = 0;      // at that threshold only (the adaptive rerun: the next test)
   CHECK(run(weak, p).rows.empty());
   // The same line with a third of its rows brighter: the whole line is found.
   Rgb mixed = weak;
@@ -283,6 +284,29 @@ TEST_CASE("Hysteresis: a weak line is kept when some rows pass the threshold, a 
   Rgb sparse = weak;
   addLine(sparse, [](int) { return 60.0; }, 1.0, 40, 30, 38);
   CHECK(run(sparse, p).rows.empty());
+}
+
+TEST_CASE("A weak line is run again at the lower strong threshold; a strong line is not", "[lle][robust]") {
+  // 36 DN: below th = 40, so nothing passes the strong threshold; the defaults run the frame
+  // again at weakLineThresholdPct (24 DN) and find it.
+  Rgb weak = lineImage(120, 80, [](int) { return 60.0; }, 1.0, 38, 30);
+  LleParams p;
+  p.smoothRows = 0;
+  const LaserLine l = run(weak, p);
+  CHECK(l.valid);
+  CHECK(l.rows.size() == 80);
+  LleParams off = p;
+  off.weakLineExcessDn = 0;
+  CHECK(run(weak, off).rows.empty());
+  // A strong line (excess ~100 DN) and a faint one (36 DN) beside it: the strong line alone,
+  // no rerun, so the faint one stays out as at the fixed threshold.
+  Rgb both = weak;
+  addLine(both, [](int) { return 20.0; }, 1.0, 130, 0, 80);
+  const LaserLine s = run(both, p);
+  REQUIRE(s.valid);
+  CHECK(s.rows.size() == 80);
+  CHECK(s.columnAt(40) == Approx(20.0).margin(0.05));
+  CHECK(run(both, off).rows.size() == s.rows.size());
 }
 
 TEST_CASE("Smoothing along the line averages row noise and keeps the row's own centroid", "[lle]") {

@@ -163,6 +163,8 @@ bool setParam(image::LleParams& p, const std::string& kv) {
   else if (k == "sorder") p.smoothOrder = iv;
   else if (k == "weak") p.weakThresholdPct = iv;
   else if (k == "robustpct") p.robustThresholdPct = iv;
+  else if (k == "weakline") p.weakLineExcessDn = iv;
+  else if (k == "weaklinepct") p.weakLineThresholdPct = iv;
   else if (k == "edge") p.edgeRatio = iv;
   else if (k == "edgeagree") p.edgeAgreePx = v;
   else return false;
@@ -558,7 +560,7 @@ int main(int argc, char** argv) {
                    "usage: alacs_lle_eval [--cases N] [--first K] [--set-dir DIR]... [--jobs J] [--laser-off] [--line]\n"
                    "                      [--csv FILE] [--dump DIR] [--rows ID]\n"
                    "                      [--set step|th|theta|gamma|order|outlier|minrows|peaks|jump|gap|minseg|bridge|\n"
-                   "                             bridgerow|smooth|sorder|weak|robustpct|edge|edgeagree=VALUE]...\n");
+                   "                             bridgerow|smooth|sorder|weak|robustpct|weakline|weaklinepct|edge|edgeagree=VALUE]...\n");
       return 2;
     }
   }
