@@ -41,6 +41,7 @@ void usage(FILE* out) {
                "         --smooth N (8)   --jump PX (2)   --gap N (3)   --min-segment N (6)   --peaks N (4)\n"
                "         --edge N (3; 0 off: rows at an occluding edge are kept valid)\n"
                "         --robust-pct N (60: the robust method's strong threshold, %% of --th)\n"
+               "         --weak-excess DN (a line weaker than this is run again at --weak-pct; 0: off)  --weak-pct N\n"
                "         --only-line (no other segments)   --scalar (scalar kernels)   --reference (float reference)\n"
                "exit status: 0 done, 1 an input or parameter was refused (the reason on stderr), 2 usage\n");
 }
@@ -158,6 +159,8 @@ int parseArgs(int argc, char** argv, Options& o) {
     else if (a == "--smooth") ok = intOpt(p.smoothRows);
     else if (a == "--edge") ok = intOpt(p.edgeRatio);
     else if (a == "--robust-pct") ok = intOpt(p.robustThresholdPct);
+    else if (a == "--weak-excess") ok = intOpt(p.weakLineExcessDn);
+    else if (a == "--weak-pct") ok = intOpt(p.weakLineThresholdPct);
     else if (a == "--jump") ok = numOpt(p.maxJumpPx);
     else if (a == "--gap") ok = intOpt(p.maxGapRows);
     else if (a == "--min-segment") ok = intOpt(p.minSegmentRows);

@@ -62,7 +62,7 @@ std::string lleJson(const LleRun& run, int frameWidth, int frameHeight, const im
     << ", \"brce_threshold\": " << p.brceThreshold << ", \"brce_form\": \"" << formName(p.brceForm)
     << "\", \"noise_theta\": " << p.noiseTheta << ", \"noise_gamma\": " << p.noiseGamma
     << ", \"poly_order\": " << p.polyOrder << ", \"outlier_px\": " << num(p.outlierPx, "%g")
-    << ", \"min_rows\": " << p.minRows << ", \"smooth_rows\": " << p.smoothRows << ", \"robust_threshold_pct\": " << p.robustThresholdPct << ", \"edge_ratio\": " << p.edgeRatio << ", \"edge_agree_px\": " << p.edgeAgreePx
+    << ", \"min_rows\": " << p.minRows << ", \"smooth_rows\": " << p.smoothRows << ", \"robust_threshold_pct\": " << p.robustThresholdPct << ", \"weak_line_excess_dn\": " << p.weakLineExcessDn << ", \"weak_line_threshold_pct\": " << p.weakLineThresholdPct << ", \"edge_ratio\": " << p.edgeRatio << ", \"edge_agree_px\": " << p.edgeAgreePx
     << ", \"max_jump_px\": " << num(p.maxJumpPx, "%g") << ", \"max_gap_rows\": " << p.maxGapRows
     << ", \"min_segment_rows\": " << p.minSegmentRows << "},\n";
   // Every ROI row: a row without a valid sample says so (column null, valid false). A row's
