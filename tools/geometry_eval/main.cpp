@@ -501,8 +501,9 @@ int localizeEval(const std::string& calPath, int cases, const std::vector<double
     framesTaken += r.stops;
   }
   md << "Scan: " << scan.stops << " stops " << scan.stopSpacingMm << " mm apart; adaptive follow-up (up to "
-     << scan.followUpMaxStops << " stops when fewer than " << scan.followUpMinLines
-     << " lines reach the fit or the diameter's σ exceeds " << scan.followUpDiameterSigmaMm << " mm) on "
+     << scan.followUpMaxStops << " stops when fewer than " << scan.followUpMinLines << " lines reach the fit";
+  if (scan.followUpDiameterSigmaMm > 0.0) md << " or the diameter's σ exceeds " << scan.followUpDiameterSigmaMm << " mm";
+  md << ") on "
      << followedUp << " of " << results.size() << " cases, " << framesTaken / static_cast<double>(std::max<size_t>(1, results.size()))
      << " frames per case on average.\n";
   md << "Condition: " << (occluded ? "with occlusion (leaves hide 15–50 % of the target)" : "without occlusion")
