@@ -347,18 +347,9 @@ WorkerEvent ScanWorker::doLocalize(const WorkerJob& job) {
     localize::ScanPlan second = plan;
     second.stopsMm = std::move(more);
     scanned = settleBraking(ev);
-    const size_t firstPass = lines.size();
+    // (A replayed scan holds no frame at these stops: the replay serves the nearest recorded
+    // one, already seen; estimate() leaves the repeats out.)
     if (scanned) scanned = pass(second, lines);
-    // A replayed scan holds no frame at these stops: the replay gives the nearest recorded
-    // one, which the first pass has already seen (the same line twice is not two lines).
-    lines.erase(std::remove_if(lines.begin() + static_cast<std::ptrdiff_t>(firstPass), lines.end(),
-                               [&](const localize::LineObservation& l) {
-                                 return std::any_of(lines.begin(), lines.begin() + static_cast<std::ptrdiff_t>(firstPass),
-                                                    [&](const localize::LineObservation& f) {
-                                                      return std::abs(f.slideMm - l.slideMm) < 0.05;
-                                                    });
-                               }),
-                lines.end());
     ev.followUpStops = static_cast<int>(second.stopsMm.size());
     if (scanned) est = localizer.estimate(plan, lines);
   }

@@ -21,8 +21,12 @@
 namespace alacs::localize {
 
 struct ScanParams {
-  int stops = 5;                 // paper: five stops
-  double stopSpacingMm = 20.0;   // paper: 2 cm
+  // The first pass: seven stops 13.3 mm apart over the paper's 80 mm span (the paper: five
+  // stops 2 cm apart). More lines on the fruit leave fewer fits on two or three lines, whose
+  // diameter is off by 4 mm at 1.6 m; in a continuous sweep the extra frames cost no motion
+  // (docs/geometry.md "Accuracy on the twin", docs/daemon.md "Cycle time").
+  int stops = 7;
+  double stopSpacingMm = 13.3;
   double roiMarginMm = 35.0;     // added to the largest apple radius around the rough position
   double maxAppleRadiusMm = 50.0;
   double gateMm = 90.0;          // 3D points farther than this from the rough centre are not the target
@@ -128,7 +132,10 @@ class Localizer {
   // Pure: the caller scans them (observe) and calls estimate() with all the lines.
   std::vector<double> followUpStops(const ScanPlan& plan, const Result<AppleEstimate>& first, double strokeMm) const;
 
-  // Fuses the observations. Errors: kNotFound when no line hit the target.
+  // Fuses the observations. A line at the slide position of an earlier one (within 0.05 mm)
+  // is the same line again and is left out: a replayed scan serves the frame recorded
+  // nearest each planned stop, so a plan denser than the recording repeats frames.
+  // Errors: kNotFound when no line hit the target.
   Result<AppleEstimate> estimate(const ScanPlan& plan, const std::vector<LineObservation>& lines) const;
 
   // The paper's single-line estimate: the best candidate's middle is the approach point;

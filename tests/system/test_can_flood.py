@@ -21,7 +21,7 @@ least 100) the sensor's heartbeat is within 10 ms.
 
 Set-up chosen so that 100 localizations fit in a few minutes: alacsd --sim without a GPIO
 chip (the simulated slide moves at its real speed profile but without UML's slow GPIO
-round trips), five stops per scan as configured by default. The figures are printed
+round trips), seven stops per scan as configured by default. The figures are printed
 (run pytest with -s) and written to $ALACS_REPORT_DIR/can_flood.json when that is set.
 """
 

@@ -69,9 +69,18 @@ localize::LineObservation lineOf(const geometry::Calibration& cal, const Eigen::
   return sorted;
 }
 
+// The paper's scan (five stops 20 mm apart), which these cases were built on; the
+// default first pass is denser (ScanParams).
+localize::ScanParams paperScan() {
+  localize::ScanParams p;
+  p.stops = 5;
+  p.stopSpacingMm = 20.0;
+  return p;
+}
+
 struct Case {
   geometry::Calibration cal = sim::defaultScene().truth;
-  localize::ScanParams scan;
+  localize::ScanParams scan = paperScan();
   Eigen::Vector3d center{15.0, -10.0, 1300.0};
   double radius = 38.0;
 };
@@ -239,6 +248,30 @@ TEST_CASE("The paper's candidate score P = w1·N − w2·Δd", "[localize]") {
   const size_t best = localize::Localizer::selectCandidate(cands, k.scan.paperW1, k.scan.paperW2);
   // The middle stop's line passes closest to the centre and is the longest.
   CHECK(cands[best].line == plan->stopsMm.size() / 2);
+}
+
+TEST_CASE("A line seen twice (a replay serving a recorded frame again) counts once", "[localize]") {
+  Case k;
+  std::mt19937 rng(41);
+  const localize::Localizer loc(k.cal, image::LleParams{}, k.scan);
+  auto plan = loc.plan(k.center, 200.0);
+  REQUIRE(plan.isOk());
+  std::vector<localize::LineObservation> lines;
+  for (size_t i = 1; i < 3; ++i) lines.push_back(lineOf(k.cal, k.center, k.radius, plan->stopsMm[i], 0.4, {}, rng));
+  const Result<localize::AppleEstimate> once = loc.estimate(*plan, lines);
+  REQUIRE(once.isOk());
+  REQUIRE(once->linesUsed == 2);
+  // The same two frames again (0.01 mm apart: the replay's recorded position), interleaved.
+  std::vector<localize::LineObservation> twice{lines[0], lines[0], lines[1], lines[1], lines[0]};
+  twice[1].slideMm += 0.01;
+  const Result<localize::AppleEstimate> again = loc.estimate(*plan, twice);
+  REQUIRE(again.isOk());
+  CHECK(again->linesUsed == 2);
+  CHECK(again->pointsUsed == once->pointsUsed);
+  CHECK((again->centerMm - once->centerMm).norm() < 1e-9);
+  CHECK(again->sigmaMm == Approx(once->sigmaMm));
+  // Two lines: the adaptive scan still asks for its second pass.
+  CHECK_FALSE(loc.followUpStops(*plan, again, 200.0).empty());
 }
 
 TEST_CASE("The adaptive second pass: stops in between and beyond, only when too few lines reach the fit", "[localize]") {

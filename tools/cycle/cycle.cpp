@@ -50,6 +50,8 @@ struct Options {
   bool verbose = false;
   int followUpMaxStops = -1;              // -1: ScanParams' default
   double followUpDiameterSigmaMm = -1.0;  // -1: ScanParams' default
+  int stops = 0;                          // 0: ScanParams' default
+  double spacingMm = 0.0;                 // 0: ScanParams' default
   std::string exportDir;
   bool replay = false;
   std::vector<std::string> dirs;
@@ -60,6 +62,8 @@ localize::ScanParams scanParamsOf(const Options& o) {
   localize::ScanParams sp;
   if (o.followUpMaxStops >= 0) sp.followUpMaxStops = o.followUpMaxStops;
   if (o.followUpDiameterSigmaMm >= 0.0) sp.followUpDiameterSigmaMm = o.followUpDiameterSigmaMm;
+  if (o.stops > 0) sp.stops = o.stops;
+  if (o.spacingMm > 0.0) sp.stopSpacingMm = o.spacingMm;
   return sp;
 }
 
@@ -392,6 +396,7 @@ int main(int argc, char** argv) {
   const char* usage =
       "usage: alacs_cycle [--cases N] [--mode stop-and-go|continuous|both] [--width W --height H] [--verbose]\n"
       "                   [--follow-up-max-stops N (0: no second pass)] [--follow-up-diameter-sigma-mm MM (0: lines only)]\n"
+      "                   [--stops N --spacing-mm MM (the first pass; default: ScanParams')]\n"
       "       alacs_cycle --export DIR [--cases N] [--width W --height H]\n"
       "       alacs_cycle --replay [--mode stop-and-go|continuous|scan-all|both|all] [--verbose] DIR...\n";
   for (int i = 1; i < argc; ++i) {
@@ -403,6 +408,8 @@ int main(int argc, char** argv) {
     else if (a == "--verbose") o.verbose = true;
     else if (a == "--follow-up-max-stops" && i + 1 < argc) o.followUpMaxStops = std::atoi(argv[++i]);
     else if (a == "--follow-up-diameter-sigma-mm" && i + 1 < argc) o.followUpDiameterSigmaMm = std::atof(argv[++i]);
+    else if (a == "--stops" && i + 1 < argc) o.stops = std::atoi(argv[++i]);
+    else if (a == "--spacing-mm" && i + 1 < argc) o.spacingMm = std::atof(argv[++i]);
     else if (a == "--export" && i + 1 < argc) o.exportDir = argv[++i];
     else if (a == "--replay") o.replay = true;
     else if (o.replay && a.rfind("--", 0) != 0) o.dirs.push_back(a);

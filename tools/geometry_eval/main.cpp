@@ -41,7 +41,8 @@ void usage(FILE* out) {
                "       alacs_geometry_eval localize --calibration FILE [--cases N] [--distances MM,MM,...]\n"
                "                           [--clear] [--lighting lab|overcast|direct|sun] [--seed S]\n"
                "                           [--report FILE.md] [--csv FILE.csv] [--min-cases N]\n"
-               "                           [--stops N] [--spacing-mm MM] [--only CASE (debug one case)]\n"
+               "                           [--stops N --spacing-mm MM (the first pass; default: ScanParams', 7 × 13.3;\n"
+               "                            the paper's: 5 × 20)] [--only CASE (debug one case)]\n"
                "                           [--within-pct P (share within 20 mm required, default 99.5)]\n"
                "                           [--prior-radius-sigma-mm MM (the fruit-size prior's 1σ; default: ScanParams')]\n"
                "                           [--follow-up-max-stops N (the adaptive second pass; 0: off; default: ScanParams')]\n"
@@ -613,7 +614,8 @@ int main(int argc, char** argv) {
     return localizeEval(opt["calibration"], std::atoi(get("cases", "120").c_str()), distances, !clear, *lighting,
                         seed, get("report", ""), get("csv", ""), std::atoi(get("min-cases", "120").c_str()),
                         std::atoi(get("only", "-1").c_str()), opt.count("only") > 0,
-                        std::atoi(get("stops", "5").c_str()), std::atof(get("spacing-mm", "20").c_str()),
+                        std::atoi(get("stops", std::to_string(localize::ScanParams{}.stops).c_str()).c_str()),
+                        std::atof(get("spacing-mm", std::to_string(localize::ScanParams{}.stopSpacingMm).c_str()).c_str()),
                         std::atof(get("within-pct", "99.5").c_str()),
                         std::atof(get("prior-radius-sigma-mm", "0").c_str()),
                         std::atoi(get("follow-up-max-stops", "-1").c_str()),

@@ -103,8 +103,9 @@ int processMain(const Args& args) {
           lines[static_cast<size_t>(i)] = o.str();
           return Status::ok();
         }
-        // The LLE set has one frame: replay the recorded stop instead of the plan's five.
-        const std::vector<double> stops = m.scan.kind == "lle" ? m.scan.stopsMm : plan->stopsMm;
+        // The recorded stops (the LLE set has one; the benchmark's scans the paper's five),
+        // not the plan's, which with today's defaults may be denser than the recording.
+        const std::vector<double> stops = m.scan.stopsMm.empty() ? plan->stopsMm : m.scan.stopsMm;
         const double centreStop = cal.laser.slideForPoint(*m.scan.roughMm);
         o << ", \"roi\": [" << plan->roi.x << ", " << plan->roi.y << ", " << plan->roi.width << ", "
           << plan->roi.height << "], \"frames\": [";

@@ -2,8 +2,9 @@
 
 * a scan exported by the twin replays through `alacsd --replay`: the daemon plans its
   stops from the LOCALIZE command, the replay source serves the frame recorded nearest
-  each stop and its recorded position, and the result on the bus matches the pipeline
-  run offline on the same scan (`alacs-twin process`) and the truth;
+  each stop and its recorded position (the twin's five frames for the daemon's seven
+  stops: the repeats count once), and the result on the bus matches the pipeline run
+  offline on the same scan (`alacs-twin process`) and the truth;
 * `alacsd --sim --record` writes each scan as a scan directory, and that recording
   replays through `alacsd --replay` into the same result.
 
@@ -129,7 +130,7 @@ def test_record_then_replay_gives_the_same_result(tmp_path, binaries):
     assert live is not None, log[-3000:]
     recorded = rec / "scan_0001"
     scan = Scan.load(recorded)
-    assert scan.kind == "localize" and len(scan.frames) == 5
+    assert scan.kind == "localize" and len(scan.frames) == 7  # the default first pass's stops
     assert all(f.laser_on for f in scan.frames)
     assert scan.rough_mm is not None and math.dist(scan.rough_mm, rough) < 1.0
     replayed, log2 = localize(alacsd, ["--replay", str(recorded)], rough)

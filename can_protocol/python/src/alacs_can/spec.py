@@ -434,10 +434,10 @@ OBJECTS: Final[tuple[OdObject, ...]] = (
          "bRCE laser-line intensity threshold (grey levels); SET_CONFIG CfgBrceThreshold.", {}),
     )),
     _record(0x2001, "Scan settings", "manufacturer", (
-        ("CFG_SCAN_STOPS", "Scan stops", "UNSIGNED8", "rw", 5,
+        ("CFG_SCAN_STOPS", "Scan stops", "UNSIGNED8", "rw", 7,
          "Slide stops (laser lines) per scan; SET_CONFIG CfgScanStops.",
          {"low": 1, "high": 15}),
-        ("CFG_STOP_SPACING", "Stop spacing", "UNSIGNED16", "rw", 200,
+        ("CFG_STOP_SPACING", "Stop spacing", "UNSIGNED16", "rw", 133,
          "Slide distance between stops in 0.1 mm (SET_CONFIG CfgStopSpacingMm carries "
          "0..25.5 mm; the daemon accepts 0.5..50 mm).", {"unit": "0.1 mm"}),
     )),
