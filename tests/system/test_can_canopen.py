@@ -139,11 +139,14 @@ def test_canopen_master_boot_heartbeat_sdo_nmt(sensor: Alacsd, network: canopen.
         acq["Exposure time"].raw = 0
     assert e.value.code == ac.SdoAbort.VALUE_TOO_LOW
     scan = node.sdo["Scan settings"]
-    assert scan["Stop spacing"].raw == 200
+    # The daemon's default is the EDS's (seven stops 13.3 mm apart).
+    assert scan["Stop spacing"].od.default == 133 and scan["Scan stops"].od.default == 7
+    assert scan["Stop spacing"].raw == 133
+    assert scan["Scan stops"].raw == 7
     with pytest.raises(SdoAbortedError) as e:
         scan["Stop spacing"].raw = 3  # 0.3 mm: inside the object's range, refused by the daemon
     assert e.value.code == ac.SdoAbort.VALUE_RANGE
-    assert scan["Stop spacing"].raw == 200
+    assert scan["Stop spacing"].raw == 133
     with pytest.raises(SdoAbortedError) as e:
         node.sdo.download(0x1000, 0, b"\x01\x00\x00\x00")
     assert e.value.code == ac.SdoAbort.READ_ONLY
