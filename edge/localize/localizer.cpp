@@ -292,18 +292,12 @@ AppleEstimate Localizer::roughEstimate(const ScanPlan& plan) const {
 
 Result<AppleEstimate> Localizer::estimate(const ScanPlan& plan, const std::vector<LineObservation>& observed) const {
   constexpr double kSameStopMm = 0.05;
-  const auto repeats = [&](size_t i) {
-    return std::any_of(observed.begin(), observed.begin() + static_cast<std::ptrdiff_t>(i),
-                       [&](const LineObservation& o) { return std::abs(o.slideMm - observed[i].slideMm) < kSameStopMm; });
-  };
-  std::vector<LineObservation> unique;
-  bool anyRepeat = false;
-  for (size_t i = 1; i < observed.size() && !anyRepeat; ++i) anyRepeat = repeats(i);
-  if (anyRepeat) {
-    for (size_t i = 0; i < observed.size(); ++i)
-      if (!repeats(i)) unique.push_back(observed[i]);
-  }
-  const std::vector<LineObservation>& lines = anyRepeat ? unique : observed;
+  std::vector<LineObservation> lines;
+  lines.reserve(observed.size());
+  for (const LineObservation& o : observed)
+    if (std::none_of(lines.begin(), lines.end(),
+                     [&](const LineObservation& l) { return std::abs(l.slideMm - o.slideMm) < kSameStopMm; }))
+      lines.push_back(o);
   Result<AppleEstimate> est = estimateFused(plan, lines);
   // One line (or the paper's candidate) that puts the centre far beyond the rough
   // position's error is not the target (a leaf's edge, a neighbour's limb).

@@ -71,6 +71,14 @@ struct ScanParams {
   double followUpDiameterSigmaMm = 0.0;
   int followUpMaxStops = 6;
   Status validate() const;
+  // The paper's scan: these defaults with five stops 2 cm apart (the twin's benchmark
+  // scans, and the tests built on them).
+  static ScanParams paperScan() {
+    ScanParams p;
+    p.stops = 5;
+    p.stopSpacingMm = 20.0;
+    return p;
+  }
 };
 
 struct ScanPlan {

@@ -263,9 +263,7 @@ bool laserOnlyAroundExposures(const SceneRun& run) {
 }  // namespace
 
 TEST_CASE("Too few lines on the fruit: the worker takes the localizer's second pass, in both modes", "[app][worker][render]") {
-  localize::ScanParams sp;
-  sp.stops = 5;  // the paper's scan
-  sp.stopSpacingMm = 20.0;
+  localize::ScanParams sp = localize::ScanParams::paperScan();
   sp.followUpMinLines = 15;  // more than five stops can give: the second pass is always taken
   for (protocol::ScanMode mode : {protocol::ScanMode::kStopAndGo, protocol::ScanMode::kContinuous}) {
     INFO("mode " << static_cast<int>(mode));

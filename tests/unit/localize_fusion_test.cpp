@@ -69,18 +69,9 @@ localize::LineObservation lineOf(const geometry::Calibration& cal, const Eigen::
   return sorted;
 }
 
-// The paper's scan (five stops 20 mm apart), which these cases were built on; the
-// default first pass is denser (ScanParams).
-localize::ScanParams paperScan() {
-  localize::ScanParams p;
-  p.stops = 5;
-  p.stopSpacingMm = 20.0;
-  return p;
-}
-
 struct Case {
   geometry::Calibration cal = sim::defaultScene().truth;
-  localize::ScanParams scan = paperScan();
+  localize::ScanParams scan = localize::ScanParams::paperScan();  // the cases were built on it
   Eigen::Vector3d center{15.0, -10.0, 1300.0};
   double radius = 38.0;
 };

@@ -52,10 +52,7 @@ TEST_CASE("LLE on a simulated frame follows the true laser line to a tenth of a 
 TEST_CASE("Five-stop scan localizes the simulated apple within 5 mm", "[sim][localize][render]") {
   sim::SimScene scene = sim::defaultScene();
   sim::Renderer renderer(scene);
-  localize::ScanParams paper;  // the paper's scan: five stops 20 mm apart
-  paper.stops = 5;
-  paper.stopSpacingMm = 20.0;
-  localize::Localizer loc(scene.truth, image::LleParams{}, paper);
+  localize::Localizer loc(scene.truth, image::LleParams{}, localize::ScanParams::paperScan());
   const sim::SimApple& apple = scene.apples[0];
   auto plan = loc.plan(apple.centerMm + Eigen::Vector3d(-12, 9, -20), 200.0);
   REQUIRE(plan.isOk());

@@ -125,9 +125,8 @@ Status parallelFor(int n, int jobs, const std::function<Status(int)>& work, cons
 }
 
 Result<RenderPlan> renderPlan(const geometry::Calibration& cal, const Eigen::Vector3d& roughMm, int stops) {
-  localize::ScanParams sp;
+  localize::ScanParams sp = localize::ScanParams::paperScan();  // the benchmark's scans are the paper's
   sp.stops = stops;
-  sp.stopSpacingMm = 20.0;  // the benchmark's scans are the paper's: 2 cm apart
   const localize::Localizer loc(cal, image::LleParams{}, sp);
   Result<localize::ScanPlan> plan = loc.plan(roughMm, 200.0);
   if (!plan) return plan.status();
