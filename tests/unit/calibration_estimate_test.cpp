@@ -16,6 +16,7 @@
 #include "geometry/laser_calibration.h"
 #include "geometry/triangulation.h"
 #include "sim/scene.h"
+#include "temp_dir.h"
 
 using namespace alacs;
 using namespace alacs::geometry;
@@ -358,14 +359,14 @@ TEST_CASE("The quality gate names every figure it refuses", "[calibration]") {
   CHECK(v.status().code() == Error::kBadInput);
 
   // Limits from a file; a bad key is named.
-  const std::string path = "/tmp/alacs_test_limits.json";
+  const test::TempDir tmp;
+  const std::string path = tmp.file("limits.json");
   std::ofstream(path) << R"({"max_laser_rms_px": 1.0, "min_target_placements": 2})";
   auto limits = CalibrationLimits::load(path);
   REQUIRE(limits.isOk());
   CHECK(checkCalibrationQuality(bad, *limits).failures.size() == 1);
   std::ofstream(path) << R"({"max_laser_rms_px": "big"})";
   CHECK(CalibrationLimits::load(path).status().reason().find("max_laser_rms_px") != std::string::npos);
-  std::remove(path.c_str());
 }
 
 TEST_CASE("Quality figures round-trip; a refused calibration never loads", "[calibration]") {
@@ -375,7 +376,8 @@ TEST_CASE("Quality figures round-trip; a refused calibration never loads", "[cal
   cal.quality.targetPlacements = 6;
   cal.quality.depthSigmaMmAt1600 = 0.31;
   cal.quality.gate = CalibrationQuality::Gate::kPassed;
-  const std::string path = "/tmp/alacs_test_cal_quality.json";
+  const test::TempDir tmp;
+  const std::string path = tmp.file("cal_quality.json");
   REQUIRE(saveCalibration(cal, path).isOk());
   auto back = loadCalibration(path);
   REQUIRE(back.isOk());
@@ -395,7 +397,6 @@ TEST_CASE("Quality figures round-trip; a refused calibration never loads", "[cal
   cal.quality.gate = CalibrationQuality::Gate::kPassed;
   cal.camera.distortion = {-0.9, 0.0, 0.0, 0.0, 0.0};
   CHECK(validateCalibration(cal).reason().find("camera.distortion") != std::string::npos);
-  std::remove(path.c_str());
 }
 
 TEST_CASE("The intrinsics' full covariance agrees with calib3d's sigma and keeps the fx-fy coupling", "[calibration]") {
@@ -497,7 +498,8 @@ TEST_CASE("The gate refuses a large total depth sigma and names the field", "[ca
   q.depthSigmaTotalMmAt1600 = 0.9;
   CHECK(checkCalibrationQuality(q, defaults).passed());
 
-  const std::string path = "/tmp/alacs_test_limits_total.json";
+  const test::TempDir tmp;
+  const std::string path = tmp.file("limits_total.json");
   std::ofstream(path) << R"({"max_depth_sigma_total_mm_at_1600": 0.8})";
   auto limits = CalibrationLimits::load(path);
   REQUIRE(limits.isOk());
@@ -508,7 +510,6 @@ TEST_CASE("The gate refuses a large total depth sigma and names the field", "[ca
   CHECK(tight.failures[0].find("quality.depth_sigma_total_mm_at_1600") == 0);
   std::ofstream(path) << R"({"max_depth_sigma_total_mm_at_1000": -1})";
   CHECK(CalibrationLimits::load(path).status().reason().find("max_depth_sigma_total_mm_at_1000") != std::string::npos);
-  std::remove(path.c_str());
 }
 
 TEST_CASE("The total sigma figures round-trip through calibration.json", "[calibration]") {
@@ -517,7 +518,8 @@ TEST_CASE("The total sigma figures round-trip through calibration.json", "[calib
   cal.quality.depthSigmaTotalMmAt1000 = 0.52;
   cal.quality.depthSigmaTotalMmAt1400 = 0.75;
   cal.quality.sigma3dTotalMmAt1600 = 1.43;
-  const std::string path = "/tmp/alacs_test_cal_total_sigma.json";
+  const test::TempDir tmp;
+  const std::string path = tmp.file("cal_total_sigma.json");
   REQUIRE(saveCalibration(cal, path).isOk());
   auto back = loadCalibration(path);
   REQUIRE(back.isOk());
@@ -526,5 +528,4 @@ TEST_CASE("The total sigma figures round-trip through calibration.json", "[calib
   CHECK(back->quality.sigma3dTotalMmAt1600 == Approx(1.43));
   cal.quality.depthSigmaTotalMmAt1600 = -1.0;
   CHECK(validateCalibration(cal).reason().find("quality.depth_sigma_total_mm_at_1600") != std::string::npos);
-  std::remove(path.c_str());
 }

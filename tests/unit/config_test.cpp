@@ -3,13 +3,15 @@
 #include <fstream>
 
 #include "app/config.h"
+#include "temp_dir.h"
 
 using namespace alacs;
 
 namespace {
 std::string write(const std::string& text) {
+  static const test::TempDir dir("alacs_cfg");  // removed when the test program ends
   static int n = 0;
-  const std::string path = "/tmp/alacs_cfg_" + std::to_string(n++) + ".json";
+  const std::string path = dir.file(std::to_string(n++) + ".json");
   std::ofstream(path) << text;
   return path;
 }

@@ -8,6 +8,7 @@
 #include "geometry/sphere_fit.h"
 #include "geometry/triangulation.h"
 #include "sim/scene.h"
+#include "temp_dir.h"
 
 using namespace alacs;
 using namespace alacs::geometry;
@@ -63,8 +64,8 @@ TEST_CASE("Robust sphere fit ignores leaf points", "[geometry]") {
 }
 
 namespace {
-std::string writeTemp(const std::string& name, const std::string& text) {
-  const std::string path = std::string("/tmp/alacs_test_") + name;
+std::string writeTemp(const test::TempDir& dir, const std::string& name, const std::string& text) {
+  const std::string path = dir.file(name);
   std::ofstream(path) << text;
   return path;
 }
@@ -72,7 +73,8 @@ std::string writeTemp(const std::string& name, const std::string& text) {
 
 TEST_CASE("Calibration files round-trip and bad ones name the field", "[geometry][calibration]") {
   const Calibration cal = sim::defaultScene().truth;
-  const std::string path = "/tmp/alacs_test_cal.json";
+  const test::TempDir tmp;
+  const std::string path = tmp.file("cal.json");
   REQUIRE(saveCalibration(cal, path).isOk());
   auto back = loadCalibration(path);
   REQUIRE(back.isOk());
@@ -80,14 +82,14 @@ TEST_CASE("Calibration files round-trip and bad ones name the field", "[geometry
   CHECK((back->laser.planeNormal - cal.laser.planeNormal).norm() < 1e-9);
 
   CHECK(loadCalibration("/nonexistent/cal.json").status().code() == Error::kNotFound);
-  auto notJson = loadCalibration(writeTemp("bad.json", "{ this is not json"));
+  auto notJson = loadCalibration(writeTemp(tmp, "bad.json", "{ this is not json"));
   CHECK(notJson.status().code() == Error::kBadInput);
-  auto missing = loadCalibration(writeTemp("missing.json", R"({"camera": {"width_px": 2048}, "laser": {}})"));
+  auto missing = loadCalibration(writeTemp(tmp, "missing.json", R"({"camera": {"width_px": 2048}, "laser": {}})"));
   CHECK(missing.status().reason().find("camera.height_px") != std::string::npos);
   std::ifstream in(path);
   std::string text((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
   const auto pos = text.find("\"slide_scale\": ");
   std::string badScale = text.substr(0, pos) + "\"slide_scale\": 7" + text.substr(text.find('}', pos));
-  auto range = loadCalibration(writeTemp("range.json", badScale));
+  auto range = loadCalibration(writeTemp(tmp, "range.json", badScale));
   CHECK(range.status().reason().find("laser.slide_scale") != std::string::npos);
 }

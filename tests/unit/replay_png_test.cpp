@@ -1,6 +1,5 @@
 // PNG frames through libpng (replay/png_io.h): what OpenCV's imread would give, in a
 // reused buffer, and crops decoded in place.
-#include <unistd.h>
 
 #include <catch2/catch.hpp>
 #include <cstdio>
@@ -10,16 +9,12 @@
 
 #include "replay/png_io.h"
 #include "replay/scan_dir.h"
+#include "temp_dir.h"
 
 using namespace alacs;
 
 namespace {
 
-std::string tempPath(const char* name) {
-  char dir[] = "/tmp/alacs_png_XXXXXX";
-  REQUIRE(::mkdtemp(dir) != nullptr);
-  return std::string(dir) + "/" + name;
-}
 
 bool same(const cv::Mat& a, const cv::Mat& b) {
   return a.size() == b.size() && a.type() == b.type() && cv::norm(a, b, cv::NORM_INF) == 0.0;
@@ -28,7 +23,8 @@ bool same(const cv::Mat& a, const cv::Mat& b) {
 }  // namespace
 
 TEST_CASE("PNG frames read back exactly, as OpenCV reads them, into one reused buffer", "[replay][png]") {
-  const std::string path = tempPath("bgr.png");
+  const test::TempDir tmp("alacs_png");
+  const std::string path = tmp.file("bgr.png");
   cv::Mat bgr(37, 53, CV_8UC3);
   cv::randu(bgr, 0, 256);
   REQUIRE(replay::writePng(path, bgr, 1).isOk());
@@ -49,19 +45,20 @@ TEST_CASE("PNG frames read back exactly, as OpenCV reads them, into one reused b
   cv::randu(bgra, 0, 256);
   cv::randu(bgr16, 0, 65536);
   for (const cv::Mat* m : {&grey, &grey16, &bgra, &bgr16}) {
-    const std::string p = tempPath("other.png");
+    const std::string p = tmp.file("other.png");
     REQUIRE(cv::imwrite(p, *m));
     cv::Mat o;
     REQUIRE(replay::readPng(p, o).isOk());
     CHECK(same(o, cv::imread(p, cv::IMREAD_COLOR)));
   }
-  const std::string greyPath = tempPath("grey.png");
+  const std::string greyPath = tmp.file("grey.png");
   REQUIRE(replay::writePng(greyPath, grey, 9).isOk());
   CHECK(same(cv::imread(greyPath, cv::IMREAD_GRAYSCALE), grey));
 }
 
 TEST_CASE("A PNG crop decodes in place into a view of the whole frame", "[replay][png]") {
-  const std::string path = tempPath("crop.png");
+  const test::TempDir tmp("alacs_png");
+  const std::string path = tmp.file("crop.png");
   cv::Mat crop(10, 16, CV_8UC3, cv::Scalar(1, 2, 3));
   REQUIRE(replay::writePng(path, crop).isOk());
   cv::Mat frame(48, 64, CV_8UC3, cv::Scalar::all(7));
@@ -77,37 +74,38 @@ TEST_CASE("A PNG crop decodes in place into a view of the whole frame", "[replay
 }
 
 TEST_CASE("Bad PNG files are refused with a reason", "[replay][png]") {
+  const test::TempDir tmp("alacs_png");
   cv::Mat out;
-  CHECK(replay::readPng(tempPath("none.png"), out).code() == Error::kNotFound);
-  const std::string text = tempPath("text.png");
+  CHECK(replay::readPng(tmp.file("none.png"), out).code() == Error::kNotFound);
+  const std::string text = tmp.file("text.png");
   std::ofstream(text) << "not a picture at all";
   CHECK(replay::readPng(text, out).code() == Error::kBadInput);
   // Cut short: libpng's own error comes back as kBadInput, not as a crash.
-  const std::string whole = tempPath("whole.png");
+  const std::string whole = tmp.file("whole.png");
   cv::Mat img(64, 64, CV_8UC3);
   cv::randu(img, 0, 256);
   REQUIRE(replay::writePng(whole, img).isOk());
   std::ifstream in(whole, std::ios::binary);
   const std::string bytes((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
-  const std::string cut = tempPath("cut.png");
+  const std::string cut = tmp.file("cut.png");
   std::ofstream(cut, std::ios::binary) << bytes.substr(0, bytes.size() / 2);
   const Status s = replay::readPng(cut, out);
   CHECK(s.code() == Error::kBadInput);
   CHECK(!s.reason().empty());
   CHECK(replay::writePng("/nonexistent/dir/x.png", img).code() == Error::kIo);
-  CHECK(replay::writePng(tempPath("f.png"), cv::Mat(4, 4, CV_32FC1)).code() == Error::kInvalidArgument);
+  CHECK(replay::writePng(tmp.file("f.png"), cv::Mat(4, 4, CV_32FC1)).code() == Error::kInvalidArgument);
 }
 
 TEST_CASE("Frames of a scan load into one buffer, crops zeroed around", "[replay][png]") {
-  char dir[] = "/tmp/alacs_pngscan_XXXXXX";
-  REQUIRE(::mkdtemp(dir) != nullptr);
+  const test::TempDir tmp("alacs_pngscan");
+  const std::string dir = tmp.path();
   replay::ScanManifest m;
   m.scan.widthPx = 64;
   m.scan.heightPx = 48;
   cv::Mat full(48, 64, CV_8UC3, cv::Scalar::all(9));
   cv::Mat crop(10, 16, CV_8UC3, cv::Scalar(1, 2, 3));
-  REQUIRE(replay::writePng(std::string(dir) + "/full.png", full).isOk());
-  REQUIRE(replay::writePng(std::string(dir) + "/crop.png", crop).isOk());
+  REQUIRE(replay::writePng(dir + "/full.png", full).isOk());
+  REQUIRE(replay::writePng(dir + "/crop.png", crop).isOk());
   replay::FrameRecord f;
   f.file = "full.png";
   replay::FrameRecord c;

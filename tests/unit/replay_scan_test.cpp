@@ -18,17 +18,11 @@
 #include "sim/renderer.h"
 #include "sim/scan_export.h"
 #include "sim/scene.h"
+#include "temp_dir.h"
 
 using namespace alacs;
 
 namespace {
-
-std::string tempDir() {
-  char tmpl[] = "/tmp/alacs_replay_XXXXXX";
-  const char* d = ::mkdtemp(tmpl);
-  REQUIRE(d != nullptr);
-  return d;
-}
 
 void writeText(const std::string& path, const std::string& text) {
   std::ofstream out(path);
@@ -70,7 +64,8 @@ geometry::Calibration smallCalibration() {
 }  // namespace
 
 TEST_CASE("A manifest reads back as written", "[replay]") {
-  const std::string dir = tempDir();
+  const test::TempDir tmp("alacs_replay");
+  const std::string dir = tmp.path();
   replay::ScanManifest m;
   m.scan.kind = "localize";
   m.scan.source = "test";
@@ -127,7 +122,8 @@ TEST_CASE("A manifest reads back as written", "[replay]") {
 }
 
 TEST_CASE("A bad manifest is refused with the field named", "[replay]") {
-  const std::string dir = tempDir();
+  const test::TempDir tmp("alacs_replay");
+  const std::string dir = tmp.path();
   const std::string head = R"({"format": "alacs-scan/1", "scan": {"width_px": 64, "height_px": 48}, "frames": [)";
   struct Case {
     const char* frames;
@@ -153,7 +149,8 @@ TEST_CASE("A bad manifest is refused with the field named", "[replay]") {
 }
 
 TEST_CASE("The replay source serves the nearest frame with the laser's state and reports its position", "[replay]") {
-  const std::string dir = tempDir();
+  const test::TempDir tmp("alacs_replay");
+  const std::string dir = tmp.path();
   const geometry::Calibration cal = smallCalibration();
   replay::ScanInfo info;
   info.widthPx = 64;
@@ -210,7 +207,8 @@ TEST_CASE("The replay source serves the nearest frame with the laser's state and
   CHECK(f->view.row(16)[3 * 24] == 0);
 
   // A scan without laser-off frames cannot serve a dark frame.
-  const std::string dir2 = tempDir();
+  const test::TempDir tmp2("alacs_replay");
+  const std::string dir2 = tmp2.path();
   Result<replay::ScanWriter> w2 = replay::ScanWriter::create(dir2, info, cal);
   REQUIRE(w2.isOk());
   cv::Mat img(48, 64, CV_8UC3, cv::Scalar::all(9));
@@ -224,7 +222,8 @@ TEST_CASE("The replay source serves the nearest frame with the laser's state and
 }
 
 TEST_CASE("The recorder writes each scan as a replayable scan directory", "[replay]") {
-  const std::string root = tempDir();
+  const test::TempDir tmp("alacs_replay");
+  const std::string root = tmp.path();
   replay::ScanRecorder rec(root, smallCalibration());
   double slide = 5.0;
   bool laser = true;
@@ -301,7 +300,8 @@ TEST_CASE("An exported twin scan replays into exactly the live estimate", "[repl
   REQUIRE(liveEst.isOk());
 
   // Export the same frames, replay them through the camera port, run the same code.
-  const std::string dir = tempDir() + "/scan";
+  const test::TempDir tmp("alacs_replay");
+  const std::string dir = tmp.path() + "/scan";
   replay::ScanInfo info;
   info.roughMm = rough;
   info.stopsMm = plan->stopsMm;

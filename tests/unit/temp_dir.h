@@ -1,0 +1,36 @@
+// A directory of one test's own under $TMPDIR (or /tmp), removed with all it holds when the
+// test ends, passed or failed: runs side by side (release, ASan, qemu-aarch64) never share
+// a file, and /tmp does not fill up run after run.
+#pragma once
+
+#include <unistd.h>
+
+#include <filesystem>
+#include <stdexcept>
+#include <string>
+#include <system_error>
+
+namespace alacs::test {
+
+class TempDir {
+ public:
+  explicit TempDir(const std::string& prefix = "alacs_test") {
+    std::string pattern = (std::filesystem::temp_directory_path() / (prefix + "_XXXXXX")).string();
+    if (::mkdtemp(pattern.data()) == nullptr) throw std::runtime_error("mkdtemp " + pattern + " failed");
+    path_ = pattern;
+  }
+  ~TempDir() {
+    std::error_code ignored;
+    std::filesystem::remove_all(path_, ignored);
+  }
+  TempDir(const TempDir&) = delete;
+  TempDir& operator=(const TempDir&) = delete;
+
+  const std::string& path() const { return path_; }
+  std::string file(const std::string& name) const { return path_ + "/" + name; }
+
+ private:
+  std::string path_;
+};
+
+}  // namespace alacs::test
