@@ -343,7 +343,8 @@ WorkerEvent ScanWorker::doLocalize(const WorkerJob& job) {
   // Adaptive scan: too few lines on the fruit for its centre; a second pass in between.
   if (std::vector<double> more = localizer.followUpStops(plan, est, deps_.limits.strokeMm);
       scanned && !more.empty() && !cancel_.load()) {
-    ALACS_LOG_INFO("scan", "second pass: %zu stops (%d lines reached the fit)", more.size(), est ? est->linesUsed : 0);
+    ev.firstPassLines = est ? est->linesUsed : 0;
+    ALACS_LOG_INFO("scan", "second pass: %zu stops (%d lines reached the fit)", more.size(), ev.firstPassLines);
     localize::ScanPlan second = plan;
     second.stopsMm = std::move(more);
     scanned = settleBraking(ev);

@@ -52,6 +52,7 @@ struct WorkerEvent {
   std::vector<ExposureWindow> exposures;  // of this job, in order
   TimeNs processingTailNs = 0;  // image work left after the last frame (not overlapped with motion)
   int followUpStops = 0;         // localize: stops of the adaptive second pass (0: none taken)
+  int firstPassLines = 0;        // localize, second pass taken: lines in the first pass's fit
   // A continuous scan's result is posted as soon as it is known, while the slide still
   // brakes past the last stop; if that braking then ends badly (limit switch, I/O error,
   // STOP), a second event of the same job follows with this set: the result stands, only
