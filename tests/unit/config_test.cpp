@@ -1,6 +1,5 @@
 #include <catch2/catch.hpp>
 
-#include <fstream>
 
 #include "app/config.h"
 #include "temp_dir.h"
@@ -11,9 +10,7 @@ namespace {
 std::string write(const std::string& text) {
   static const test::TempDir dir("alacs_cfg");  // removed when the test program ends
   static int n = 0;
-  const std::string path = dir.file(std::to_string(n++) + ".json");
-  std::ofstream(path) << text;
-  return path;
+  return dir.write(std::to_string(n++) + ".json", text);
 }
 }  // namespace
 

@@ -63,14 +63,6 @@ TEST_CASE("Robust sphere fit ignores leaf points", "[geometry]") {
   CHECK(fitSphere({}).status().code() == Error::kBadInput);
 }
 
-namespace {
-std::string writeTemp(const test::TempDir& dir, const std::string& name, const std::string& text) {
-  const std::string path = dir.file(name);
-  std::ofstream(path) << text;
-  return path;
-}
-}  // namespace
-
 TEST_CASE("Calibration files round-trip and bad ones name the field", "[geometry][calibration]") {
   const Calibration cal = sim::defaultScene().truth;
   const test::TempDir tmp;
@@ -82,14 +74,14 @@ TEST_CASE("Calibration files round-trip and bad ones name the field", "[geometry
   CHECK((back->laser.planeNormal - cal.laser.planeNormal).norm() < 1e-9);
 
   CHECK(loadCalibration("/nonexistent/cal.json").status().code() == Error::kNotFound);
-  auto notJson = loadCalibration(writeTemp(tmp, "bad.json", "{ this is not json"));
+  auto notJson = loadCalibration(tmp.write("bad.json", "{ this is not json"));
   CHECK(notJson.status().code() == Error::kBadInput);
-  auto missing = loadCalibration(writeTemp(tmp, "missing.json", R"({"camera": {"width_px": 2048}, "laser": {}})"));
+  auto missing = loadCalibration(tmp.write("missing.json", R"({"camera": {"width_px": 2048}, "laser": {}})"));
   CHECK(missing.status().reason().find("camera.height_px") != std::string::npos);
   std::ifstream in(path);
   std::string text((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
   const auto pos = text.find("\"slide_scale\": ");
   std::string badScale = text.substr(0, pos) + "\"slide_scale\": 7" + text.substr(text.find('}', pos));
-  auto range = loadCalibration(writeTemp(tmp, "range.json", badScale));
+  auto range = loadCalibration(tmp.write("range.json", badScale));
   CHECK(range.status().reason().find("laser.slide_scale") != std::string::npos);
 }

@@ -15,7 +15,6 @@ using namespace alacs;
 
 namespace {
 
-
 bool same(const cv::Mat& a, const cv::Mat& b) {
   return a.size() == b.size() && a.type() == b.type() && cv::norm(a, b, cv::NORM_INF) == 0.0;
 }

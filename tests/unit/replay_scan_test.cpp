@@ -8,7 +8,6 @@
 #include <sys/stat.h>
 
 #include <cmath>
-#include <fstream>
 #include <opencv2/imgcodecs.hpp>
 
 #include "localize/localizer.h"
@@ -23,11 +22,6 @@
 using namespace alacs;
 
 namespace {
-
-void writeText(const std::string& path, const std::string& text) {
-  std::ofstream out(path);
-  out << text;
-}
 
 // A source that hands out a frame whose every pixel holds its sequence number.
 class CountingSource final : public ports::FrameSource {
@@ -136,14 +130,14 @@ TEST_CASE("A bad manifest is refused with the field named", "[replay]") {
       {R"({"file": "a.png", "slide_mm": 1, "timestamp_s": 0, "exposure_us": 10})", "frames[0].laser_on"},
   };
   for (const auto& c : cases) {
-    writeText(dir + "/manifest.json", head + c.frames + "]}");
+    tmp.write("manifest.json", head + c.frames + "]}");
     Result<replay::ScanManifest> r = replay::readManifest(dir);
     INFO(c.field);
     REQUIRE_FALSE(r.isOk());
     CHECK(r.status().code() == Error::kBadInput);
     CHECK(r.status().reason().find(c.field) != std::string::npos);
   }
-  writeText(dir + "/manifest.json", R"({"format": "alacs-scan/9", "scan": {}, "frames": []})");
+  tmp.write("manifest.json", R"({"format": "alacs-scan/9", "scan": {}, "frames": []})");
   CHECK(replay::readManifest(dir).status().reason().find("format") != std::string::npos);
   CHECK(replay::readManifest(dir + "/none").status().code() == Error::kNotFound);
 }
