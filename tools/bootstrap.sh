@@ -12,6 +12,7 @@ apt_packages=(
   user-mode-linux linux-source-6.1 flex bison bc libelf-dev xz-utils
   python3 python3-venv python3-pip
   clang libclang-rt-14-dev
+  nlohmann-json3-dev libcli11-dev
 )
 missing=()
 for p in "${apt_packages[@]}"; do
