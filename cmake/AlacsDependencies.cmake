@@ -2,6 +2,10 @@
 find_package(PkgConfig REQUIRED)
 find_package(Threads REQUIRED)
 find_package(Eigen3 3.3 REQUIRED NO_MODULE)
+# Header-only: JSON (nlohmann-json3-dev) and command lines (libcli11-dev); in Yocto,
+# meta-oe's nlohmann-json and cli11.
+find_package(nlohmann_json 3.10 REQUIRED)
+find_package(CLI11 2.1 REQUIRED)
 
 # OpenCV: the umbrella package ships OpenCVConfig.cmake; a cross build with only the
 # per-module arm64 packages has none, so fall back to finding the modules by hand.

@@ -15,7 +15,7 @@
 extern "C" {
 #endif
 
-#define ALACS_PROTOCOL_VERSION (1u)
+#define ALACS_PROTOCOL_VERSION (2u)
 #define ALACS_DEFAULT_NODE_ID (0x10u)
 #define ALACS_NODE_ID_MIN (1u)
 #define ALACS_NODE_ID_MAX (127u)
@@ -31,6 +31,7 @@ extern "C" {
 #define ALACS_BASE_ID_STATUS (0x480u)
 #define ALACS_BASE_ID_SDO_TX (0x580u)
 #define ALACS_BASE_ID_SDO_RX (0x600u)
+#define ALACS_BASE_ID_PROGRESS (0x680u)
 #define ALACS_BASE_ID_HEARTBEAT (0x700u)
 
 #define ALACS_COMMAND_DLC (8u)

@@ -7,6 +7,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdio>
 #include <cstdlib>
 #include <opencv2/imgproc.hpp>
 
@@ -17,6 +18,10 @@ namespace alacs::app {
 
 ScanWorker::ScanWorker(WorkerDeps deps, const localize::Localizer& localizer, int eventFd)
     : deps_(std::move(deps)), localizer_(localizer), eventFd_(eventFd) {
+  thread_ = std::thread([this] { run(); });
+}
+
+ScanWorker::ScanWorker(WorkerDeps deps, int eventFd) : deps_(std::move(deps)), eventFd_(eventFd) {
   thread_ = std::thread([this] { run(); });
 }
 
@@ -55,6 +60,16 @@ std::optional<WorkerEvent> ScanWorker::takeEvent() {
   return ev;
 }
 
+void ScanWorker::setPhase(protocol::ProgressPhase p) {
+  // The second pass's moves and exposures show as SECOND_PASS.
+  const bool motion = p == protocol::ProgressPhase::kMoving || p == protocol::ProgressPhase::kExposing;
+  phase_.store(secondPass_.load() && motion ? protocol::ProgressPhase::kSecondPass : p);
+}
+
+ScanProgress ScanWorker::progress() const {
+  return {stopsDone_.load(), stopsTotal_.load(), objectsFound_.load(), phase_.load()};
+}
+
 void ScanWorker::setLocalizer(const localize::Localizer& l) {
   std::lock_guard<std::mutex> lock(mu_);
   localizer_ = l;
@@ -90,6 +105,13 @@ void ScanWorker::run() {
       cancel_.store(false);
       if (cancelEpoch_.load() != epoch) cancel_.store(true);
     }
+    markProgress();
+    stopsDone_.store(0);
+    stopsTotal_.store(job.kind == WorkerJob::Kind::kScanAll ? static_cast<int>(job.surveyStopsMm.size())
+                                                           : static_cast<int>(job.plan.stopsMm.size()));
+    objectsFound_.store(0);
+    secondPass_.store(false);
+    phase_.store(protocol::ProgressPhase::kMoving);
     WorkerEvent ev;
     switch (job.kind) {
       case WorkerJob::Kind::kHome: ev = doHome(job); break;
@@ -105,6 +127,7 @@ void ScanWorker::run() {
         break;
     }
     (void)deps_.laser->off();  // whatever happened, the laser ends the job off
+    markProgress();
     if (braking_) {
       // A continuous scan: the result goes out now; the slide still brakes past the last stop.
       post(std::move(ev));
@@ -177,7 +200,10 @@ Status ScanWorker::moveTo(double mm, WorkerEvent& ev) {
   if (!move) return move.status();
   motion::StepRunner runner(deps_.limits, deps_.stepLines, *deps_.clock, *deps_.sleeper);
   runner.trackPosition(&positionSteps_);
-  return moveOutcome(runner.run(*move, to > from, cancel_), ev);
+  setPhase(protocol::ProgressPhase::kMoving);
+  const motion::MoveReport report = runner.run(*move, to > from, cancel_);
+  markProgress();
+  return moveOutcome(report, ev);
 }
 
 Status ScanWorker::moveOutcome(const motion::MoveReport& r, WorkerEvent& ev) {
@@ -201,7 +227,9 @@ double recordedOr(const WorkerDeps& deps, double knownMm) {
 }  // namespace
 
 namespace {
-void writeOverlay(const std::string& dir, const image::ImageView& frame, const localize::ScanPlan& plan,
+// Writes DIR/overlay_NNNN.png (one per scan, `scanIndex`) and points DIR/overlay.png at
+// the newest, which the demo shows.
+void writeOverlay(const std::string& dir, int scanIndex, const image::ImageView& frame, const localize::ScanPlan& plan,
                   const std::vector<localize::LineObservation>& lines) {
   if (frame.data == nullptr) return;
   // Only the target's window of the frame is valid (windowed capture): draw on a copy of it.
@@ -218,7 +246,17 @@ void writeOverlay(const std::string& dir, const image::ImageView& frame, const l
     }
   }
   cv::rectangle(out, cv::Rect(0, 0, window.width, window.height), {255, 255, 255}, 2);
-  if (Status s = replay::writePng(dir + "/overlay.png", out); !s) ALACS_LOG_WARN("debug", "%s", s.toString().c_str());
+  char name[32];
+  std::snprintf(name, sizeof name, "overlay_%04d.png", scanIndex);
+  if (Status s = replay::writePng(dir + "/" + name, out); !s) {
+    ALACS_LOG_WARN("debug", "%s", s.toString().c_str());
+    return;
+  }
+  const std::string latest = dir + "/overlay.png";
+  const std::string tmp = latest + ".tmp";
+  (void)::unlink(tmp.c_str());
+  if (::symlink(name, tmp.c_str()) != 0 || ::rename(tmp.c_str(), latest.c_str()) != 0)
+    ALACS_LOG_WARN("debug", "cannot point %s at %s", latest.c_str(), name);
 }
 }  // namespace
 
@@ -227,6 +265,7 @@ Result<ports::CapturedFrame> ScanWorker::exposeStop(size_t stop, const ports::Ca
   // Timeouts and corrupted frames are retried (laser on only for each attempt's
   // exposure), then become a fault with the last reason.
   Result<ports::CapturedFrame> frame = Status(Error::kInternal, "no capture attempted");
+  setPhase(protocol::ProgressPhase::kExposing);
   for (int attempt = 0; attempt <= deps_.captureRetries && !cancel_.load(); ++attempt) {
     if (Status s = deps_.laser->on(); !s) {
       ev.status = s;
@@ -242,7 +281,11 @@ Result<ports::CapturedFrame> ScanWorker::exposeStop(size_t stop, const ports::Ca
     });
     if (midSlideMm != nullptr) *midSlideMm = 0.5 * (startMm + endMm);
     (void)deps_.laser->off();
-    if (frame) break;
+    markProgress();
+    if (frame) {
+      stopsDone_.fetch_add(1);
+      break;
+    }
     dropped_.fetch_add(1);
     ALACS_LOG_WARN("camera", "stop %zu attempt %d: %s", stop, attempt + 1, frame.status().toString().c_str());
   }
@@ -283,7 +326,7 @@ WorkerEvent ScanWorker::doScanAll(const WorkerJob& job) {
   for (size_t i = 0; i < job.surveyStopsMm.size(); ++i) {
     if (Status s = moveTo(job.surveyStopsMm[i], ev); !s) {
       ev.status = s;
-      if (ev.resultStatus == protocol::ResultStatus::kValid) ev.resultStatus = protocol::ResultStatus::kFailed;
+      if (ev.resultStatus == protocol::ResultStatus::kMeasured) ev.resultStatus = protocol::ResultStatus::kFailed;
       return ev;
     }
     Result<ports::CapturedFrame> frame = exposeStop(i, capture, ev);
@@ -296,8 +339,10 @@ WorkerEvent ScanWorker::doScanAll(const WorkerJob& job) {
       return ev;
     }
   }
+  phase_.store(protocol::ProgressPhase::kFitting);
   ev.estimates = survey.finish();
-  ev.resultStatus = ev.estimates.empty() ? protocol::ResultStatus::kNoObject : protocol::ResultStatus::kValid;
+  objectsFound_.store(static_cast<int>(ev.estimates.size()));
+  ev.resultStatus = ev.estimates.empty() ? protocol::ResultStatus::kNotFound : protocol::ResultStatus::kMeasured;
   ev.status = Status::ok();
   return ev;
 }
@@ -310,10 +355,17 @@ WorkerEvent ScanWorker::doLocalize(const WorkerJob& job) {
     ev.resultStatus = protocol::ResultStatus::kFailed;
     return ev;
   }
-  const localize::Localizer localizer = [&] {
+  const std::optional<localize::Localizer> localizerOrNone = [&] {
     std::lock_guard<std::mutex> lock(mu_);
     return localizer_;
   }();
+  if (!localizerOrNone) {
+    // The sensor refuses LOCALIZE without a calibration; this is the worker's own guard.
+    ev.status = Status(Error::kNotCalibrated, "no calibration: nothing to localize with");
+    ev.resultStatus = protocol::ResultStatus::kFailed;
+    return ev;
+  }
+  const localize::Localizer& localizer = *localizerOrNone;
   ports::CaptureRequest capture = [&] {
     std::lock_guard<std::mutex> lock(mu_);
     return deps_.capture;
@@ -339,6 +391,7 @@ WorkerEvent ScanWorker::doLocalize(const WorkerJob& job) {
   };
   std::vector<localize::LineObservation> lines;
   Status scanned = pass(plan, lines);
+  phase_.store(protocol::ProgressPhase::kFitting);
   Result<localize::AppleEstimate> est = scanned ? localizer.estimate(plan, lines) : Result<localize::AppleEstimate>(scanned);
   // Adaptive scan: too few lines on the fruit for its centre; a second pass in between.
   if (std::vector<double> more = localizer.followUpStops(plan, est, deps_.limits.strokeMm);
@@ -347,6 +400,9 @@ WorkerEvent ScanWorker::doLocalize(const WorkerJob& job) {
     ALACS_LOG_INFO("scan", "second pass: %zu stops (%d lines reached the fit)", more.size(), ev.firstPassLines);
     localize::ScanPlan second = plan;
     second.stopsMm = std::move(more);
+    stopsTotal_.fetch_add(static_cast<int>(second.stopsMm.size()));
+    secondPass_.store(true);
+    setPhase(protocol::ProgressPhase::kSecondPass);
     scanned = settleBraking(ev);
     // (A replayed scan holds no frame at these stops: the replay serves the nearest recorded
     // one, already seen; estimate() leaves the repeats out.)
@@ -356,18 +412,22 @@ WorkerEvent ScanWorker::doLocalize(const WorkerJob& job) {
   }
   if (!scanned) {
     ev.status = scanned;
-    if (ev.resultStatus == protocol::ResultStatus::kValid) ev.resultStatus = protocol::ResultStatus::kFailed;
+    if (ev.resultStatus == protocol::ResultStatus::kMeasured) ev.resultStatus = protocol::ResultStatus::kFailed;
     return ev;
   }
-  if (!deps_.debugDir.empty()) writeOverlay(deps_.debugDir, pipeline_.lastFrame(), plan, lines);
+  if (!deps_.debugDir.empty()) writeOverlay(deps_.debugDir, ++overlays_, pipeline_.lastFrame(), plan, lines);
   ev.processingTailNs = deps_.clock->now() - motionDone;
   if (!est) {
     ev.status = Status::ok();  // the scan worked; there was no apple where we were told
-    ev.resultStatus = protocol::ResultStatus::kNoObject;
+    ev.resultStatus = protocol::ResultStatus::kNotFound;
+    ev.resultReason = lines.empty() ? protocol::ResultReason::kNoLinesInGate : protocol::ResultReason::kFitFailed;
     return ev;
   }
   ev.estimates.push_back(*est);
-  ev.resultStatus = est->sphereFit ? protocol::ResultStatus::kValid : protocol::ResultStatus::kPartial;
+  // Without a sphere fit the estimate is the rough position with the default size: never
+  // a measurement (docs/can-protocol.md, ROUGH_ONLY).
+  ev.resultStatus = est->sphereFit ? protocol::ResultStatus::kMeasured : protocol::ResultStatus::kRoughOnly;
+  if (!est->sphereFit) ev.resultReason = protocol::ResultReason::kTooFewLines;
   ev.status = Status::ok();
   return ev;
 }

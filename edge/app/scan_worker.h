@@ -15,6 +15,7 @@
 #include <vector>
 
 #include "app/frame_pipeline.h"
+#include "app/scan_jobs.h"
 #include "app/laser_guard.h"
 #include "localize/localizer.h"
 #include "survey/survey.h"
@@ -23,42 +24,6 @@
 #include "protocol/codec.h"
 
 namespace alacs::app {
-
-struct WorkerJob {
-  enum class Kind { kHome, kLocalize, kScanAll, kMoveTo } kind = Kind::kHome;
-  protocol::LocalizeCommand localize;
-  localize::ScanPlan plan;  // made by the daemon when it accepted the command
-  std::optional<survey::Survey> survey;  // scan-all: the survey to fill, and its stops
-  std::vector<double> surveyStopsMm;
-  double moveToMm = 0.0;  // kMoveTo: park the slide here (tools, diagnostics)
-  TimeNs commandTimeNs = 0;
-};
-
-// One exposure as the camera reported it, for the laser timeline (docs/daemon.md).
-struct ExposureWindow {
-  TimeNs startNs = 0;
-  TimeNs endNs = 0;
-};
-
-struct WorkerEvent {
-  WorkerJob job;
-  Status status;
-  uint16_t faultBit = 0;               // set when the failure is a device fault
-  protocol::ResultStatus resultStatus = protocol::ResultStatus::kValid;
-  std::vector<localize::AppleEstimate> estimates;  // localize: at most one; scan-all: all found
-  TimeNs lastExposureNs = 0;
-  TimeNs doneNs = 0;
-  TimeNs maxStepLatenessNs = 0;
-  std::vector<ExposureWindow> exposures;  // of this job, in order
-  TimeNs processingTailNs = 0;  // image work left after the last frame (not overlapped with motion)
-  int followUpStops = 0;         // localize: stops of the adaptive second pass (0: none taken)
-  int firstPassLines = 0;        // localize, second pass taken: lines in the first pass's fit
-  // A continuous scan's result is posted as soon as it is known, while the slide still
-  // brakes past the last stop; if that braking then ends badly (limit switch, I/O error,
-  // STOP), a second event of the same job follows with this set: the result stands, only
-  // the fault (faultBit, status) counts.
-  bool afterResult = false;
-};
 
 struct WorkerDeps {
   const Clock* clock = nullptr;
@@ -77,28 +42,32 @@ struct WorkerDeps {
   std::function<double()> frameSlideMm;
 };
 
-class ScanWorker {
+class ScanWorker final : public ScanJobs {
  public:
   ScanWorker(WorkerDeps deps, const localize::Localizer& localizer, int eventFd);
-  ~ScanWorker();
+  // Without a calibration: LOCALIZE jobs fail (kNotCalibrated) until setLocalizer().
+  ScanWorker(WorkerDeps deps, int eventFd);
+  ~ScanWorker() override;
 
   // Queues a job; false (refused) when one is already waiting: the queue holds one job
   // besides the running one. A job waits when the daemon sends it while a continuous
   // scan's result is out but its slide still brakes; it runs once the slide is at rest.
-  bool submit(const WorkerJob& job);
+  bool submit(const WorkerJob& job) override;
   std::optional<WorkerEvent> takeEvent();
   // Stops the running job and the braking after a result, and cancels the jobs queued so
   // far (they end at once as aborted); jobs submitted afterwards run normally.
-  void cancel();
+  void cancel() override;
   // A job is running or queued and its result is not out yet.
-  bool busy() const { return busy_.load(); }
-  bool homed() const { return homed_.load(); }
-  double positionMm() const { return deps_.limits.mmFor(positionSteps_.load()); }
-  void setLocalizer(const localize::Localizer& l);
-  void setExposureUs(int64_t us);
-  void markUnhomed() { homed_.store(false); }
+  bool busy() const override { return busy_.load(); }
+  bool homed() const override { return homed_.load(); }
+  double positionMm() const override { return deps_.limits.mmFor(positionSteps_.load()); }
+  void setLocalizer(const localize::Localizer& l) override;
+  void setExposureUs(int64_t us) override;
+  void markUnhomed() override { homed_.store(false); }
   // Frames that failed (timeout, corrupt) and were retried or led to a fault.
-  uint32_t droppedFrames() const { return dropped_.load(); }
+  uint32_t droppedFrames() const override { return dropped_.load(); }
+  TimeNs progressNs() const override { return progressNs_.load(); }
+  ScanProgress progress() const override;
 
  private:
   void run();
@@ -143,7 +112,7 @@ class ScanWorker {
   };
 
   WorkerDeps deps_;
-  localize::Localizer localizer_;
+  std::optional<localize::Localizer> localizer_;
   int eventFd_;
   std::thread thread_;
   std::mutex mu_;
@@ -159,6 +128,16 @@ class ScanWorker {
   std::atomic<bool> homed_{false};
   std::atomic<int64_t> positionSteps_{0};
   std::atomic<uint32_t> dropped_{0};
+  std::atomic<TimeNs> progressNs_{0};
+  void markProgress() { progressNs_.store(deps_.clock->now()); }
+  // ALACS_Progress: written by the worker, read by the loop.
+  std::atomic<int> stopsDone_{0};
+  std::atomic<int> stopsTotal_{0};
+  std::atomic<int> objectsFound_{0};
+  std::atomic<protocol::ProgressPhase> phase_{protocol::ProgressPhase::kMoving};
+  std::atomic<bool> secondPass_{false};
+  void setPhase(protocol::ProgressPhase p);
+  int overlays_ = 0;  // debug overlays written (worker thread only)
   image::LleWorkspace ws_;  // scan-all's full-frame LLE
   FramePipeline pipeline_;  // localize's per-frame image work, overlapped with motion
 };

@@ -21,7 +21,7 @@
 //      polynomial robustly (rows beyond max(outlierPx, 3·1.4826·MAD) are rejected);
 //   5. reports per row a confidence and a status, and the line's segments and coverage.
 //
-// Arithmetic: stages 1–4 are integer/fixed point (Q formats in lle_fixed.h and
+// Arithmetic: stages 1–4 are integer/fixed point (Q formats in lle_internal.h and
 // docs/lle.md), bit-exact between the scalar path and the SIMD path (OpenCV universal
 // intrinsics: NEON on Arm, SSE2/AVX2 on x86). `extractLineReference` is the same algorithm
 // in double precision, the reference the fixed-point result is tested against.

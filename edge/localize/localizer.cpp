@@ -53,9 +53,16 @@ Localizer::Localizer(const geometry::Calibration& cal, const image::LleParams& l
                      const geometry::WorkingRange& range)
     : cal_(cal), lle_(lle), scan_(scan), range_(range) {}
 
-Result<ScanPlan> Localizer::plan(const Eigen::Vector3d& roughMm, double strokeMm) const {
-  if (!(roughMm.z() >= range_.minDepthMm && roughMm.z() <= range_.maxDepthMm))
-    return Status(Error::kOutOfRange, "rough z " + std::to_string(roughMm.z()) + " mm is outside the working range");
+Result<ScanPlan> Localizer::plan(const Eigen::Vector3d& roughMm, double strokeMm, PlanRefusal* why) const {
+  PlanRefusal ignored;
+  PlanRefusal& refusal = why != nullptr ? *why : ignored;
+  refusal = {};
+  if (!(roughMm.z() >= range_.minDepthMm && roughMm.z() <= range_.maxDepthMm)) {
+    refusal = {PlanRefusal::Limit::kDepth, roughMm.z(),
+               roughMm.z() < range_.minDepthMm ? range_.minDepthMm : range_.maxDepthMm};
+    return Status(Error::kOutOfRange, "rough z " + std::to_string(roughMm.z()) + " mm is outside the working range [" +
+                                          std::to_string(range_.minDepthMm) + ", " + std::to_string(range_.maxDepthMm) + "]");
+  }
   const double centerMm = cal_.laser.slideForPoint(roughMm);
   if (!std::isfinite(centerMm)) return Status(Error::kNotCalibrated, "slide axis does not move the laser plane");
   ScanPlan plan;
@@ -70,9 +77,11 @@ Result<ScanPlan> Localizer::plan(const Eigen::Vector3d& roughMm, double strokeMm
     const double s = first + i * scan_.stopSpacingMm;
     if (s >= 0.0 && s <= strokeMm) plan.stopsMm.push_back(s);
   }
-  if (plan.stopsMm.empty())
+  if (plan.stopsMm.empty()) {
+    refusal = {PlanRefusal::Limit::kStroke, centerMm, centerMm < 0.0 ? 0.0 : strokeMm};
     return Status(Error::kOutOfRange, "target needs the slide at " + std::to_string(centerMm) +
                                           " mm, outside the stroke [0, " + std::to_string(strokeMm) + "]");
+  }
   // ROI: the projected box of the rough centre ± (largest radius + margin).
   const auto& cam = cal_.camera;
   const double r = scan_.maxAppleRadiusMm + scan_.roiMarginMm;
@@ -91,8 +100,10 @@ Result<ScanPlan> Localizer::plan(const Eigen::Vector3d& roughMm, double strokeMm
   const int y0 = std::clamp(static_cast<int>(std::floor(v0)), 0, cam.heightPx);
   const int y1 = std::clamp(static_cast<int>(std::ceil(v1)), 0, cam.heightPx);
   plan.roi = {x0, y0, x1 - x0, y1 - y0};
-  if (plan.roi.width < 16 || plan.roi.height < 16)
+  if (plan.roi.width < 16 || plan.roi.height < 16) {
+    refusal = {PlanRefusal::Limit::kFrame, static_cast<double>(std::min(plan.roi.width, plan.roi.height)), 16.0};
     return Status(Error::kOutOfRange, "target is outside the camera's view");
+  }
   return plan;
 }
 

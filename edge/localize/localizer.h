@@ -87,6 +87,14 @@ struct ScanPlan {
   Eigen::Vector3d roughMm = Eigen::Vector3d::Zero();
 };
 
+// Which limit refused a plan, for the NACK's detail on the bus: the value the target
+// needed and the limit it broke (mm; px for kFrame).
+struct PlanRefusal {
+  enum class Limit { kNone, kDepth, kStroke, kFrame } limit = Limit::kNone;
+  double value = 0.0;
+  double bound = 0.0;
+};
+
 struct LineObservation {
   double slideMm = 0.0;
   image::LaserLine line;
@@ -125,8 +133,9 @@ class Localizer {
             const geometry::WorkingRange& range = {});
 
   // Plans the stops around a rough target position, clamped to [0, strokeMm].
-  // Errors: kOutOfRange when no stop can reach the target.
-  Result<ScanPlan> plan(const Eigen::Vector3d& roughMm, double strokeMm) const;
+  // Errors: kOutOfRange when no stop can reach the target; `why` (optional) then says
+  // which limit and by how much.
+  Result<ScanPlan> plan(const Eigen::Vector3d& roughMm, double strokeMm, PlanRefusal* why = nullptr) const;
 
   // Processes one frame taken at `slideMm`. Errors: those of LLE (bad frame or ROI).
   Result<LineObservation> observe(const image::ImageView& frame, const ScanPlan& plan, double slideMm,

@@ -4,9 +4,9 @@
 #pragma once
 
 #include <atomic>
-#include <chrono>
-#include <thread>
+#include <string>
 
+#include "common/clock.h"
 #include "ports/frame_source.h"
 
 namespace alacs::ports {
@@ -15,7 +15,9 @@ enum class CameraFault : uint8_t { kNone, kTimeout, kCorrupt };
 
 class FaultInjectingFrameSource final : public FrameSource {
  public:
-  explicit FaultInjectingFrameSource(FrameSource& inner) : inner_(inner) {}
+  // `clock` and `sleeper` time the frame that never comes (virtual in tests).
+  FaultInjectingFrameSource(FrameSource& inner, const Clock& clock, Sleeper& sleeper)
+      : inner_(inner), clock_(clock), sleeper_(sleeper) {}
   // Every capture fails this way until set back to kNone. Thread-safe.
   void setFault(CameraFault f) { fault_.store(f); }
   const char* name() const override { return inner_.name(); }
@@ -25,7 +27,7 @@ class FaultInjectingFrameSource final : public FrameSource {
     switch (fault_.load()) {
       case CameraFault::kTimeout:
         // A frame that never comes: the caller waits its whole timeout.
-        std::this_thread::sleep_for(std::chrono::milliseconds(request.timeoutMs));
+        sleeper_.sleepUntil(clock_.now() + request.timeoutMs * kNsPerMs);
         if (onExposureEnd) onExposureEnd();
         return Status(Error::kTimeout, "camera frame timed out after " + std::to_string(request.timeoutMs) + " ms");
       case CameraFault::kCorrupt: {
@@ -40,6 +42,8 @@ class FaultInjectingFrameSource final : public FrameSource {
   }
 
   FrameSource& inner_;
+  const Clock& clock_;
+  Sleeper& sleeper_;
   std::atomic<CameraFault> fault_{CameraFault::kNone};
 };
 

@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <limits>
 
 extern "C" {
 #include "alacs.h"
@@ -9,6 +10,82 @@ extern "C" {
 }
 
 namespace alacs::protocol {
+
+// The C++ enums are the generated codec's value tables (spec.py is the source of both).
+#define ALACS_SAME(cxx, choice) static_assert(static_cast<unsigned>(cxx) == (choice), #cxx " != " #choice)
+ALACS_SAME(Opcode::kInvalid, ALACS_ALACS_ACK_ACK_OPCODE_INVALID_CHOICE);
+ALACS_SAME(Opcode::kLocalize, ALACS_ALACS_COMMAND_CMD_OPCODE_LOCALIZE_CHOICE);
+ALACS_SAME(Opcode::kScanAll, ALACS_ALACS_COMMAND_CMD_OPCODE_SCAN_ALL_CHOICE);
+ALACS_SAME(Opcode::kHome, ALACS_ALACS_COMMAND_CMD_OPCODE_HOME_CHOICE);
+ALACS_SAME(Opcode::kStop, ALACS_ALACS_COMMAND_CMD_OPCODE_STOP_CHOICE);
+ALACS_SAME(Opcode::kSetConfig, ALACS_ALACS_COMMAND_CMD_OPCODE_SET_CONFIG_CHOICE);
+ALACS_SAME(Opcode::kGetVersion, ALACS_ALACS_COMMAND_CMD_OPCODE_GET_VERSION_CHOICE);
+ALACS_SAME(Opcode::kClearFault, ALACS_ALACS_COMMAND_CMD_OPCODE_CLEAR_FAULT_CHOICE);
+ALACS_SAME(Opcode::kLocalize, ALACS_ALACS_ACK_ACK_OPCODE_LOCALIZE_CHOICE);
+ALACS_SAME(Opcode::kClearFault, ALACS_ALACS_ACK_ACK_OPCODE_CLEAR_FAULT_CHOICE);
+ALACS_SAME(NackReason::kNone, ALACS_ALACS_ACK_NACK_REASON_NONE_CHOICE);
+ALACS_SAME(NackReason::kBadDlc, ALACS_ALACS_ACK_NACK_REASON_BAD_DLC_CHOICE);
+ALACS_SAME(NackReason::kBadChecksum, ALACS_ALACS_ACK_NACK_REASON_BAD_CHECKSUM_CHOICE);
+ALACS_SAME(NackReason::kBadCounter, ALACS_ALACS_ACK_NACK_REASON_BAD_COUNTER_CHOICE);
+ALACS_SAME(NackReason::kUnknownOpcode, ALACS_ALACS_ACK_NACK_REASON_UNKNOWN_OPCODE_CHOICE);
+ALACS_SAME(NackReason::kBusy, ALACS_ALACS_ACK_NACK_REASON_BUSY_CHOICE);
+ALACS_SAME(NackReason::kNotHomed, ALACS_ALACS_ACK_NACK_REASON_NOT_HOMED_CHOICE);
+ALACS_SAME(NackReason::kNotCalibrated, ALACS_ALACS_ACK_NACK_REASON_NOT_CALIBRATED_CHOICE);
+ALACS_SAME(NackReason::kOutOfRange, ALACS_ALACS_ACK_NACK_REASON_OUT_OF_RANGE_CHOICE);
+ALACS_SAME(NackReason::kFaultActive, ALACS_ALACS_ACK_NACK_REASON_FAULT_ACTIVE_CHOICE);
+ALACS_SAME(NackReason::kNmtNotOperational, ALACS_ALACS_ACK_NACK_REASON_NMT_NOT_OPERATIONAL_CHOICE);
+ALACS_SAME(NackReason::kBadValue, ALACS_ALACS_ACK_NACK_REASON_BAD_VALUE_CHOICE);
+ALACS_SAME(NackReason::kInternal, ALACS_ALACS_ACK_NACK_REASON_INTERNAL_CHOICE);
+ALACS_SAME(AckResult::kAck, ALACS_ALACS_ACK_ACK_RESULT_ACK_CHOICE);
+ALACS_SAME(AckResult::kNack, ALACS_ALACS_ACK_ACK_RESULT_NACK_CHOICE);
+ALACS_SAME(AckResult::kDone, ALACS_ALACS_ACK_ACK_RESULT_DONE_CHOICE);
+ALACS_SAME(NackDetail::kNone, ALACS_ALACS_ACK_NACK_DETAIL_NONE_CHOICE);
+ALACS_SAME(NackDetail::kStroke, ALACS_ALACS_ACK_NACK_DETAIL_STROKE_CHOICE);
+ALACS_SAME(NackDetail::kDepth, ALACS_ALACS_ACK_NACK_DETAIL_DEPTH_CHOICE);
+ALACS_SAME(NackDetail::kLateral, ALACS_ALACS_ACK_NACK_DETAIL_LATERAL_CHOICE);
+ALACS_SAME(NackDetail::kFrame, ALACS_ALACS_ACK_NACK_DETAIL_FRAME_CHOICE);
+ALACS_SAME(NackDetail::kCrossField, ALACS_ALACS_ACK_NACK_DETAIL_CROSS_FIELD_CHOICE);
+ALACS_SAME(NackDetail::kSpacingXStops, ALACS_ALACS_ACK_NACK_DETAIL_SPACING_X_STOPS_CHOICE);
+ALACS_SAME(NackDetail::kMode, ALACS_ALACS_ACK_NACK_DETAIL_MODE_CHOICE);
+ALACS_SAME(NackDetail::kExposure, ALACS_ALACS_ACK_NACK_DETAIL_EXPOSURE_CHOICE);
+ALACS_SAME(NackDetail::kBrceStep, ALACS_ALACS_ACK_NACK_DETAIL_BRCE_STEP_CHOICE);
+ALACS_SAME(NackDetail::kScanStops, ALACS_ALACS_ACK_NACK_DETAIL_SCAN_STOPS_CHOICE);
+ALACS_SAME(NackDetail::kStopSpacing, ALACS_ALACS_ACK_NACK_DETAIL_STOP_SPACING_CHOICE);
+ALACS_SAME(NackDetail::kHeartbeat, ALACS_ALACS_ACK_NACK_DETAIL_HEARTBEAT_CHOICE);
+ALACS_SAME(ScanMode::kStopAndGo, ALACS_ALACS_COMMAND_LOCALIZE_MODE_STOP_AND_GO_CHOICE);
+ALACS_SAME(ScanMode::kContinuous, ALACS_ALACS_COMMAND_LOCALIZE_MODE_CONTINUOUS_CHOICE);
+ALACS_SAME(ScanMode::kStopAndGo, ALACS_ALACS_COMMAND_SCAN_ALL_MODE_STOP_AND_GO_CHOICE);
+ALACS_SAME(ScanMode::kContinuous, ALACS_ALACS_COMMAND_SCAN_ALL_MODE_CONTINUOUS_CHOICE);
+ALACS_SAME(State::kBoot, ALACS_ALACS_STATUS_STATE_BOOT_CHOICE);
+ALACS_SAME(State::kHoming, ALACS_ALACS_STATUS_STATE_HOMING_CHOICE);
+ALACS_SAME(State::kIdle, ALACS_ALACS_STATUS_STATE_IDLE_CHOICE);
+ALACS_SAME(State::kScanning, ALACS_ALACS_STATUS_STATE_SCANNING_CHOICE);
+ALACS_SAME(State::kFault, ALACS_ALACS_STATUS_STATE_FAULT_CHOICE);
+ALACS_SAME(State::kStopped, ALACS_ALACS_STATUS_STATE_STOPPED_CHOICE);
+ALACS_SAME(ResultStatus::kMeasured, ALACS_ALACS_RESULT_HEADER_RESULT_STATUS_MEASURED_CHOICE);
+ALACS_SAME(ResultStatus::kNotFound, ALACS_ALACS_RESULT_HEADER_RESULT_STATUS_NOT_FOUND_CHOICE);
+ALACS_SAME(ResultStatus::kRoughOnly, ALACS_ALACS_RESULT_HEADER_RESULT_STATUS_ROUGH_ONLY_CHOICE);
+ALACS_SAME(ResultStatus::kFailed, ALACS_ALACS_RESULT_HEADER_RESULT_STATUS_FAILED_CHOICE);
+ALACS_SAME(ResultStatus::kAborted, ALACS_ALACS_RESULT_HEADER_RESULT_STATUS_ABORTED_CHOICE);
+ALACS_SAME(ResultStatus::kAmbiguous, ALACS_ALACS_RESULT_HEADER_RESULT_STATUS_AMBIGUOUS_CHOICE);
+ALACS_SAME(ResultReason::kNone, ALACS_ALACS_RESULT_HEADER_RESULT_REASON_NONE_CHOICE);
+ALACS_SAME(ResultReason::kNoLinesInGate, ALACS_ALACS_RESULT_HEADER_RESULT_REASON_NO_LINES_IN_GATE_CHOICE);
+ALACS_SAME(ResultReason::kTooFewLines, ALACS_ALACS_RESULT_HEADER_RESULT_REASON_TOO_FEW_LINES_CHOICE);
+ALACS_SAME(ResultReason::kFitFailed, ALACS_ALACS_RESULT_HEADER_RESULT_REASON_FIT_FAILED_CHOICE);
+ALACS_SAME(ResultReason::kTwoSurfaces, ALACS_ALACS_RESULT_HEADER_RESULT_REASON_TWO_SURFACES_CHOICE);
+ALACS_SAME(ResultReason::kFarFromRough, ALACS_ALACS_RESULT_HEADER_RESULT_REASON_FAR_FROM_ROUGH_CHOICE);
+ALACS_SAME(ResultReason::kCameraFault, ALACS_ALACS_RESULT_HEADER_RESULT_REASON_CAMERA_FAULT_CHOICE);
+ALACS_SAME(ResultReason::kMotionFault, ALACS_ALACS_RESULT_HEADER_RESULT_REASON_MOTION_FAULT_CHOICE);
+ALACS_SAME(ResultReason::kLaserFault, ALACS_ALACS_RESULT_HEADER_RESULT_REASON_LASER_FAULT_CHOICE);
+ALACS_SAME(ResultReason::kStopped, ALACS_ALACS_RESULT_HEADER_RESULT_REASON_STOPPED_CHOICE);
+ALACS_SAME(ResultReason::kShutdown, ALACS_ALACS_RESULT_HEADER_RESULT_REASON_SHUTDOWN_CHOICE);
+ALACS_SAME(ResultReason::kInternal, ALACS_ALACS_RESULT_HEADER_RESULT_REASON_INTERNAL_CHOICE);
+ALACS_SAME(ProgressPhase::kMoving, ALACS_ALACS_PROGRESS_PROGRESS_PHASE_MOVING_CHOICE);
+ALACS_SAME(ProgressPhase::kExposing, ALACS_ALACS_PROGRESS_PROGRESS_PHASE_EXPOSING_CHOICE);
+ALACS_SAME(ProgressPhase::kFitting, ALACS_ALACS_PROGRESS_PROGRESS_PHASE_FITTING_CHOICE);
+ALACS_SAME(ProgressPhase::kSecondPass, ALACS_ALACS_PROGRESS_PROGRESS_PHASE_SECOND_PASS_CHOICE);
+#undef ALACS_SAME
+
 namespace {
 
 ports::CanFrame frameFor(uint32_t baseId, uint8_t nodeId, uint8_t dlc) {
@@ -107,6 +184,11 @@ ports::CanFrame encodeAck(uint8_t nodeId, const Ack& ack) {
   m.ack_result = static_cast<uint8_t>(ack.result);
   m.nack_reason = static_cast<uint8_t>(ack.reason);
   m.rejected_opcode = ack.rejectedOpcode;
+  // The generated pack writes the members of AckOpcode's page only, so the detail never
+  // lands on an INVALID or GET_VERSION ack.
+  m.nack_detail = static_cast<uint8_t>(ack.detail);
+  m.nack_value = saturate<int16_t>(ack.nackValue * 10.0);
+  m.nack_limit = saturate<int16_t>(ack.nackLimit * 10.0);
   ports::CanFrame f = frameFor(ALACS_BASE_ID_ACK, nodeId, 8);
   (void)alacs_alacs_ack_pack(f.data.data(), &m, f.data.size());
   return f;
@@ -157,14 +239,30 @@ ports::CanFrame encodeStatus(uint8_t nodeId, const StatusReport& s) {
 ports::CanFrame encodeResultHeader(uint8_t nodeId, const ResultHeader& h) {
   alacs_alacs_result_header_t m{};
   m.meas_counter = h.measCounter;
-  m.object_count = h.objectCount;
+  m.object_count = std::min<uint8_t>(h.objectCount, 16);  // ObjIndex is 4 bits; the field 5
   m.result_target_id = h.targetId;
   m.scan_age_ms = static_cast<uint16_t>(std::min<uint32_t>(h.scanAgeMs, 65535));
   m.result_status = static_cast<uint8_t>(h.status);
   m.result_mode = h.mode;
+  m.result_reason = static_cast<uint8_t>(h.reason);
   m.cycle_time = alacs_alacs_result_header_cycle_time_encode(std::min(5100.0, static_cast<double>(h.cycleTimeMs)));
   ports::CanFrame f = frameFor(ALACS_BASE_ID_RESULT_HEADER, nodeId, 8);
   (void)alacs_alacs_result_header_pack(f.data.data(), &m, f.data.size());
+  return f;
+}
+
+ports::CanFrame encodeProgress(uint8_t nodeId, const ProgressReport& p) {
+  alacs_alacs_progress_t m{};
+  m.progress_meas_counter = p.measCounter;
+  m.progress_counter = static_cast<uint8_t>(p.counter & 0x0F);
+  m.progress_mode = p.mode;
+  m.progress_phase = static_cast<uint8_t>(p.phase);
+  m.stops_done = static_cast<uint8_t>(std::min<uint32_t>(p.stopsDone, 255));
+  m.stops_total = static_cast<uint8_t>(std::min<uint32_t>(p.stopsTotal, 255));
+  m.objects_found = static_cast<uint8_t>(std::min<uint32_t>(p.objectsFound, 255));
+  m.elapsed_s = static_cast<uint8_t>(std::min<uint32_t>(p.elapsedMs / 500U, 255));
+  ports::CanFrame f = frameFor(ALACS_BASE_ID_PROGRESS, nodeId, 8);
+  (void)alacs_alacs_progress_pack(f.data.data(), &m, f.data.size());
   return f;
 }
 

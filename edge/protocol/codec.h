@@ -45,6 +45,9 @@ struct Command {
   LocalizeCommand localize;
   ScanMode scanAllMode = ScanMode::kStopAndGo;
   SetConfigCommand config;
+  // Already answered by the node: a STOP that failed its checksum or counter check is
+  // NACKed for the record and still executed (fail-safe); the application must not ACK it.
+  bool answered = false;
 };
 
 // Decoded command or the reason it was refused (with the opcode/counter to echo).
@@ -57,12 +60,24 @@ struct CommandDecode {
 // Checks DLC and checksum, then unpacks. The counter rule is the node's (node.h).
 CommandDecode decodeCommand(const ports::CanFrame& frame);
 
+// ALACS_Ack.NackDetail: which limit a NACKed command broke. NackValue/NackLimit carry the
+// offending value and the bound it broke in the unit docs/can-protocol.md gives per detail.
+enum class NackDetail : uint8_t {
+  kNone = 0, kStroke = 1, kDepth = 2, kLateral = 3, kFrame = 4, kCrossField = 5, kSpacingXStops = 6,
+  kMode = 7, kExposure = 8, kBrceStep = 9, kScanStops = 10, kStopSpacing = 11, kHeartbeat = 12,
+};
+
 struct Ack {
   Opcode opcode = Opcode::kInvalid;
   uint8_t counter = 0;
   AckResult result = AckResult::kAck;
   NackReason reason = NackReason::kNone;
   uint8_t rejectedOpcode = 0;  // byte 0 of a command with an unknown opcode
+  // NACK detail, sent for every opcode but GET_VERSION and INVALID (their bytes 3..7 are
+  // taken); value and limit at 0.1 resolution, saturating at ±3276.7.
+  NackDetail detail = NackDetail::kNone;
+  double nackValue = 0.0;
+  double nackLimit = 0.0;
 };
 
 enum class State : uint8_t { kBoot = 0, kHoming = 1, kIdle = 2, kScanning = 3, kFault = 4, kStopped = 5 };
@@ -88,16 +103,42 @@ struct StatusReport {
   uint32_t rxErrors = 0;
 };
 
-enum class ResultStatus : uint8_t { kValid = 0, kNoObject = 1, kPartial = 2, kFailed = 3, kAborted = 4 };
+// ALACS_ResultHeader.ResultStatus: only kMeasured is a measurement; every other status
+// goes with a ResultReason.
+enum class ResultStatus : uint8_t {
+  kMeasured = 0, kNotFound = 1, kRoughOnly = 2, kFailed = 3, kAborted = 4, kAmbiguous = 5,
+};
+
+// ALACS_ResultHeader.ResultReason: why a result is not kMeasured (kNone when it is).
+enum class ResultReason : uint8_t {
+  kNone = 0, kNoLinesInGate = 1, kTooFewLines = 2, kFitFailed = 3, kTwoSurfaces = 4, kFarFromRough = 5,
+  kCameraFault = 6, kMotionFault = 7, kLaserFault = 8, kStopped = 9, kShutdown = 10, kInternal = 11,
+};
 
 struct ResultHeader {
   uint16_t measCounter = 0;
-  uint8_t objectCount = 0;
+  uint8_t objectCount = 0;  // 0..16 (5 bits on the bus)
   uint8_t targetId = 0;
   uint32_t scanAgeMs = 0;
-  ResultStatus status = ResultStatus::kValid;
+  ResultStatus status = ResultStatus::kMeasured;
   uint8_t mode = 0;  // 0 LOCALIZE, 1 SCAN_ALL
   uint32_t cycleTimeMs = 0;
+  ResultReason reason = ResultReason::kNone;
+};
+
+// ALACS_Progress.ProgressPhase.
+enum class ProgressPhase : uint8_t { kMoving = 0, kExposing = 1, kFitting = 2, kSecondPass = 3 };
+
+// One ALACS_Progress frame of a running LOCALIZE or SCAN_ALL.
+struct ProgressReport {
+  uint16_t measCounter = 0;  // the MeasCounter the scan's result will carry
+  uint8_t counter = 0;       // CmdCounter of the command that started the scan
+  uint8_t mode = 0;          // 0 LOCALIZE, 1 SCAN_ALL
+  ProgressPhase phase = ProgressPhase::kMoving;
+  uint32_t stopsDone = 0;     // saturating at 255
+  uint32_t stopsTotal = 0;    // planned so far, second pass included once planned; saturating
+  uint32_t objectsFound = 0;  // saturating at 255
+  uint32_t elapsedMs = 0;     // since the command; 500 ms/bit on the bus, saturating at 127.5 s
 };
 
 struct ResultObject {
@@ -117,6 +158,9 @@ ports::CanFrame encodeAck(uint8_t nodeId, const Ack& ack);
 ports::CanFrame encodeVersionAck(uint8_t nodeId, uint8_t counter, int major, int minor, int patch);
 ports::CanFrame encodeStatus(uint8_t nodeId, const StatusReport& s);
 ports::CanFrame encodeResultHeader(uint8_t nodeId, const ResultHeader& h);
+// ALACS_Progress (base 0x680): send on every phase change, after every stop and at least
+// every 500 ms while a LOCALIZE or SCAN_ALL runs.
+ports::CanFrame encodeProgress(uint8_t nodeId, const ProgressReport& p);
 // The four pages of one object: CENTER, APPROACH_POINT, QUALITY, APPROACH_NORMAL.
 void encodeResultObject(uint8_t nodeId, uint16_t measCounter, const ResultObject& o, ports::CanFrame out[4]);
 ports::CanFrame encodeHeartbeat(uint8_t nodeId, uint8_t nmtState);

@@ -173,15 +173,20 @@ std::optional<Command> CanNode::push(const ports::CanFrame& frame, TimeNs now) {
   // counter, NMT state, value ranges; the application checks the sensor state.
   const CommandDecode d = decodeCommand(frame);
   const bool structural = !d.ok && d.reason != NackReason::kBadValue;
+  // STOP is fail-safe: a frame of the command id and length whose byte 0 says STOP is
+  // executed whatever its checksum and counter, and NACKed for the record.
+  const bool stopFrame = frame.dlc == ALACS_COMMAND_DLC && frame.data[0] == static_cast<uint8_t>(Opcode::kStop);
   if (structural) {
     ++counters_.rxBadFrames;
     nack(d.command.opcode, d.command.counter, d.reason, frame.dlc > 0 ? frame.data[0] : 0);
+    if (stopFrame) return failSafeStop(d.command.counter);
     return std::nullopt;
   }
   if (lastCounter_.has_value() && *lastCounter_ == d.command.counter &&
       now - lastCounterTimeNs_ < kDuplicateWindowNs) {
     ++counters_.rxBadFrames;
     nack(d.command.opcode, d.command.counter, NackReason::kBadCounter);
+    if (stopFrame) return failSafeStop(d.command.counter);
     return std::nullopt;
   }
   const bool anyNmtState = d.command.opcode == Opcode::kStop || d.command.opcode == Opcode::kGetVersion;
@@ -197,6 +202,14 @@ std::optional<Command> CanNode::push(const ports::CanFrame& frame, TimeNs now) {
   lastCounter_ = d.command.counter;
   lastCounterTimeNs_ = now;
   return d.command;
+}
+
+Command CanNode::failSafeStop(uint8_t counter) {
+  Command c;
+  c.opcode = Opcode::kStop;
+  c.counter = counter;
+  c.answered = true;
+  return c;
 }
 
 void CanNode::setFaults(uint16_t applicationFaults) {
@@ -300,6 +313,16 @@ void CanNode::nack(Opcode opcode, uint8_t counter, NackReason reason, uint8_t re
   queueResult(encodeAck(config_.nodeId, {opcode, counter, AckResult::kNack, reason,
                                          opcode == Opcode::kInvalid ? rejectedByte0 : uint8_t{0}}));
 }
+
+void CanNode::nack(Opcode opcode, uint8_t counter, NackReason reason, NackDetail detail, double value, double limit) {
+  Ack a{opcode, counter, AckResult::kNack, reason};
+  a.detail = detail;
+  a.nackValue = value;
+  a.nackLimit = limit;
+  queueResult(encodeAck(config_.nodeId, a));
+}
+
+void CanNode::publishProgress(const ProgressReport& p) { queueResult(encodeProgress(config_.nodeId, p)); }
 
 void CanNode::queueVersion(const Command& c, int major, int minor, int patch) {
   queueResult(encodeVersionAck(config_.nodeId, c.counter, major, minor, patch));

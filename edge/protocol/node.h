@@ -75,7 +75,8 @@ class CanNode {
   void start(TimeNs now);
 
   // Handles one received frame. Returns the command when the application must act on
-  // it (the node has already checked it; the application acks or nacks it).
+  // it (the node has already checked it; the application acks or nacks it, unless
+  // Command::answered: a STOP with a bad checksum or counter, NACKed and still returned).
   std::optional<Command> push(const ports::CanFrame& frame, TimeNs now);
 
   // Queues the heartbeat and status frames that are due; `status` is called only when
@@ -103,6 +104,10 @@ class CanNode {
   void ack(const Command& c, AckResult result, NackReason reason = NackReason::kNone);
   // `rejectedByte0`: byte 0 of a command whose opcode is unknown (sent in RejectedOpcode).
   void nack(Opcode opcode, uint8_t counter, NackReason reason, uint8_t rejectedByte0 = 0);
+  // A NACK with its detail: which limit, the value asked for and the limit (docs/can-protocol.md).
+  void nack(Opcode opcode, uint8_t counter, NackReason reason, NackDetail detail, double value, double limit);
+  // ALACS_Progress of a running scan, queued in order with the acks and results.
+  void publishProgress(const ProgressReport& p);
   // A repeated counter within this window is a duplicate (NACK BAD_COUNTER).
   static constexpr TimeNs kDuplicateWindowNs = 1000 * kNsPerMs;
   void queueVersion(const Command& c, int major, int minor, int patch);
@@ -142,6 +147,7 @@ class CanNode {
   void queueUrgent(const ports::CanFrame& f);
   void onErrorFrame(const ports::CanFrame& f, TimeNs now);
   void raiseCanFault(uint16_t bit);
+  static Command failSafeStop(uint8_t counter);
   void bindObjects();
   SdoAbort writeConfig(const SetConfigCommand& c);
   NodeConfig config_;

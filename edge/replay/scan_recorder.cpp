@@ -66,15 +66,15 @@ int ScanRecorder::scansStarted() const {
   return count_;
 }
 
-RecordingSource::RecordingSource(std::unique_ptr<ports::FrameSource> inner, ScanRecorder& recorder,
+RecordingSource::RecordingSource(ports::FrameSource& inner, ScanRecorder& recorder,
                                  std::function<double()> slideMm, std::function<bool()> laserOn)
-    : inner_(std::move(inner)), recorder_(recorder), slideMm_(std::move(slideMm)), laserOn_(std::move(laserOn)) {}
+    : inner_(inner), recorder_(recorder), slideMm_(std::move(slideMm)), laserOn_(std::move(laserOn)) {}
 
 Result<ports::CapturedFrame> RecordingSource::doCapture(const ports::CaptureRequest& request,
                                                         const std::function<void()>& onExposureEnd) {
   const bool laser = laserOn_();
   const double position = slideMm_();
-  Result<ports::CapturedFrame> f = inner_->capture(request, onExposureEnd);
+  Result<ports::CapturedFrame> f = inner_.capture(request, onExposureEnd);
   if (f && recorder_.recording()) {
     // A windowed readout is valid only inside its window: record that part.
     if (Status s = recorder_.frame(f->view, position, f->info.exposureStartNs, f->info.exposureUs, laser,

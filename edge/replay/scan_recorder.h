@@ -50,15 +50,16 @@ class ScanRecorder {
 class RecordingSource final : public ports::FrameSource {
  public:
   // `slideMm` and `laserOn` are read at the start of each capture.
-  RecordingSource(std::unique_ptr<ports::FrameSource> inner, ScanRecorder& recorder, std::function<double()> slideMm,
+  // `inner` is lent: it must outlive this source.
+  RecordingSource(ports::FrameSource& inner, ScanRecorder& recorder, std::function<double()> slideMm,
                   std::function<bool()> laserOn);
-  const char* name() const override { return inner_->name(); }
-  ports::FrameSource& inner() { return *inner_; }
+  const char* name() const override { return inner_.name(); }
+  ports::FrameSource& inner() { return inner_; }
 
  private:
   Result<ports::CapturedFrame> doCapture(const ports::CaptureRequest& request,
                                          const std::function<void()>& onExposureEnd) override;
-  std::unique_ptr<ports::FrameSource> inner_;
+  ports::FrameSource& inner_;
   ScanRecorder& recorder_;
   std::function<double()> slideMm_;
   std::function<bool()> laserOn_;

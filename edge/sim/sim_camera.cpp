@@ -1,13 +1,11 @@
 #include "sim/sim_camera.h"
 
-#include <chrono>
-#include <thread>
 
 namespace alacs::sim {
 
-SimCamera::SimCamera(const SimScene& scene, const Clock& clock, std::function<bool()> laserLevel,
+SimCamera::SimCamera(const SimScene& scene, const Clock& clock, Sleeper& sleeper, std::function<bool()> laserLevel,
                      std::function<double()> slideMm)
-    : renderer_(scene), clock_(clock), laserLevel_(std::move(laserLevel)), slideMm_(std::move(slideMm)) {}
+    : renderer_(scene), clock_(clock), sleeper_(sleeper), laserLevel_(std::move(laserLevel)), slideMm_(std::move(slideMm)) {}
 
 Result<ports::CapturedFrame> SimCamera::doCapture(const ports::CaptureRequest& request,
                                                   const std::function<void()>& onExposureEnd) {
@@ -16,7 +14,7 @@ Result<ports::CapturedFrame> SimCamera::doCapture(const ports::CaptureRequest& r
   const TimeNs start = clock_.now();
   const bool laserAtStart = laserLevel_();
   const double slideAtStart = slideMm_();
-  std::this_thread::sleep_for(std::chrono::microseconds(request.exposureUs));
+  sleeper_.sleepUntil(start + request.exposureUs * kNsPerUs);
   const bool laserAtEnd = laserLevel_();
   const double slideAtEnd = slideMm_();
   if (onExposureEnd) onExposureEnd();

@@ -13,8 +13,9 @@ namespace alacs::sim {
 
 class SimCamera final : public ports::FrameSource {
  public:
-  // `laserLevel` and `slideMm` are sampled at the start and the end of each exposure.
-  SimCamera(const SimScene& scene, const Clock& clock, std::function<bool()> laserLevel,
+  // `laserLevel` and `slideMm` are sampled at the start and the end of each exposure;
+  // the exposure lasts its time on `clock`, waited through `sleeper` (virtual in tests).
+  SimCamera(const SimScene& scene, const Clock& clock, Sleeper& sleeper, std::function<bool()> laserLevel,
             std::function<double()> slideMm);
   const char* name() const override { return "sim"; }
   // The last rendered frame's slide position (mean over the exposure), for tests.
@@ -25,6 +26,7 @@ class SimCamera final : public ports::FrameSource {
                                          const std::function<void()>& onExposureEnd) override;
   Renderer renderer_;
   const Clock& clock_;
+  Sleeper& sleeper_;
   std::function<bool()> laserLevel_;
   std::function<double()> slideMm_;
   cv::Mat frame_;

@@ -187,7 +187,7 @@ def _check_session(bus_args: list[str], d) -> None:  # noqa: ANN001
     run = lambda *a: alacs(*bus_args, "--counter", str(next(counter)), "--json", *a)  # noqa: E731
     p = run("version")
     assert p.returncode == 0, p.stderr
-    assert json.loads(p.stdout)["ProtocolVersion"] == 1
+    assert json.loads(p.stdout)["ProtocolVersion"] == 2
     p = run("status")
     assert p.returncode == 0, p.stderr
     assert json.loads(p.stdout)["State"] == "IDLE"
@@ -197,7 +197,7 @@ def _check_session(bus_args: list[str], d) -> None:  # noqa: ANN001
     assert p.returncode == 0, p.stderr + p.stdout
     lines = [json.loads(line) for line in p.stdout.splitlines()]
     result = lines[-1]
-    assert result["type"] == "result" and result["status"] == "VALID", lines
+    assert result["type"] == "result" and result["status"] == "MEASURED", lines
     assert result["target_id"] == 42 and result["object_count"] == 1
     truth = d.scene["apples"][0]["center_mm"]
     center = result["objects"][0]["center_mm"]

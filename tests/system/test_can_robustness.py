@@ -194,7 +194,7 @@ def test_every_standard_id_and_dlc_with_random_payloads(daemon) -> None:  # noqa
     if not wait_idle_homed_or_home(bus):
         pytest.fail("sensor not IDLE and homed after the sweep")
     result = localize(bus, d.scene, 13, 77)
-    assert result.status == ac.ResultStatus.VALID and result.object_count == 1
+    assert result.status == ac.ResultStatus.MEASURED and result.object_count == 1
 
 
 def wait_idle_homed_or_home(bus: can.BusABC) -> bool:
@@ -247,7 +247,7 @@ def test_bus_off_then_restart_loses_no_result(daemon) -> None:  # noqa: ANN001
     assert emcy is not None and emcy["EmcyErrorCode"] == "CAN_BUS_OFF_RECOVERED", emcy
     assert emcy["EmcyReason"] == "CAN_BUS_OFF"
     assert result is not None and result.target_id == 9
-    assert result.status == ac.ResultStatus.VALID, result
+    assert result.status == ac.ResultStatus.MEASURED, result
     status = wait_for(bus, lambda m: m.arbitration_id == ac.frame_id(ac.MSG_STATUS, NODE), 2.0)
     assert ac.decode(DB, status)["FaultCanBusOff"] == 1
     assert sdo_read(bus, 0x2100, 5) == 1

@@ -61,7 +61,7 @@ def test_limit_switch_mid_move_then_recovery(tmp_path, alacsd):
                            and str(s["AckResult"]) == "DONE", 30) is not None
         sensor.localize()
         header = sensor.recv(lambda n, s: n == "ALACS_ResultHeader", 30)
-        assert header is not None and str(header["ResultStatus"]) == "VALID"
+        assert header is not None and str(header["ResultStatus"]) == "MEASURED"
     finally:
         assert sensor.stop() == 0, sensor.log
     _safe_outputs()

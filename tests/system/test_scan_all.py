@@ -36,7 +36,7 @@ def test_scan_all_publishes_every_apple(tmp_path, alacsd):
         assert sensor.stop() == 0, sensor.log
     assert result is not None, "no complete SCAN_ALL result:\n" + sensor.log
     assert int(result.mode) == int(ac.ResultMode.SCAN_ALL)
-    assert int(result.status) == int(ac.ResultStatus.VALID)
+    assert int(result.status) == int(ac.ResultStatus.MEASURED)
     assert result.object_count == len(APPLES), sensor.log
     for center, radius in APPLES:
         best = min(result.objects, key=lambda o: math.dist(o.center_mm, center))

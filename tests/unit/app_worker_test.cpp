@@ -212,7 +212,7 @@ struct SceneRun {
 SceneRun localizeOnScene(const localize::ScanParams& sp, protocol::ScanMode mode) {
   Rig rig(2.0);
   const sim::SimScene scene = sim::defaultScene();
-  sim::SimCamera camera(scene, rig.clock, [&] { return rig.laserLine.level(); }, [&] { return rig.slide.positionMm(); });
+  sim::SimCamera camera(scene, rig.clock, rig.sleeper, [&] { return rig.laserLine.level(); }, [&] { return rig.slide.positionMm(); });
   rig.deps.camera = &camera;
   rig.deps.capture.exposureUs = sim::autoExposureUs(scene);
   const localize::Localizer loc(scene.truth, image::LleParams{}, sp);

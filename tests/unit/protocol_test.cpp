@@ -66,6 +66,7 @@ TEST_CASE("Golden command checks: the C++ parser NACKs exactly as the protocol s
 TEST_CASE("Golden vectors: the C++ encoders produce the DBC's bytes", "[protocol][golden]") {
   cv::FileStorage fs = golden();
   int checked = 0;
+  int progress = 0;
   for (const auto& v : fs["vectors"]) {
     const std::string msg = v["message"];
     const std::string data = v["data"];
@@ -80,6 +81,7 @@ TEST_CASE("Golden vectors: the C++ encoders produce the DBC's bytes", "[protocol
       h.targetId = static_cast<uint8_t>(raw("ResultTargetId"));
       h.scanAgeMs = static_cast<uint32_t>(raw("ScanAgeMs"));
       h.status = static_cast<ResultStatus>(raw("ResultStatus"));
+      h.reason = static_cast<ResultReason>(raw("ResultReason"));
       h.mode = static_cast<uint8_t>(raw("ResultMode"));
       h.cycleTimeMs = static_cast<uint32_t>(phys("CycleTime"));
       CHECK(hexOf(encodeResultHeader(0x10, h)) == data);
@@ -87,7 +89,23 @@ TEST_CASE("Golden vectors: the C++ encoders produce the DBC's bytes", "[protocol
     } else if (msg == "ALACS_Ack" && raw("AckOpcode") != 6 && raw("AckOpcode") != 0) {
       Ack a{static_cast<Opcode>(raw("AckOpcode")), static_cast<uint8_t>(raw("AckCounter")),
             static_cast<AckResult>(raw("AckResult")), static_cast<NackReason>(raw("NackReason"))};
+      a.detail = static_cast<NackDetail>(raw("NackDetail"));
+      a.nackValue = phys("NackValue");
+      a.nackLimit = phys("NackLimit");
       CHECK(hexOf(encodeAck(0x10, a)) == data);
+      ++checked;
+    } else if (msg == "ALACS_Progress") {
+      ProgressReport p;
+      p.measCounter = static_cast<uint16_t>(raw("ProgressMeasCounter"));
+      p.counter = static_cast<uint8_t>(raw("ProgressCounter"));
+      p.mode = static_cast<uint8_t>(raw("ProgressMode"));
+      p.phase = static_cast<ProgressPhase>(raw("ProgressPhase"));
+      p.stopsDone = static_cast<uint32_t>(raw("StopsDone"));
+      p.stopsTotal = static_cast<uint32_t>(raw("StopsTotal"));
+      p.objectsFound = static_cast<uint32_t>(raw("ObjectsFound"));
+      p.elapsedMs = static_cast<uint32_t>(phys("ElapsedS") * 1000.0);
+      CHECK(hexOf(encodeProgress(0x10, p)) == data);
+      ++progress;
       ++checked;
     } else if (msg == "ALACS_Command") {
       const auto f = frameFromHex(0x210, static_cast<int>(v["dlc"]), data);
@@ -103,6 +121,7 @@ TEST_CASE("Golden vectors: the C++ encoders produce the DBC's bytes", "[protocol
     }
   }
   CHECK(checked >= 8);
+  CHECK(progress >= 1);
 }
 
 TEST_CASE("Result objects round to the DBC's resolution and saturate", "[protocol]") {

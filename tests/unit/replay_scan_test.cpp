@@ -221,7 +221,8 @@ TEST_CASE("The recorder writes each scan as a replayable scan directory", "[repl
   replay::ScanRecorder rec(root, smallCalibration());
   double slide = 5.0;
   bool laser = true;
-  replay::RecordingSource cam(std::make_unique<CountingSource>(), rec, [&] { return slide; }, [&] { return laser; });
+  CountingSource inner;
+  replay::RecordingSource cam(inner, rec, [&] { return slide; }, [&] { return laser; });
   // Frames outside a scan are not recorded (and the camera still works).
   REQUIRE(cam.capture({}, {}).isOk());
   REQUIRE(rec.begin(3, Eigen::Vector3d(1, 2, 1000), {5.0, 25.0}, image::Roi{1, 2, 30, 20}).isOk());

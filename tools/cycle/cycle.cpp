@@ -222,7 +222,7 @@ int simulatedCycle(const Options& o) {
       sim::SimSlide slide(clock, limits.stepsPerMm, limits.strokeMm, 0.0);
       ports::FakeDigitalOut laserLine(clock);
       app::LaserGuard laser(laserLine, clock, 250 * kNsPerMs);
-      sim::SimCamera camera(scene, clock, [&] { return laserLine.level(); }, [&] { return slide.positionMm(); });
+      sim::SimCamera camera(scene, clock, sleeper, [&] { return laserLine.level(); }, [&] { return slide.positionMm(); });
       app::WorkerDeps deps = workerDeps(clock, sleeper, limits, slide, laser, camera);
       deps.capture.exposureUs = std::min<int64_t>(sim::autoExposureUs(scene), 3000);
       const int efd = ::eventfd(0, EFD_CLOEXEC);

@@ -10,10 +10,47 @@ from __future__ import annotations
 import argparse
 import math
 import os
+import re
 import shutil
+from dataclasses import dataclass
 from pathlib import Path
 
 import exchange
+
+STATUS_EVERY = 10
+"""Status frames repeat every 100 ms: show the other traffic in full, status 1 in 10."""
+
+_FRAME_LINE = re.compile(r"^\(\d+\.\d+\) \S+ [0-9A-Fa-f]+#")
+
+
+@dataclass
+class Shown:
+    lines: list[str]
+    frames: int
+    status: int
+    status_shown: int
+
+
+def sparse_status(decoded: str, every: int = STATUS_EVERY) -> Shown:
+    """Split `cantools decode` output into one block per frame (the candump line, then the
+    decoded message over several lines) and keep every block but all ALACS_Status ones
+    except 1 in ``every``, each whole: its header line with its body."""
+    blocks: list[list[str]] = []
+    for line in decoded.splitlines():
+        if _FRAME_LINE.match(line) or not blocks:
+            blocks.append([line])
+        else:
+            blocks[-1].append(line)
+    lines: list[str] = []
+    status = shown = 0
+    for block in blocks:
+        if any(line.startswith("ALACS_Status(") for line in block):
+            status += 1
+            if (status - 1) % every:
+                continue
+            shown += 1
+        lines += block
+    return Shown(lines, len(blocks), status, shown)
 
 
 def main() -> int:
@@ -29,21 +66,19 @@ def main() -> int:
     ex = exchange.run_exchange(out, args.alacsd.resolve(), seed=args.seed, say=lambda s: print("  " + s))
     print("\n--- the CAN exchange, decoded with cantools against can_protocol/alacs.dbc ---")
     text = exchange.decode_log_with_cantools(ex.candump_log)
-    lines = text.splitlines()
-    # Status frames repeat every 100 ms: show the interesting traffic in full, status sparsely.
-    shown_status = 0
-    for line in lines:
-        if "ALACS_Status(" in line:
-            shown_status += 1
-            if shown_status % 10 != 1:
-                continue
-        print(line)
-    print(f"(candump log: {ex.candump_log}; {len(lines)} frames, status shown 1 in 10)")
+    shown = sparse_status(text)
+    print("\n".join(shown.lines))
+    print(f"(candump log: {ex.candump_log}; {shown.frames} frames, of them {shown.status} "
+          f"ALACS_Status, {shown.status_shown} shown (1 in {STATUS_EVERY}))")
     print("\n--- result ---")
     if ex.result is None or not ex.result.objects:
         print("no result received")
         print(ex.alacsd_log)
         return 1
+    status = getattr(ex.result.status, "name", ex.result.status)
+    reason = getattr(ex.result.reason, "name", ex.result.reason)
+    print(f"  result status {status}" + ("" if reason == "NONE" else f" ({reason})")
+          + ("" if ex.result.measured else ": not a measurement"))
     o = ex.result.objects[0]
     fmt = lambda v: "(" + ", ".join(f"{x:7.1f}" for x in v) + ") mm"
     print(f"  rough position sent   {fmt(ex.rough_mm)}")
@@ -55,7 +90,8 @@ def main() -> int:
     print(f"  sigma {o.quality.sigma_mm:.1f} mm, confidence {o.quality.confidence_pct:.0f} %, "
           f"{o.quality.lines_used} lines, {o.quality.points_used} points, cycle {ex.result.cycle_time_ms:.0f} ms")
     print(f"  overlay of the laser lines found: {ex.overlay_png}")
-    ok = ex.alacsd_exit == 0 and math.isfinite(ex.center_error_mm) and ex.center_error_mm < 5.0
+    ok = (ex.alacsd_exit == 0 and ex.result.measured and math.isfinite(ex.center_error_mm)
+          and ex.center_error_mm < 5.0)
     print("\ndemo " + ("OK" if ok else "FAILED"))
     return 0 if ok else 1
 

@@ -130,11 +130,19 @@ def run_exchange(
 
     try:
         hb_id = ac.frame_id(ac.MSG_HEARTBEAT, node_id)
-        boot = _wait(bus, lambda m: m.arbitration_id == hb_id, 20.0)
-        if boot is None:
-            raise RuntimeError("no boot-up heartbeat from alacsd within 20 s")
-        note(boot)
-        say(f"boot-up heartbeat seen: {ac.decode(node_db, boot)}")
+        seen: list[can.Message] = []
+
+        def node_frame(m: can.Message) -> bool:
+            # Everything the node sends until its first heartbeat, to report the first one.
+            if m.is_extended_id or m.arbitration_id & 0x7F != node_id:
+                return False
+            seen.append(m)
+            note(m)
+            return m.arbitration_id == hb_id
+
+        if _wait(bus, node_frame, 20.0) is None:
+            raise RuntimeError("no heartbeat from alacsd within 20 s")
+        say(describe_start(node_db, seen, node_id))
         status_id = ac.frame_id(ac.MSG_STATUS, node_id)
 
         def homed(m: can.Message) -> bool:
@@ -187,6 +195,34 @@ def run_exchange(
         if o.approach_mm is not None:
             ex.approach_error_mm = math.dist(o.approach_mm, ex.truth_approach_mm)
     return ex
+
+
+def describe_start(db: cantools.database.Database, frames: list[can.Message],
+                   node_id: int) -> str:
+    """What the node sent first, truthfully: its first frame, and whether a boot-up
+    (Heartbeat NmtState BOOTUP, 0x00) was among the frames up to its first heartbeat."""
+    if not frames:
+        return f"nothing seen from node 0x{node_id:02X}"
+    first = frames[0]
+    name = ac.message_name(db, first) or f"id 0x{first.arbitration_id:03X}"
+    try:
+        body = ", ".join(f"{k}={v}" for k, v in ac.decode(db, first).items())
+    except Exception:  # undecodable: show the bytes instead
+        body = bytes(first.data).hex(" ").upper()
+    text = f"first frame from node 0x{node_id:02X}: {name} ({body})"
+    hb_id = ac.frame_id(ac.MSG_HEARTBEAT, node_id)
+    heartbeats = [m for m in frames if m.arbitration_id == hb_id and m.dlc >= 1]
+    if any(m.data[0] == int(ac.NmtState.BOOTUP) for m in heartbeats):
+        return text + "; boot-up (NmtState BOOTUP 0x00) seen"
+    if heartbeats:
+        state = heartbeats[0].data[0]
+        try:
+            state_name = ac.NmtState(state).name
+        except ValueError:
+            state_name = "unknown"
+        return (text + f"; no boot-up (NmtState BOOTUP 0x00) seen: the first heartbeat was "
+                f"NmtState {state_name} (0x{state:02X})")
+    return text + "; no heartbeat yet"
 
 
 def decode_log_with_cantools(log: Path) -> str:

@@ -131,7 +131,7 @@ def test_ack_round_trip_and_invalid_page(db: Database) -> None:
     version = alacs_can.encode_message(db, "ALACS_Ack", dict(
         AckOpcode=AckOpcode.GET_VERSION, AckCounter=6, AckResult=0, NackReason=0, SwMajor=1,
         SwMinor=2, SwPatch=3, ProtocolVersion=alacs_can.PROTOCOL_VERSION))
-    assert bytes(version.data) == bytes([6, 6, 0, 1, 2, 3, 1, 0])
+    assert bytes(version.data) == bytes([6, 6, 0, 1, 2, 3, alacs_can.PROTOCOL_VERSION, 0])
 
 
 def test_decode_numeric_choices(db: Database) -> None:
@@ -208,3 +208,18 @@ def test_public_api() -> None:
                  "NackReason", "DEFAULT_NODE_ID"):
         assert name in alacs_can.__all__ and hasattr(alacs_can, name), name
     assert all(hasattr(alacs_can, name) for name in alacs_can.__all__)
+
+
+def test_decoded_values_are_rounded_to_their_resolution(db: Database) -> None:
+    msg = alacs_can.encode_message(db, "ALACS_ResultObject", dict(
+        ObjPage="CENTER", ObjIndex=0, ObjMeasCounter=1, CenterX=-19.9, CenterY=56.3,
+        CenterZ=612.3))
+    d = alacs_can.decode(db, msg)
+    assert (repr(d["CenterX"]), repr(d["CenterY"]), repr(d["CenterZ"])) == (
+        "-19.9", "56.3", "612.3")
+    assert alacs_can.decode(db, msg, rounded=False)["CenterX"] != -19.9  # the binary value
+    normal = alacs_can.encode_message(db, "ALACS_ResultObject", dict(
+        ObjPage="APPROACH_NORMAL", ObjIndex=0, ObjMeasCounter=1, NormalX=0, NormalY=0.6,
+        NormalZ=-0.8))
+    assert alacs_can.decode(db, normal)["NormalY"] == 0.59999  # 5 decimals: 1/32767 steps
+    assert [alacs_can.scale_decimals(s) for s in (20, 1, 0.5, 0.1, 1 / 32767)] == [0, 0, 1, 1, 5]

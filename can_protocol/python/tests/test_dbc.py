@@ -28,11 +28,20 @@ CONTRACT: dict[str, tuple[int, int, dict[str, tuple[int, int, bool, float]]]] = 
         "AckResult": (12, 4, False, 1), "NackReason": (16, 8, False, 1),
         "SwMajor": (24, 8, False, 1), "SwMinor": (32, 8, False, 1), "SwPatch": (40, 8, False, 1),
         "ProtocolVersion": (48, 8, False, 1),
+        "NackDetail": (24, 8, False, 1), "NackValue": (32, 16, True, 0.1),
+        "NackLimit": (48, 16, True, 0.1),
+    }),
+    "ALACS_Progress": (0x690, 8, {
+        "ProgressMeasCounter": (0, 16, False, 1), "ProgressCounter": (16, 4, False, 1),
+        "ProgressMode": (20, 4, False, 1), "ProgressPhase": (24, 4, False, 1),
+        "StopsDone": (32, 8, False, 1), "StopsTotal": (40, 8, False, 1),
+        "ObjectsFound": (48, 8, False, 1), "ElapsedS": (56, 8, False, 0.5),
     }),
     "ALACS_ResultHeader": (0x290, 8, {
-        "MeasCounter": (0, 16, False, 1), "ObjectCount": (16, 8, False, 1),
+        "MeasCounter": (0, 16, False, 1), "ObjectCount": (16, 5, False, 1),
+        "ResultMode": (21, 3, False, 1),
         "ResultTargetId": (24, 8, False, 1), "ScanAgeMs": (32, 16, False, 1),
-        "ResultStatus": (48, 4, False, 1), "ResultMode": (52, 4, False, 1),
+        "ResultStatus": (48, 4, False, 1), "ResultReason": (52, 4, False, 1),
         "CycleTime": (56, 8, False, 20),
     }),
     "ALACS_ResultObject": (0x390, 8, {
@@ -86,8 +95,18 @@ CONTRACT_CHOICES: dict[tuple[str, str], dict[int, str]] = {
         0: "NONE", 1: "BAD_DLC", 2: "BAD_CHECKSUM", 3: "BAD_COUNTER", 4: "UNKNOWN_OPCODE",
         5: "BUSY", 6: "NOT_HOMED", 7: "NOT_CALIBRATED", 8: "OUT_OF_RANGE", 9: "FAULT_ACTIVE",
         10: "NMT_NOT_OPERATIONAL", 11: "BAD_VALUE", 12: "INTERNAL"},
-    ("ALACS_ResultHeader", "ResultStatus"): {0: "VALID", 1: "NO_OBJECT", 2: "PARTIAL",
-                                             3: "FAILED", 4: "ABORTED"},
+    ("ALACS_ResultHeader", "ResultStatus"): {0: "MEASURED", 1: "NOT_FOUND", 2: "ROUGH_ONLY",
+                                             3: "FAILED", 4: "ABORTED", 5: "AMBIGUOUS"},
+    ("ALACS_ResultHeader", "ResultReason"): {
+        0: "NONE", 1: "NO_LINES_IN_GATE", 2: "TOO_FEW_LINES", 3: "FIT_FAILED",
+        4: "TWO_SURFACES", 5: "FAR_FROM_ROUGH", 6: "CAMERA_FAULT", 7: "MOTION_FAULT",
+        8: "LASER_FAULT", 9: "STOPPED", 10: "SHUTDOWN", 11: "INTERNAL"},
+    ("ALACS_Ack", "NackDetail"): {
+        0: "NONE", 1: "STROKE", 2: "DEPTH", 3: "LATERAL", 4: "FRAME", 5: "CROSS_FIELD",
+        6: "SPACING_X_STOPS", 7: "MODE", 8: "EXPOSURE", 9: "BRCE_STEP", 10: "SCAN_STOPS",
+        11: "STOP_SPACING", 12: "HEARTBEAT"},
+    ("ALACS_Progress", "ProgressPhase"): {0: "MOVING", 1: "EXPOSING", 2: "FITTING",
+                                         3: "SECOND_PASS"},
     ("ALACS_ResultHeader", "ResultMode"): {0: "LOCALIZE", 1: "SCAN_ALL"},
     ("ALACS_ResultObject", "ObjPage"): {0: "CENTER", 1: "APPROACH_POINT", 2: "QUALITY",
                                         3: "APPROACH_NORMAL"},
@@ -150,6 +169,27 @@ def test_multiplexers(db: Database) -> None:
     assert cfg.multiplexer_ids == [int(c.Opcode.SET_CONFIG)]
 
 
+def test_nack_detail_in_every_ack_page_with_free_bytes(db: Database) -> None:
+    msg = db.get_message_by_name("ALACS_Ack")
+    expected = sorted(int(o) for o in c.Opcode if o is not c.Opcode.GET_VERSION)
+    for name in ("NackDetail", "NackValue", "NackLimit"):
+        assert msg.get_signal_by_name(name).multiplexer_ids == expected, name
+    frame = alacs_can.encode_message(db, "ALACS_Ack", dict(
+        AckOpcode="LOCALIZE", AckCounter=5, AckResult="NACK", NackReason="OUT_OF_RANGE",
+        NackDetail="STROKE", NackValue=-239.6, NackLimit=0))
+    assert bytes(frame.data) == bytes([1, 0x15, 8, 1, 0xA4, 0xF6, 0, 0])
+    d = alacs_can.decode(db, frame)
+    assert d["NackDetail"] == "STROKE" and d["NackValue"] == pytest.approx(-239.6)
+
+
+def test_result_header_outcome_byte(db: Database) -> None:
+    frame = alacs_can.encode_message(db, "ALACS_ResultHeader", dict(
+        MeasCounter=1, ObjectCount=16, ResultMode="SCAN_ALL", ResultTargetId=0, ScanAgeMs=0,
+        ResultStatus="AMBIGUOUS", ResultReason="TWO_SURFACES", CycleTime=0))
+    # byte 2: ObjectCount in bits 0..4, ResultMode in bits 5..7; byte 6: status | reason << 4
+    assert frame.data[2] == 16 | 1 << 5 and frame.data[6] == 5 | 4 << 4
+
+
 def test_set_config_fits_bits_12_to_55(db: Database) -> None:
     msg = db.get_message_by_name("ALACS_Command")
     cfg = [s for s in msg.signals if s.name.startswith("Cfg")]
@@ -192,7 +232,9 @@ def test_every_signal_documented(db: Database) -> None:
             assert sig.minimum <= sig.maximum, sig.name
             assert sig.receivers in (["ALACS"], ["ARM"]), sig.name
             assert sig.receivers != msg.senders, sig.name
-            if sig.scale != 1 and not sig.name.startswith("Normal"):
+            # NackValue/NackLimit: the unit is the one NackDetail names (mm, ms, count).
+            if sig.scale != 1 and not sig.name.startswith("Normal") and sig.name not in (
+                    "NackValue", "NackLimit"):
                 assert sig.unit, f"{msg.name}.{sig.name} is scaled but has no unit"
 
 

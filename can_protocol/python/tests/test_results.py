@@ -10,11 +10,11 @@ import alacs_can
 from alacs_can import ObjPage, ResultCollector, ResultStatus
 
 
-def header(db: Database, meas: int, count: int, status: str = "VALID",
+def header(db: Database, meas: int, count: int, status: str = "MEASURED",
            target: int = 3) -> can.Message:
     return alacs_can.encode_message(db, "ALACS_ResultHeader", dict(
         MeasCounter=meas, ObjectCount=count, ResultTargetId=target, ScanAgeMs=40,
-        ResultStatus=status, ResultMode="LOCALIZE", CycleTime=900))
+        ResultStatus=status, ResultReason="NONE", ResultMode="LOCALIZE", CycleTime=900))
 
 
 def pages(db: Database, meas: int, index: int, base: float = 0.0) -> list[can.Message]:
@@ -41,7 +41,7 @@ def test_single_object_result(db: Database) -> None:
     result = col.push(frames[-1])
     assert result is not None and result.complete
     assert (result.meas_counter, result.object_count, result.target_id) == (42, 1, 3)
-    assert result.status is ResultStatus.VALID
+    assert result.status is ResultStatus.MEASURED
     assert result.cycle_time_ms == 900 and result.scan_age_ms == 40
     obj = result.objects[0]
     assert obj.center_mm == pytest.approx((-10.5, 20.2, 600.1))
@@ -54,9 +54,9 @@ def test_single_object_result(db: Database) -> None:
 
 def test_no_object_result_is_complete_on_header(db: Database) -> None:
     col = ResultCollector(db)
-    result = col.push(header(db, 7, 0, status="NO_OBJECT"))
+    result = col.push(header(db, 7, 0, status="NOT_FOUND"))
     assert result is not None and result.objects == []
-    assert result.status is ResultStatus.NO_OBJECT
+    assert result.status is ResultStatus.NOT_FOUND
 
 
 def test_pages_out_of_order_and_interleaved(db: Database) -> None:
@@ -99,9 +99,21 @@ def test_matches_low_byte_and_prefers_newest(db: Database) -> None:
 def test_keeps_bounded_history(db: Database) -> None:
     col = ResultCollector(db, max_results=3)
     for meas in range(10):
-        col.push(header(db, meas, 0, status="NO_OBJECT"))
+        col.push(header(db, meas, 0, status="NOT_FOUND"))
     assert list(col.results) == [7, 8, 9]
 
 
 def test_page_enum_order_matches_doc() -> None:
     assert [p.name for p in ObjPage] == ["CENTER", "APPROACH_POINT", "QUALITY", "APPROACH_NORMAL"]
+
+
+def test_only_measured_is_a_measurement(db: Database) -> None:
+    col = ResultCollector(db)
+    msg = alacs_can.encode_message(db, "ALACS_ResultHeader", dict(
+        MeasCounter=9, ObjectCount=0, ResultTargetId=3, ScanAgeMs=40, ResultStatus="AMBIGUOUS",
+        ResultReason="TWO_SURFACES", ResultMode="LOCALIZE", CycleTime=900))
+    result = col.push(msg)
+    assert result is not None and not result.measured
+    assert result.reason is alacs_can.ResultReason.TWO_SURFACES
+    result = col.push(header(db, 10, 0))
+    assert result is not None and result.measured and result.reason is alacs_can.ResultReason.NONE

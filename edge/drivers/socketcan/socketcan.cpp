@@ -153,4 +153,18 @@ Status CyclicSender::keep(const ports::CanFrame& frame, TimeNs periodNs, TimeNs 
   return Status::ok();
 }
 
+Result<std::unique_ptr<SocketCanBus>> SocketCanBus::open(const std::string& iface,
+                                                        const std::vector<CanFilter>& filters) {
+  Result<std::unique_ptr<SocketCan>> raw = SocketCan::open(iface, filters);
+  if (!raw) return raw.status();
+  std::unique_ptr<CyclicSender> bcm;
+  if (Result<std::unique_ptr<CyclicSender>> b = CyclicSender::open(iface)) bcm = std::move(*b);
+  return std::unique_ptr<SocketCanBus>(new SocketCanBus(std::move(*raw), std::move(bcm)));
+}
+
+Status SocketCanBus::doKeepCyclic(const ports::CanFrame& frame, TimeNs periodNs, TimeNs now) {
+  if (!bcm_) return CanBus::doKeepCyclic(frame, periodNs, now);
+  return bcm_->keep(frame, periodNs, now);
+}
+
 }  // namespace alacs::drivers

@@ -10,6 +10,7 @@
 #include <string>
 #include <vector>
 
+#include "ports/can_bus.h"
 #include "ports/can_port.h"
 
 namespace alacs::drivers {
@@ -66,6 +67,26 @@ class SocketCan {
  private:
   explicit SocketCan(int fd) : fd_(fd) {}
   int fd_;
+};
+
+// The CAN bus port on SocketCAN: frames through CAN_RAW (SocketCan), the heartbeat
+// through CAN_BCM (CyclicSender) when the kernel has it. The event loop polls fd().
+class SocketCanBus final : public ports::CanBus {
+ public:
+  // Errors: as SocketCan::open. A kernel without CAN_BCM is not an error: hasCyclic()
+  // is then false and the caller sends the heartbeat itself.
+  static Result<std::unique_ptr<SocketCanBus>> open(const std::string& iface, const std::vector<CanFilter>& filters);
+  int fd() const { return raw_->fd(); }
+
+ private:
+  SocketCanBus(std::unique_ptr<SocketCan> raw, std::unique_ptr<CyclicSender> bcm)
+      : raw_(std::move(raw)), bcm_(std::move(bcm)) {}
+  Status doSend(const ports::CanFrame& frame) override { return raw_->write(frame); }
+  Result<bool> doReceive(ports::CanFrame* frame) override { return raw_->read(frame); }
+  Status doKeepCyclic(const ports::CanFrame& frame, TimeNs periodNs, TimeNs now) override;
+  bool doHasCyclic() const override { return bcm_ != nullptr; }
+  std::unique_ptr<SocketCan> raw_;
+  std::unique_ptr<CyclicSender> bcm_;
 };
 
 }  // namespace alacs::drivers

@@ -32,7 +32,12 @@ class FakeSensor(threading.Thread):
         self.received: list[can.Message] = []
         self.nack: dict[str, str] = {}
         self.silent = False
-        self.result_status = "VALID"
+        self.result_status = "MEASURED"
+        self.result_reason = "NONE"
+        self.nack_detail: dict[str, Any] = {}
+        self.progress: list[dict[str, Any]] = []
+        self.hang_after_ack = False
+        self.stopped = False
         self.status_every_s: float | None = None
         self.extra_frames: list[can.Message] = []
         self.meas = 0x1FF
@@ -43,6 +48,8 @@ class FakeSensor(threading.Thread):
 
     def ack(self, opcode: str, counter: int, result: str = "ACK", reason: str = "NONE",
             **extra: Any) -> None:
+        if opcode not in ("INVALID", "GET_VERSION"):
+            extra = {"NackDetail": "NONE", "NackValue": 0, "NackLimit": 0, **extra}
         self.send(alacs_can.MSG_ACK, AckOpcode=opcode, AckCounter=counter, AckResult=result,
                   NackReason=reason, **extra)
 
@@ -62,9 +69,11 @@ class FakeSensor(threading.Thread):
                 self.handle(frame)
 
     def send_status(self) -> None:
-        faults = {name: int(flag == alacs_can.Fault.CAMERA_TIMEOUT)
+        faults = {name: int(flag == alacs_can.Fault.CAMERA_TIMEOUT or (
+                      self.stopped and flag == alacs_can.Fault.STOP_REQUESTED))
                   for flag, name in alacs_can.FAULT_SIGNALS.items()}
-        self.send(alacs_can.MSG_STATUS, State="IDLE", Homed=1, LaserOn=0, Calibrated=1,
+        self.send(alacs_can.MSG_STATUS, State="STOPPED" if self.stopped else "IDLE", Homed=1,
+                  LaserOn=0, Calibrated=1,
                   HomeSwitch=0, LastLatencyMs=120, MaxLatencyMs=250, DroppedFrames=0,
                   RxErrorCount=2, **faults)
 
@@ -76,8 +85,10 @@ class FakeSensor(threading.Thread):
         cmd = alacs_can.decode(self.db, frame)
         op = str(cmd["CmdOpcode"])
         if op in self.nack:
-            self.ack(op, counter, "NACK", self.nack[op])
+            self.ack(op, counter, "NACK", self.nack[op], **self.nack_detail)
             return
+        if op == "STOP":
+            self.stopped = True
         if op == "GET_VERSION":
             self.ack(op, counter, SwMajor=0, SwMinor=3, SwPatch=7,
                      ProtocolVersion=alacs_can.PROTOCOL_VERSION)
@@ -88,14 +99,19 @@ class FakeSensor(threading.Thread):
         elif op in ("LOCALIZE", "SCAN_ALL"):
             for extra in self.extra_frames:
                 self.bus.send(extra)
-            self.send_result(int(cmd.get("TargetId", 0)), op)
+            for p in self.progress:
+                self.send(alacs_can.MSG_PROGRESS, **{
+                    "ProgressMeasCounter": self.meas + 1, "ProgressCounter": counter,
+                    "ProgressMode": op, "ElapsedS": 0, **p})
+            if not self.hang_after_ack:
+                self.send_result(int(cmd.get("TargetId", 0)), op)
 
     def send_result(self, target: int, op: str) -> None:
         self.meas += 1
-        count = 0 if self.result_status == "NO_OBJECT" else 1
+        count = 1 if self.result_status in ("MEASURED", "ROUGH_ONLY") else 0
         self.send(alacs_can.MSG_RESULT_HEADER, MeasCounter=self.meas, ObjectCount=count,
                   ResultTargetId=target, ScanAgeMs=30, ResultStatus=self.result_status,
-                  ResultMode=op, CycleTime=880)
+                  ResultReason=self.result_reason, ResultMode=op, CycleTime=880)
         common = dict(ObjIndex=0, ObjMeasCounter=self.meas & 0xFF)
         if count:
             self.send(alacs_can.MSG_RESULT_OBJECT, ObjPage="CENTER", CenterX=-101.5, CenterY=33.3,
@@ -141,7 +157,7 @@ def test_localize_success(sensor: FakeSensor, channel: str) -> None:
                       "--z", "650", "--target", "7", "--mode", "continuous", "--timeout", "3")
     assert rc == EXIT_OK, out
     assert "AckResult=ACK" in out and "AckCounter=5" in out
-    assert "VALID target=7 objects=1" in out
+    assert "LOCALIZE MEASURED target=7 objects=1" in out
     assert "centre (-101.5, 33.3, 612.4) mm" in out
     assert "normal (0.000, 0.600, 0.800)" in out
     assert "points=1500" in out
@@ -158,7 +174,7 @@ def test_localize_json(sensor: FakeSensor, channel: str) -> None:
     assert rc == EXIT_OK
     ack, result = (json.loads(line) for line in out.splitlines())
     assert ack["type"] == "ack" and ack["AckResult"] == "ACK"
-    assert result["type"] == "result" and result["status"] == "VALID" and result["complete"]
+    assert result["type"] == "result" and result["status"] == "MEASURED" and result["complete"]
     assert result["objects"][0]["center_mm"] == pytest.approx([-101.5, 33.3, 612.4])
 
 
@@ -167,7 +183,9 @@ def test_localize_ignores_other_traffic(sensor: FakeSensor, channel: str) -> Non
     db = sensor.db
     sensor.extra_frames = [
         alacs_can.encode_message(db, "ALACS_Ack", dict(AckOpcode="LOCALIZE", AckCounter=9,
-                                                       AckResult="NACK", NackReason="BUSY")),
+                                                       AckResult="NACK", NackReason="BUSY",
+                                                       NackDetail="NONE", NackValue=0,
+                                                       NackLimit=0)),
         can.Message(arbitration_id=0x123, data=b"\x01\x02", is_extended_id=False),
     ]
     rc, out = run_cli(channel, "--counter", "2", "localize", "--x", "1", "--y", "2", "--z", "300",
@@ -193,11 +211,12 @@ def test_localize_nmt_hint(sensor: FakeSensor, channel: str,
     assert "alacs nmt start" in capsys.readouterr().err
 
 
-def test_localize_no_object_is_failure(sensor: FakeSensor, channel: str) -> None:
-    sensor.result_status = "NO_OBJECT"
+def test_localize_not_found_is_failure(sensor: FakeSensor, channel: str) -> None:
+    sensor.result_status = "NOT_FOUND"
+    sensor.result_reason = "NO_LINES_IN_GATE"
     rc, out = run_cli(channel, "localize", "--x", "0", "--y", "0", "--z", "500", "--timeout", "3")
     assert rc == EXIT_REJECTED
-    assert "NO_OBJECT" in out and "objects=0" in out
+    assert "NOT_FOUND (NO_LINES_IN_GATE)" in out and "objects=0" in out
 
 
 def test_localize_timeout(sensor: FakeSensor, channel: str,
@@ -206,7 +225,8 @@ def test_localize_timeout(sensor: FakeSensor, channel: str,
     rc, _ = run_cli(channel, "localize", "--x", "0", "--y", "0", "--z", "500", "--timeout", "0.3")
     assert rc == EXIT_TIMEOUT
     assert "timeout" in capsys.readouterr().err
-    assert len(sensor.commands()) == 1
+    # On a timeout the CLI stops the sensor (a silent one does not answer).
+    assert [c["CmdOpcode"] for c in sensor.commands()] == ["LOCALIZE", "STOP"]
 
 
 def test_localize_out_of_range(sensor: FakeSensor, channel: str,
@@ -220,7 +240,7 @@ def test_localize_out_of_range(sensor: FakeSensor, channel: str,
 def test_scan_all(sensor: FakeSensor, channel: str) -> None:
     rc, out = run_cli(channel, "scan-all", "--timeout", "3")
     assert rc == EXIT_OK, out
-    assert "SCAN_ALL VALID" in out
+    assert "SCAN_ALL MEASURED" in out
 
 
 def test_home_waits_for_done(sensor: FakeSensor, channel: str) -> None:

@@ -1,10 +1,10 @@
-"""``python -m alacs_can dbc|golden|eds|od-header ...``: write a generated artifact."""
+"""``python -m alacs_can dbc|golden|eds|od-header|doc-tables ...``: write a generated artifact."""
 
 from __future__ import annotations
 
 import sys
 
-from . import dbc, eds, golden
+from . import dbc, doctables, eds, golden
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -14,9 +14,10 @@ def main(argv: list[str] | None = None) -> int:
         "golden": golden.main,
         "eds": lambda a: eds.main(["eds", *a]),
         "od-header": lambda a: eds.main(["od-header", *a]),
+        "doc-tables": doctables.main,
     }
     if not args or args[0] not in tools:
-        print("usage: python -m alacs_can {dbc,golden,eds,od-header} [options]  (--help for each)",
+        print("usage: python -m alacs_can {dbc,golden,eds,od-header,doc-tables} [options]  (--help for each)",
               file=sys.stderr)
         return 2
     return tools[args[0]](args[1:])

@@ -7,6 +7,7 @@ replayed log, the virtual bus and tests.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping
 from typing import Any
 
@@ -141,24 +142,38 @@ def message_name(db: Database, msg: can.Message) -> str | None:
         return None
 
 
-def decode(db: Database, msg: can.Message, choices: bool = True) -> dict[str, Value]:
+def scale_decimals(scale: float) -> int:
+    """Decimal places that show every step of ``scale`` (0.1 -> 1, 0.5 -> 1, 1/32767 -> 5,
+    20 -> 0): rounding a physical value to them removes binary noise and loses no raw step."""
+    if scale >= 1:
+        return 0
+    return max(0, math.ceil(-math.log10(scale) - 1e-9))
+
+
+def decode(db: Database, msg: can.Message, choices: bool = True,
+           rounded: bool = True) -> dict[str, Value]:
     """Decode ``msg`` into {signal: physical value}.
 
     With ``choices`` (default), value-table signals are their names (``"LOCALIZE"``)
     and values outside the table stay numbers; otherwise all values are numbers.
-    Raises KeyError for an id not in ``db`` and cantools DecodeError for a frame
-    that does not fit (short DLC, unknown multiplexer value).
+    With ``rounded`` (default), scaled values are rounded to their scale's resolution
+    (-19.9, not -19.900000000000002), and those of a scale >= 1 are ints. Raises KeyError
+    for an id not in ``db`` and cantools DecodeError for a frame that does not fit (short
+    DLC, unknown multiplexer value).
     """
     if msg.is_extended_id:
         raise KeyError(f"extended id 0x{msg.arbitration_id:X} is not an ALACS message")
-    decoded = db.decode_message(
-        msg.arbitration_id, bytes(msg.data), decode_choices=choices, scaling=True
-    )
+    db_msg = db.get_message_by_frame_id(msg.arbitration_id)
+    decoded = db_msg.decode(bytes(msg.data), decode_choices=choices, scaling=True)
     assert isinstance(decoded, dict)  # only container messages decode to a list
     out: dict[str, Value] = {}
     for name, value in decoded.items():
         if isinstance(value, NamedSignalValue):
             out[name] = value.name if choices else int(value.value)
+        elif isinstance(value, float) and rounded:
+            sig = db_msg.get_signal_by_name(name)
+            near = round(value, scale_decimals(sig.scale))
+            out[name] = int(near) if sig.scale >= 1 and near.is_integer() else near
         else:
             out[name] = value
     return out

@@ -10,8 +10,12 @@ from __future__ import annotations
 from enum import IntEnum, IntFlag
 from typing import Final
 
-PROTOCOL_VERSION: Final = 1
-"""Sent in ``ALACS_Ack.ProtocolVersion``; bump on any incompatible change."""
+PROTOCOL_VERSION: Final = 2
+"""Sent in ``ALACS_Ack.ProtocolVersion``; bump on any incompatible change.
+
+2: ResultHeader carries ResultReason (ObjectCount 5 bits, ResultMode moved to bits 21..23),
+ResultStatus values MEASURED/NOT_FOUND/ROUGH_ONLY/AMBIGUOUS, NACK detail in ALACS_Ack,
+ALACS_Progress added."""
 
 DEFAULT_NODE_ID: Final = 0x10
 """Node id of the committed ``can_protocol/alacs.dbc``."""
@@ -33,6 +37,7 @@ MSG_HEARTBEAT: Final = "Heartbeat"
 MSG_EMCY: Final = "EMCY"
 MSG_SDO_TX: Final = "SDO_Tx"
 MSG_SDO_RX: Final = "SDO_Rx"
+MSG_PROGRESS: Final = "ALACS_Progress"
 
 # CANopen-style base ids; the frame id is base + node id, except NMT (fixed 0x000).
 BASE_ID_NMT: Final = 0x000
@@ -44,6 +49,9 @@ BASE_ID_RESULT_OBJECT: Final = 0x380
 BASE_ID_STATUS: Final = 0x480
 BASE_ID_SDO_TX: Final = 0x580
 BASE_ID_SDO_RX: Final = 0x600
+BASE_ID_PROGRESS: Final = 0x680
+"""0x680..0x6FF is unused in the CiA 301 predefined connection set; the four TPDO slots
+(0x180..0x480) are taken, and progress must not outrank acks, results or SDO answers."""
 BASE_ID_HEARTBEAT: Final = 0x700
 
 BASE_IDS: Final[dict[str, int]] = {
@@ -56,6 +64,7 @@ BASE_IDS: Final[dict[str, int]] = {
     MSG_STATUS: BASE_ID_STATUS,
     MSG_SDO_TX: BASE_ID_SDO_TX,
     MSG_SDO_RX: BASE_ID_SDO_RX,
+    MSG_PROGRESS: BASE_ID_PROGRESS,
     MSG_HEARTBEAT: BASE_ID_HEARTBEAT,
 }
 
@@ -149,11 +158,80 @@ class NackReason(IntEnum):
 
 
 class ResultStatus(IntEnum):
-    VALID = 0
-    NO_OBJECT = 1
-    PARTIAL = 2
+    """``ResultStatus``: only MEASURED is a measurement; every other status has a ResultReason.
+
+    The numbers of v1 are kept for the same meanings (2 was PARTIAL: the rough position
+    echoed back), so a v1 reader of this nibble is not misled about FAILED/ABORTED.
+    """
+
+    MEASURED = 0
+    NOT_FOUND = 1
+    ROUGH_ONLY = 2
     FAILED = 3
     ABORTED = 4
+    AMBIGUOUS = 5
+
+
+class ResultReason(IntEnum):
+    """``ResultReason``: why a result is not MEASURED (NONE when it is)."""
+
+    NONE = 0
+    NO_LINES_IN_GATE = 1
+    TOO_FEW_LINES = 2
+    FIT_FAILED = 3
+    TWO_SURFACES = 4
+    FAR_FROM_ROUGH = 5
+    CAMERA_FAULT = 6
+    MOTION_FAULT = 7
+    LASER_FAULT = 8
+    STOPPED = 9
+    SHUTDOWN = 10
+    INTERNAL = 11
+
+
+class NackDetail(IntEnum):
+    """``NackDetail``: which limit a NACKed command broke; NackValue/NackLimit give numbers."""
+
+    NONE = 0
+    STROKE = 1
+    DEPTH = 2
+    LATERAL = 3
+    FRAME = 4
+    CROSS_FIELD = 5
+    SPACING_X_STOPS = 6
+    MODE = 7
+    EXPOSURE = 8
+    BRCE_STEP = 9
+    SCAN_STOPS = 10
+    STOP_SPACING = 11
+    HEARTBEAT = 12
+
+
+NACK_DETAIL_UNITS: Final[dict[NackDetail, str]] = {
+    NackDetail.NONE: "",
+    NackDetail.STROKE: "mm",
+    NackDetail.DEPTH: "mm",
+    NackDetail.LATERAL: "mm",
+    NackDetail.FRAME: "px",
+    NackDetail.CROSS_FIELD: "",
+    NackDetail.SPACING_X_STOPS: "mm",
+    NackDetail.MODE: "",
+    NackDetail.EXPOSURE: "ms",
+    NackDetail.BRCE_STEP: "",
+    NackDetail.SCAN_STOPS: "",
+    NackDetail.STOP_SPACING: "mm",
+    NackDetail.HEARTBEAT: "ms",
+}
+"""Unit of ``NackValue``/``NackLimit`` for each ``NackDetail`` ("" = a plain number)."""
+
+
+class ProgressPhase(IntEnum):
+    """``ProgressPhase``: what a running LOCALIZE or SCAN_ALL is doing."""
+
+    MOVING = 0
+    EXPOSING = 1
+    FITTING = 2
+    SECOND_PASS = 3
 
 
 class ResultMode(IntEnum):

@@ -46,7 +46,7 @@ def _quote(text: str) -> str:
 def _mux_marker(msg: MessageSpec, sig: SignalSpec) -> str:
     marker = ""
     if sig.mux is not None:
-        marker = f"m{sig.mux[1]}"
+        marker = f"m{sig.mux_values()[0]}"
     if sig.is_multiplexer:
         marker += "M"
     return marker
@@ -84,6 +84,21 @@ def _value_table_lines(fid: int, sigs: Iterable[SignalSpec]) -> list[str]:
         )
         lines.append(f"VAL_ {fid} {sig.name} {pairs} ;")
     return lines
+
+
+def _ranges(values: Sequence[int]) -> str:
+    """SG_MUL_VAL_ ranges: (1, 2, 3, 5) -> "1-3, 5-5"."""
+    out: list[str] = []
+    vals = sorted(values)
+    start = prev = vals[0]
+    for v in vals[1:] + [None]:  # type: ignore[list-item]
+        if v is not None and v == prev + 1:
+            prev = v
+            continue
+        out.append(f"{start}-{prev}")
+        if v is not None:
+            start = prev = v
+    return ", ".join(out)
 
 
 @functools.cache
@@ -137,15 +152,16 @@ def dbc_text(node_id: int = c.DEFAULT_NODE_ID) -> str:
     ]
     for msg in MESSAGES:
         out += _value_table_lines(msg.frame_id(node_id), msg.signals)
-    # Extended multiplexing (a multiplexer inside a multiplexed branch) needs SG_MUL_VAL_
-    # for every multiplexed signal of that message.
+    # Extended multiplexing (a multiplexer inside a multiplexed branch, or a signal under
+    # several multiplexer values) needs SG_MUL_VAL_ for every multiplexed signal of that
+    # message.
     for msg in MESSAGES:
-        if not msg.has_nested_mux:
+        if not msg.has_extended_mux:
             continue
         fid = msg.frame_id(node_id)
         for s in msg.signals:
             if s.mux is not None:
-                out.append(f"SG_MUL_VAL_ {fid} {s.name} {s.mux[0]} {s.mux[1]}-{s.mux[1]};")
+                out.append(f"SG_MUL_VAL_ {fid} {s.name} {s.mux[0]} {_ranges(s.mux_values())};")
     out.append("")
     return "\n".join(out) + "\n"
 

@@ -56,15 +56,21 @@ class LocalizationResult:
     mode: c.ResultMode | int
     cycle_time_ms: float
     objects: list[ResultObject] = field(default_factory=list)
+    reason: c.ResultReason | int = c.ResultReason.NONE
 
     @property
     def complete(self) -> bool:
         return all(o.complete for o in self.objects)
 
+    @property
+    def measured(self) -> bool:
+        """True only for ResultStatus MEASURED: every other status is not a measurement."""
+        return self.status == c.ResultStatus.MEASURED
+
 
 def _enum(
-    enum: type[c.ResultStatus] | type[c.ResultMode], raw: int
-) -> c.ResultStatus | c.ResultMode | int:
+    enum: type[c.ResultStatus] | type[c.ResultMode] | type[c.ResultReason], raw: int
+) -> c.ResultStatus | c.ResultMode | c.ResultReason | int:
     try:
         return enum(raw)
     except ValueError:
@@ -113,6 +119,7 @@ class ResultCollector:
             mode=_enum(c.ResultMode, int(sig["ResultMode"])),
             cycle_time_ms=float(sig["CycleTime"]),
             objects=[ResultObject(i) for i in range(count)],
+            reason=_enum(c.ResultReason, int(sig["ResultReason"])),
         )
         self.results.pop(result.meas_counter, None)
         self.results[result.meas_counter] = result

@@ -33,9 +33,16 @@ class SignalSpec:
     minimum: float | None = None
     maximum: float | None = None
     choices: type[IntEnum] | None = None
-    mux: tuple[str, int] | None = None
-    """(multiplexer signal, value) under which this signal is present."""
+    mux: tuple[str, int | tuple[int, ...]] | None = None
+    """(multiplexer signal, value or values) under which this signal is present."""
     is_multiplexer: bool = False
+
+    def mux_values(self) -> tuple[int, ...]:
+        """The multiplexer values under which this signal is present (() if always)."""
+        if self.mux is None:
+            return ()
+        values = self.mux[1]
+        return (values,) if isinstance(values, int) else tuple(values)
 
     def raw_range(self) -> tuple[int, int]:
         if self.signed:
@@ -73,8 +80,11 @@ class MessageSpec:
         raise KeyError(name)
 
     @property
-    def has_nested_mux(self) -> bool:
-        return sum(1 for s in self.signals if s.is_multiplexer) > 1
+    def has_extended_mux(self) -> bool:
+        """Needs DBC extended multiplexing (SG_MUL_VAL_): a multiplexer inside a branch,
+        or a signal present under more than one multiplexer value."""
+        return (sum(1 for s in self.signals if s.is_multiplexer) > 1
+                or any(len(s.mux_values()) > 1 for s in self.signals))
 
 
 S = SignalSpec
@@ -153,6 +163,10 @@ COMMAND = MessageSpec(
     ),
 )
 
+_NACK_DETAIL_MUX: Final = ("AckOpcode", tuple(
+    int(op) for op in c.Opcode if op is not c.Opcode.GET_VERSION))
+"""Bytes 3..7 are free in the Ack of every opcode but GET_VERSION (and INVALID)."""
+
 ACK = MessageSpec(
     c.MSG_ACK, c.BASE_ID_ACK, 8, SENSOR, ARM,
     "Answer to every ALACS_Command (also to rejected frames). DONE follows ACK when a "
@@ -172,6 +186,13 @@ ACK = MessageSpec(
         S("SwPatch", 40, 8, "alacsd version, patch.", mux=("AckOpcode", int(c.Opcode.GET_VERSION))),
         S("ProtocolVersion", 48, 8, f"This protocol's version ({c.PROTOCOL_VERSION}).",
           mux=("AckOpcode", int(c.Opcode.GET_VERSION))),
+        S("NackDetail", 24, 8, "Which limit a NACKed command broke (NONE if none applies or "
+          "not a NACK).", maximum=max(c.NackDetail), choices=c.NackDetail, mux=_NACK_DETAIL_MUX),
+        S("NackValue", 32, 16, "The offending value, in the unit NackDetail names "
+          "(saturating; 0 when NackDetail is NONE).", signed=True, scale=0.1,
+          mux=_NACK_DETAIL_MUX),
+        S("NackLimit", 48, 16, "The limit NackValue broke, same unit (saturating; 0 when "
+          "NackDetail is NONE).", signed=True, scale=0.1, mux=_NACK_DETAIL_MUX),
     ),
 )
 
@@ -180,13 +201,16 @@ RESULT_HEADER = MessageSpec(
     "First frame of a measurement result; ObjectCount x 4 ALACS_ResultObject pages follow.",
     (
         S("MeasCounter", 0, 16, "Measurement counter, +1 per result (wraps)."),
-        S("ObjectCount", 16, 8, "Number of objects that follow (0..16).", maximum=c.MAX_OBJECTS),
+        S("ObjectCount", 16, 5, "Number of objects that follow (0..16).", maximum=c.MAX_OBJECTS),
+        S("ResultMode", 21, 3, "Command that produced this result.", maximum=1,
+          choices=c.ResultMode),
         S("ResultTargetId", 24, 8, "TargetId of the LOCALIZE command (0 for SCAN_ALL)."),
         S("ScanAgeMs", 32, 16, "Time since the last camera frame of the scan was exposed "
           "(saturating).", unit="ms"),
-        S("ResultStatus", 48, 4, "Outcome of the measurement.", maximum=4, choices=c.ResultStatus),
-        S("ResultMode", 52, 4, "Command that produced this result.", maximum=1,
-          choices=c.ResultMode),
+        S("ResultStatus", 48, 4, "Outcome: only MEASURED is a measurement.",
+          maximum=max(c.ResultStatus), choices=c.ResultStatus),
+        S("ResultReason", 52, 4, "Why the result is not MEASURED (NONE if it is).",
+          maximum=max(c.ResultReason), choices=c.ResultReason),
         S("CycleTime", 56, 8, "Time from the localize command to this result, 20 ms/bit "
           "(saturating).", scale=20, unit="ms"),
     ),
@@ -260,6 +284,27 @@ STATUS = MessageSpec(
     cycle_ms=c.STATUS_PERIOD_MS,
 )
 
+PROGRESS = MessageSpec(
+    c.MSG_PROGRESS, c.BASE_ID_PROGRESS, 8, SENSOR, ARM,
+    "Progress of a running LOCALIZE or SCAN_ALL: on every phase change, after every stop "
+    "and at least every 500 ms until the result is sent.",
+    (
+        S("ProgressMeasCounter", 0, 16, "MeasCounter the result of this scan will carry."),
+        S("ProgressCounter", 16, 4, "CmdCounter of the command that started the scan."),
+        S("ProgressMode", 20, 4, "Command that started the scan.", maximum=1,
+          choices=c.ResultMode),
+        S("ProgressPhase", 24, 4, "What the scan is doing now.", maximum=max(c.ProgressPhase),
+          choices=c.ProgressPhase),
+        S("StopsDone", 32, 8, "Slide stops exposed so far (both passes)."),
+        S("StopsTotal", 40, 8, "Slide stops planned so far; grows when a second pass is "
+          "planned."),
+        S("ObjectsFound", 48, 8, "Objects found so far (SCAN_ALL); 0 or 1 for LOCALIZE once "
+          "fitted."),
+        S("ElapsedS", 56, 8, "Time since the command, 0.5 s/bit (saturating).", scale=0.5,
+          unit="s"),
+    ),
+)
+
 NMT = MessageSpec(
     c.MSG_NMT, c.BASE_ID_NMT, 2, ARM, SENSOR,
     "CANopen NMT node control (fixed id 0x000).",
@@ -313,7 +358,8 @@ SDO_RX = MessageSpec(
 )
 
 MESSAGES: Final[tuple[MessageSpec, ...]] = (
-    NMT, EMCY, ACK, COMMAND, RESULT_HEADER, RESULT_OBJECT, STATUS, SDO_TX, SDO_RX, HEARTBEAT,
+    NMT, EMCY, ACK, COMMAND, RESULT_HEADER, RESULT_OBJECT, STATUS, SDO_TX, SDO_RX, PROGRESS,
+    HEARTBEAT,
 )
 """All messages, in frame-id order."""
 

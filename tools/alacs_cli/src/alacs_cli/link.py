@@ -36,6 +36,25 @@ class Rejected(Exception):
         return str(self.ack.get("NackReason"))
 
 
+class Deadline:
+    """A deadline that progress may move: ``follow(s)`` sets it to ``s`` seconds from now
+    (unless ``fixed``, as for an explicit --timeout)."""
+
+    def __init__(self, clock: Callable[[], float], seconds: float, fixed: bool = True) -> None:
+        self._clock = clock
+        self.at = clock() + seconds
+        self.fixed = fixed
+        self.budget_s = seconds
+
+    def follow(self, seconds: float) -> None:
+        if not self.fixed:
+            self.at = self._clock() + seconds
+            self.budget_s = seconds
+
+    def remaining(self) -> float:
+        return self.at - self._clock()
+
+
 @dataclass
 class Exchange:
     command: can.Message
@@ -55,17 +74,21 @@ class SensorLink:
         self._ack_id = db.get_message_by_name(alacs_can.MSG_ACK).frame_id
         self.collector = ResultCollector(db)
 
-    def recv_until(self, accept: Callable[[can.Message], bool], timeout_s: float,
+    def deadline(self, timeout_s: float, fixed: bool = True) -> Deadline:
+        return Deadline(self._clock, timeout_s, fixed)
+
+    def recv_until(self, accept: Callable[[can.Message], bool], timeout_s: float | Deadline,
                    on_frame: Callable[[can.Message], object] | None = None) -> can.Message:
         """Receive frames until ``accept(frame)``; feed every frame to ``on_frame``.
 
-        Raises Timeout after ``timeout_s`` seconds.
+        Raises Timeout after ``timeout_s`` seconds (or when the Deadline passes).
         """
-        deadline = self._clock() + timeout_s
+        deadline = (timeout_s if isinstance(timeout_s, Deadline)
+                    else Deadline(self._clock, timeout_s))
         while True:
-            remaining = deadline - self._clock()
+            remaining = deadline.remaining()
             if remaining <= 0:
-                raise Timeout(f"no answer within {timeout_s:g} s")
+                raise Timeout(f"no answer within {deadline.budget_s:g} s")
             frame = self.bus.recv(timeout=min(remaining, 0.1))
             if frame is None or frame.is_error_frame:
                 continue
@@ -107,11 +130,18 @@ class SensorLink:
         return ack
 
     def command(self, opcode: Opcode, counter: int, timeout_s: float,
+                on_frame: Callable[[can.Message], object] | None = None,
                 **signals: object) -> Exchange:
         """Send a command and wait for its ACK (or DONE). Raises Rejected / Timeout."""
         msg = alacs_can.encode_command(self.db, opcode, counter, **signals)
         self.bus.send(msg)
-        ack = self.wait_ack(opcode, counter, timeout_s, on_frame=self.collector.push)
+
+        def seen(frame: can.Message) -> None:
+            if on_frame is not None:
+                on_frame(frame)
+            self.collector.push(frame)
+
+        ack = self.wait_ack(opcode, counter, timeout_s, on_frame=seen)
         return Exchange(command=msg, ack=ack)
 
     def wait_done(self, exchange: Exchange, timeout_s: float) -> Exchange:
@@ -124,12 +154,16 @@ class SensorLink:
             exchange.done = exchange.ack
         return exchange
 
-    def wait_result(self, exchange: Exchange, timeout_s: float,
-                    target_id: int | None) -> Exchange:
-        """After an ACK, wait for a complete result (for ``target_id`` if given)."""
+    def wait_result(self, exchange: Exchange, timeout_s: float | Deadline,
+                    target_id: int | None,
+                    on_frame: Callable[[can.Message], object] | None = None) -> Exchange:
+        """After an ACK, wait for a complete result (for ``target_id`` if given); every
+        frame is also given to ``on_frame`` (progress)."""
         found: list[LocalizationResult] = []
 
         def accept(frame: can.Message) -> bool:
+            if on_frame is not None:
+                on_frame(frame)
             result = self.collector.push(frame)
             if result is not None and (target_id is None or result.target_id == target_id):
                 found.append(result)
@@ -145,8 +179,9 @@ class SensorLink:
             self.recv_until(accept, timeout_s)
         except Timeout:
             partial = next(reversed(self.collector.results.values()), None)
+            budget = timeout_s.budget_s if isinstance(timeout_s, Deadline) else timeout_s
             raise Timeout(
-                f"no complete result within {timeout_s:g} s"
+                f"no complete result within {budget:g} s"
                 + (f" (partial MeasCounter {partial.meas_counter})" if partial else "")
             ) from None
         exchange.result = found[0]

@@ -4,8 +4,9 @@ Works on any python-can interface: ``--interface socketcan --channel can0``,
 ``--interface udp_multicast --channel 239.74.163.2``, ``--interface socketcand
 --channel can0 --bus-arg host=10.0.0.5 --bus-arg port=29536``, ...
 
-Exit codes: 0 success; 1 NACK, or a result that is not VALID/PARTIAL; 2 usage error;
-3 timeout; 4 CAN interface error.
+Exit codes: 0 success; 1 NACK, or a result that is not MEASURED (the status and its
+reason are printed); 2 usage error; 3 timeout; 4 CAN interface error; 130 Ctrl-C; 141 the
+reader of stdout went away (``alacs ... | head``).
 """
 
 from __future__ import annotations
@@ -13,6 +14,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
+import os
 import random
 import shutil
 import sys
@@ -28,10 +30,33 @@ from cantools.database.errors import DecodeError, EncodeError
 import alacs_can
 from alacs_can import LocalizationResult, Opcode
 
-from .link import Decoded, Exchange, Rejected, SensorLink, Timeout
+from . import envelope
+from .link import Deadline, Decoded, Exchange, Rejected, SensorLink, Timeout
 from .monitor import MonitorTable
+from .progress import ProgressView
 
 EXIT_OK, EXIT_REJECTED, EXIT_USAGE, EXIT_TIMEOUT, EXIT_BUS = 0, 1, 2, 3, 4
+EXIT_INTERRUPTED, EXIT_BROKEN_PIPE = 130, 141
+
+# Commands that move the slide: on Ctrl-C or a timeout the CLI sends STOP.
+MOTION_COMMANDS = frozenset({"localize", "scan-all", "scan", "home"})
+
+# How long a scan takes, for the default --timeout. Per stop: the move, the exposure and
+# the line extraction (LOCALIZE: a window, ~0.13 s a stop in the simulator, up to 0.5 s on
+# a loaded board; SCAN_ALL: whole frames, several seconds a stop on the board). Until the
+# first ALACS_Progress frame the largest plan is assumed (LOCALIZE: 15 stops + a 6-stop
+# second pass; SCAN_ALL: the 200 mm stroke in 8 mm stops); after it, the timeout follows
+# the stops the sensor says are left.
+PER_STOP_S = {Opcode.LOCALIZE: 0.5, Opcode.SCAN_ALL: 4.0}
+ASSUMED_STOPS = {Opcode.LOCALIZE: 15 + 6, Opcode.SCAN_ALL: 26}
+MARGIN_S = 5.0
+STOP_ANSWER_S = 1.0
+
+
+def expected_scan_s(opcode: Opcode, stops_left: int | None = None) -> float:
+    """Seconds to wait for a scan with ``stops_left`` stops to go (None: not yet known)."""
+    stops = ASSUMED_STOPS[opcode] if stops_left is None else max(stops_left, 0)
+    return stops * PER_STOP_S[opcode] + MARGIN_S
 
 # Commands that only listen to the sensor: their bus gets a filter for its id block.
 SENSOR_ONLY_COMMANDS = frozenset({"localize", "scan-all", "scan", "home", "stop", "clear-fault",
@@ -71,8 +96,9 @@ def _bus_arg(text: str) -> tuple[str, Any]:
 
 
 def _fmt_value(value: Any) -> str:
+    # alacs_can.decode has rounded scaled values to their resolution already.
     if isinstance(value, float):
-        return f"{value:.4f}".rstrip("0").rstrip(".") if value != int(value) else str(int(value))
+        return str(int(value)) if value.is_integer() else repr(value)
     return str(value)
 
 
@@ -97,20 +123,44 @@ def format_frame(db: Database, frame: can.Message, t0: float | None = None) -> s
     return f"{stamp}  {ident}  {name:<18} {text}"
 
 
+_NACK_FIELDS = ("NackDetail", "NackValue", "NackLimit")
+
+
+def describe_nack(ack: Decoded) -> str:
+    """'OUT_OF_RANGE: STROKE -239.6 mm, limit 0 mm' (just the reason without a detail)."""
+    text = str(ack.get("NackReason"))
+    detail = ack.get("NackDetail")
+    if detail in (None, "NONE"):
+        return text
+    try:
+        unit = alacs_can.NACK_DETAIL_UNITS[alacs_can.NackDetail[str(detail)]]
+    except KeyError:
+        unit = ""
+    suffix = f" {unit}" if unit else ""
+    return (f"{text}: {detail} {_fmt_value(ack['NackValue'])}{suffix}, limit "
+            f"{_fmt_value(ack['NackLimit'])}{suffix}")
+
+
+def _name(value: Any) -> Any:
+    return getattr(value, "name", value)
+
+
 def _result_dict(result: LocalizationResult) -> dict[str, Any]:
     out = dataclasses.asdict(result)
-    out["status"] = getattr(result.status, "name", result.status)
-    out["mode"] = getattr(result.mode, "name", result.mode)
+    out["status"] = _name(result.status)
+    out["reason"] = _name(result.reason)
+    out["mode"] = _name(result.mode)
     out["complete"] = result.complete
+    out["measured"] = result.measured
     return out
 
 
 def print_result(result: LocalizationResult, out: TextIO) -> None:
-    status = getattr(result.status, "name", result.status)
-    mode = getattr(result.mode, "name", result.mode)
-    print(f"result  MeasCounter={result.meas_counter} {mode} {status} target={result.target_id} "
-          f"objects={result.object_count} scan_age={result.scan_age_ms:g} ms "
-          f"cycle={result.cycle_time_ms:g} ms", file=out)
+    status, reason = _name(result.status), _name(result.reason)
+    why = "" if reason == "NONE" else f" ({reason})"
+    print(f"result  MeasCounter={result.meas_counter} {_name(result.mode)} {status}{why} "
+          f"target={result.target_id} objects={result.object_count} "
+          f"scan_age={result.scan_age_ms:g} ms cycle={result.cycle_time_ms:g} ms", file=out)
 
     def vec(v: tuple[float, float, float] | None, fmt: str) -> str:
         return "-" if v is None else "(" + ", ".join(format(x, fmt) for x in v) + ")"
@@ -124,6 +174,15 @@ def print_result(result: LocalizationResult, out: TextIO) -> None:
         print(f"  object {obj.index}: centre {vec(obj.center_mm, '.1f')} mm  "
               f"approach {vec(obj.approach_mm, '.1f')} mm  normal {vec(obj.normal, '.3f')}  "
               f"{quality}", file=out)
+
+
+RESULT_MEANING = {
+    "NOT_FOUND": "nothing was found",
+    "ROUGH_ONLY": "the rough position echoed back, not a measurement",
+    "AMBIGUOUS": "two surfaces fit equally, or too few lines to choose",
+    "FAILED": "the scan could not be completed",
+    "ABORTED": "the scan was stopped",
+}
 
 
 class Cli:
@@ -152,35 +211,100 @@ class Cli:
             print(text, file=self.out)
 
     def emit_ack(self, label: str, ack: Decoded) -> None:
+        if ack.get("AckResult") != "NACK":
+            # The NACK detail is 0 in every other Ack: leave it out.
+            ack = {k: v for k, v in ack.items() if k not in _NACK_FIELDS}
         self.emit(f"{label:<7} {format_signals(ack)}", {"type": label, **ack})
 
     # --- commands -------------------------------------------------------------
 
     def run_command(self, link: SensorLink, opcode: Opcode, **signals: object) -> Exchange:
-        ex = link.command(opcode, self.counter, self.args.timeout, **signals)
+        timeout = self.args.timeout if self.args.timeout is not None else 2.0
+        ex = link.command(opcode, self.counter, timeout, **signals)
         self.emit_ack("ack", ex.ack)
         return ex
 
     def cmd_localize(self, link: SensorLink) -> int:
         a = self.args
-        ex = self.run_command(link, Opcode.LOCALIZE, LocalizeMode=a.mode.upper().replace("-", "_"),
-                              TargetId=a.target, RoughX=a.x, RoughY=a.y, RoughZ=a.z)
-        return self._finish_result(link, ex, a.target)
+        return self._scan(link, Opcode.LOCALIZE, a.target,
+                          LocalizeMode=a.mode.upper().replace("-", "_"), TargetId=a.target,
+                          RoughX=a.x, RoughY=a.y, RoughZ=a.z)
 
     def cmd_scan_all(self, link: SensorLink) -> int:
-        ex = self.run_command(link, Opcode.SCAN_ALL,
-                              ScanAllMode=self.args.mode.upper().replace("-", "_"))
-        return self._finish_result(link, ex, None)
+        return self._scan(link, Opcode.SCAN_ALL, None,
+                          ScanAllMode=self.args.mode.upper().replace("-", "_"))
 
-    def _finish_result(self, link: SensorLink, ex: Exchange, target: int | None) -> int:
-        link.wait_result(ex, self.args.timeout, target)
+    def _scan(self, link: SensorLink, opcode: Opcode, target: int | None,
+              **signals: object) -> int:
+        """Send LOCALIZE/SCAN_ALL, show its progress, print the result.
+
+        Without --timeout the deadline follows the scan: the largest plan until the first
+        progress frame, then the stops the sensor says are left, plus a margin.
+        """
+        explicit = self.args.timeout is not None
+        deadline = link.deadline(self.args.timeout if explicit else expected_scan_s(opcode),
+                                 fixed=explicit)
+        view = ProgressView(self.db, self.out, self.counter, opcode.name, self.args.json)
+
+        def on_frame(frame: can.Message) -> None:
+            p = view.push(frame)
+            if p is not None:
+                deadline.follow(expected_scan_s(
+                    opcode, int(p["StopsTotal"]) - int(p["StopsDone"])))
+
+        try:
+            ex = link.command(opcode, self.counter, min(2.0, deadline.remaining()),
+                              on_frame=on_frame, **signals)
+            self.emit_ack("ack", ex.ack)
+            link.wait_result(ex, deadline, target, on_frame=on_frame)
+        finally:
+            view.close()
         assert ex.result is not None
+        result = ex.result
         if self.args.json:
-            print(json.dumps({"type": "result", **_result_dict(ex.result)}), file=self.out)
+            print(json.dumps({"type": "result", **_result_dict(result)}), file=self.out)
         else:
-            print_result(ex.result, self.out)
-        ok = ex.result.status in (alacs_can.ResultStatus.VALID, alacs_can.ResultStatus.PARTIAL)
-        return EXIT_OK if ok else EXIT_REJECTED
+            print_result(result, self.out)
+        if result.measured:
+            return EXIT_OK
+        status, reason = _name(result.status), _name(result.reason)
+        meaning = RESULT_MEANING.get(str(status), "not a measurement")
+        print(f"alacs {self.args.cmd}: result {status}, reason {reason}: {meaning}",
+              file=sys.stderr)
+        return EXIT_REJECTED
+
+    def stop_and_report(self, link: SensorLink, why: str) -> None:
+        """After Ctrl-C or a timeout: send STOP, then say what state the sensor is in."""
+        counter = (self.counter + 1) & 0x0F
+        err = sys.stderr
+        try:
+            link.command(Opcode.STOP, counter, STOP_ANSWER_S)
+            print(f"alacs {self.args.cmd}: {why}: sent STOP (ACK)", file=err)
+        except Rejected as exc:
+            print(f"alacs {self.args.cmd}: {why}: sent STOP, NACK {describe_nack(exc.ack)}",
+                  file=err)
+        except Timeout:
+            print(f"alacs {self.args.cmd}: {why}: sent STOP, no ACK within "
+                  f"{STOP_ANSWER_S:g} s", file=err)
+        status_id = self.db.get_message_by_name(alacs_can.MSG_STATUS).frame_id
+        try:
+            frame = link.recv_until(
+                lambda f: not f.is_extended_id and f.arbitration_id == status_id,
+                STOP_ANSWER_S)
+        except Timeout:
+            print(f"alacs {self.args.cmd}: no ALACS_Status within {STOP_ANSWER_S:g} s: the "
+                  "sensor's state is unknown", file=err)
+            return
+        status = alacs_can.decode(self.db, frame)
+        faults = [f.name for f in alacs_can.Fault if f in alacs_can.fault_bits(status)]
+        hint = ("; send `alacs clear-fault` to resume"
+                if status.get("State") in ("STOPPED", "FAULT") else "")
+        print(f"alacs {self.args.cmd}: sensor left in State={status.get('State')} "
+              f"Homed={status.get('Homed')} LaserOn={status.get('LaserOn')} faults: "
+              f"{' '.join(str(n) for n in faults) or 'none'}{hint}", file=err)
+        if self.args.json:
+            print(json.dumps({"type": "stopped", "why": why, **status, "faults": faults}),
+                  file=self.out)
 
     def cmd_home(self, link: SensorLink) -> int:
         ex = self.run_command(link, Opcode.HOME)
@@ -298,6 +422,20 @@ class Cli:
                   {"type": "replay", "frames": sent, "file": str(self.args.file)})
         return EXIT_OK
 
+    def cmd_envelope(self) -> int:
+        """Print the working envelope (default geometry, or --calibration FILE)."""
+        a = self.args
+        geo = (envelope.Geometry.from_calibration(a.calibration) if a.calibration
+               else envelope.Geometry.default())
+        rows = envelope.envelope(geo, a.stroke_mm)
+        if a.json:
+            print(json.dumps({"type": "envelope", "source": geo.source, "stroke_mm": a.stroke_mm,
+                              "depth_mm": [envelope.MIN_DEPTH_MM, envelope.MAX_DEPTH_MM],
+                              "rows": [dataclasses.asdict(r) for r in rows]}), file=self.out)
+        else:
+            self.out.write(envelope.format_table(geo, a.stroke_mm, rows))
+        return EXIT_OK
+
     def cmd_nmt(self, link: SensorLink) -> int:
         target = 0 if self.args.all else self.node_id
         msg = alacs_can.encode_message(self.db, alacs_can.MSG_NMT, {
@@ -336,10 +474,16 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--z", type=int, required=True, metavar="MM", help="rough z (forward), mm")
     sp.add_argument("--target", type=_int, default=0, metavar="N", help="target id 0..255")
     sp.add_argument("--mode", choices=modes, default="stop-and-go")
-    timeout(sp, 10.0)
+    sp.add_argument("--timeout", type=float, default=None, metavar="S",
+                    help="seconds to wait in all (default: follows the scan, "
+                         f"{expected_scan_s(Opcode.LOCALIZE):g} s until the sensor reports "
+                         "its plan)")
     sp = sub.add_parser("scan-all", aliases=["scan"], help="scan the whole field of view")
     sp.add_argument("--mode", choices=modes, default="stop-and-go")
-    timeout(sp, 20.0)
+    sp.add_argument("--timeout", type=float, default=None, metavar="S",
+                    help="seconds to wait in all (default: follows the scan, "
+                         f"{expected_scan_s(Opcode.SCAN_ALL):g} s until the sensor reports "
+                         "its plan)")
     sp = sub.add_parser("home", help="home the laser slide (waits for DONE)")
     sp.add_argument("--no-wait", action="store_true", help="return after the ACK")
     timeout(sp, 30.0)
@@ -376,6 +520,12 @@ def build_parser() -> argparse.ArgumentParser:
     sp = sub.add_parser("nmt", help="send an NMT command")
     sp.add_argument("nmt_command", choices=sorted(NMT_COMMANDS))
     sp.add_argument("--all", action="store_true", help="address all nodes (node id 0)")
+    sp = sub.add_parser("envelope", help="print the working envelope (where LOCALIZE can "
+                                         "reach)")
+    sp.add_argument("--calibration", type=Path, default=None, metavar="FILE",
+                    help="calibration.json of the sensor (default: the default geometry)")
+    sp.add_argument("--stroke-mm", type=float, default=envelope.DEFAULT_STROKE_MM,
+                    help=f"slide stroke, motion.stroke_mm (default {envelope.DEFAULT_STROKE_MM:g})")
     sp = sub.add_parser("dbc", help="print the DBC for a node id")
     # own dest: a subparser default would overwrite the global --node-id
     sp.add_argument("--node-id", dest="dbc_node_id", type=_node_id, default=None)
@@ -383,14 +533,37 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None, out: TextIO | None = None) -> int:
+    """Run ``alacs``; returns the exit code. A reader that goes away (``| head``) ends it
+    quietly with 141, as SIGPIPE would, instead of a BrokenPipeError traceback."""
     out = out or sys.stdout
+    try:
+        rc = _main(argv, out)
+        out.flush()
+        return rc
+    except BrokenPipeError:
+        if out is sys.stdout:
+            # The interpreter flushes stdout again at exit; point it at /dev/null first.
+            devnull = os.open(os.devnull, os.O_WRONLY)
+            os.dup2(devnull, sys.stdout.fileno())
+        return EXIT_BROKEN_PIPE
+
+
+def _main(argv: Sequence[str] | None, out: TextIO) -> int:
     args = build_parser().parse_args(argv)
+    if args.cmd == "envelope":
+        try:
+            return Cli(args, out).cmd_envelope()
+        except ValueError as exc:
+            print(f"alacs envelope: {exc}", file=sys.stderr)
+            return EXIT_USAGE
     if args.cmd == "dbc":
         out.write(alacs_can.dbc_text(args.dbc_node_id or args.node_id))
         return EXIT_OK
     if args.cmd == "replay" and args.print:
         try:
             return Cli(args, out).cmd_replay(None)
+        except BrokenPipeError:
+            raise
         except (OSError, ValueError) as exc:
             print(f"alacs replay: {exc}", file=sys.stderr)
             return EXIT_USAGE
@@ -422,11 +595,18 @@ def main(argv: Sequence[str] | None = None, out: TextIO | None = None) -> int:
         return EXIT_BUS
     try:
         with bus:
-            return handlers[args.cmd](SensorLink(bus, cli.db))
+            link = SensorLink(bus, cli.db)
+            try:
+                return handlers[args.cmd](link)
+            except (KeyboardInterrupt, Timeout) as exc:
+                if args.cmd in MOTION_COMMANDS:
+                    cli.stop_and_report(link, "interrupted" if isinstance(
+                        exc, KeyboardInterrupt) else f"timeout ({exc})")
+                raise
     except Rejected as exc:
         cli.emit_ack("nack", exc.ack)
         hint = "  (try: alacs nmt start)" if exc.reason == "NMT_NOT_OPERATIONAL" else ""
-        print(f"alacs {args.cmd}: NACK {exc.reason}{hint}", file=sys.stderr)
+        print(f"alacs {args.cmd}: NACK {describe_nack(exc.ack)}{hint}", file=sys.stderr)
         return EXIT_REJECTED
     except EncodeError as exc:
         print(f"alacs {args.cmd}: value out of range: {exc}", file=sys.stderr)
@@ -438,7 +618,7 @@ def main(argv: Sequence[str] | None = None, out: TextIO | None = None) -> int:
         print(f"alacs {args.cmd}: CAN error: {exc}", file=sys.stderr)
         return EXIT_BUS
     except KeyboardInterrupt:
-        return EXIT_OK if args.cmd in ("monitor", "record") else 130
+        return EXIT_OK if args.cmd in ("monitor", "record") else EXIT_INTERRUPTED
 
 
 if __name__ == "__main__":

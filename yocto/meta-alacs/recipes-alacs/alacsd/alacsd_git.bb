@@ -12,7 +12,7 @@ LICENSE = "Apache-2.0"
 LIC_FILES_CHKSUM = "file://${COMMON_LICENSE_DIR}/Apache-2.0;md5=89aea4e17d99a7cacdbeed46a0096b10"
 CVE_PRODUCT = "alacsd"
 
-DEPENDS = "libeigen libpng opencv"
+DEPENDS = "libeigen libpng opencv nlohmann-json cli11"
 
 PV = "0.1.0+git"
 
@@ -35,6 +35,8 @@ PACKAGECONFIG[libcamera] = "-DALACS_WITH_LIBCAMERA=ON,-DALACS_WITH_LIBCAMERA=OFF
 PACKAGECONFIG[libgpiod] = "-DALACS_WITH_GPIOD=ON,-DALACS_WITH_GPIOD=OFF,libgpiod"
 PACKAGECONFIG[systemd] = ",,systemd"
 PACKAGECONFIG[tests] = "-DALACS_BUILD_TESTS=ON,-DALACS_BUILD_TESTS=OFF,catch2"
+# The board's alacsd has no simulator: no --sim/--replay, alacs_sim not linked.
+EXTRA_OECMAKE += "-DALACS_WITH_SIM=OFF"
 
 # The GPIO chip that carries the header lines, by label (alacsd.json gpio.chip); the
 # Raspberry Pi 5's kas file sets "pinctrl-rp1".

@@ -1,0 +1,62 @@
+// Where the sensor's ports come from, chosen once at start (libcamera's pipeline
+// handlers' shape): the hardware platform (libgpiod lines, the libcamera camera), the
+// simulated one and the replay one (edge/app/sim_platform.h, only in builds with the
+// simulator). Each hands out the slide's and the laser's lines, the camera, the CAN bus
+// and the calibration, and owns them for the daemon's lifetime.
+#pragma once
+
+#include <functional>
+#include <memory>
+#include <string>
+
+#include "app/config.h"
+#include "app/sensor.h"
+#include "drivers/socketcan/socketcan.h"
+#include "geometry/calibration.h"
+#include "ports/digital_io.h"
+#include "ports/frame_source.h"
+
+namespace alacs::app {
+
+class Platform {
+ public:
+  virtual ~Platform() = default;
+  Platform(const Platform&) = delete;
+  Platform& operator=(const Platform&) = delete;
+
+  virtual const char* name() const = 0;
+  // STEP, DIR, ENABLE, LASER, HOME and (optional) END.
+  virtual const ports::SensorLines& lines() const = 0;
+  virtual ports::FrameSource& camera() = 0;
+  // The calibration the platform measures with, or why there is none (the sensor then
+  // NACKs NOT_CALIBRATED; a platform never substitutes another's data).
+  const Result<geometry::Calibration>& calibration() const { return calibration_; }
+  // Replay: the slide position each frame was recorded at (empty: the worker's own).
+  virtual std::function<double()> frameSlideMm() { return {}; }
+  // Extra time the worker may go without progress (Sensor::setWorkerSlack): a simulated
+  // camera renders each frame, which takes seconds under emulation.
+  virtual TimeNs workerSlackNs() const { return 2 * kNsPerS; }
+  // Told of each scan (the simulator's laser timeline); may be null.
+  virtual ScanObserver* observer() { return nullptr; }
+
+  ports::CanBus& can() { return *can_; }
+  int canFd() const { return can_->fd(); }
+
+ protected:
+  Platform() = default;
+  // Opens the configured CAN interface with the node's kernel filters.
+  Status openCan(const DaemonConfig& cfg);
+  void setCalibration(Result<geometry::Calibration> c) { calibration_ = std::move(c); }
+
+ private:
+  std::unique_ptr<drivers::SocketCanBus> can_;
+  Result<geometry::Calibration> calibration_ = Status(Error::kNotCalibrated, "no calibration loaded");
+};
+
+// The board: GPIO through libgpiod (gpio.chip), the libcamera camera, the calibration at
+// `calibrationPath` (empty: the config's `calibration`). Errors: a missing GPIO chip or
+// camera, a build without those drivers, the CAN interface. A bad calibration is not an
+// error: the platform opens and reports why it is not calibrated.
+Result<std::unique_ptr<Platform>> openHardwarePlatform(const DaemonConfig& cfg, const std::string& calibrationPath);
+
+}  // namespace alacs::app

@@ -1,0 +1,191 @@
+#include "app/sim_platform.h"
+
+#include <nlohmann/json.hpp>
+
+#include <cstdio>
+#include <fstream>
+
+#include "common/log.h"
+#include "ports/digital_io_fake.h"
+#include "ports/frame_source_fault.h"
+#include "replay/replay_source.h"
+#include "sim/scene.h"
+#include "sim/sim_camera.h"
+#include "sim/sim_slide.h"
+#ifdef ALACS_HAVE_GPIOD
+#include "drivers/gpiod/gpiod_lines.h"
+#endif
+
+namespace alacs::app {
+namespace {
+
+// --debug-dir: the laser line's edges and the exposures of the last scan, as JSON.
+class LaserTimelineWriter final : public ScanObserver {
+ public:
+  LaserTimelineWriter(std::string dir, ports::FakeDigitalOut& laser, int maxOnMs)
+      : dir_(std::move(dir)), laser_(laser), maxOnMs_(maxOnMs) {}
+  void scanFinished(const WorkerEvent& ev) override {
+    nlohmann::json j;
+    j["laser_max_on_ms"] = maxOnMs_;
+    j["edges"] = nlohmann::json::array();
+    for (const ports::Edge& e : laser_.edges()) j["edges"].push_back({e.timeNs, e.level ? 1 : 0});
+    j["exposures"] = nlohmann::json::array();
+    for (const ExposureWindow& w : ev.exposures) j["exposures"].push_back({w.startNs, w.endNs});
+    const std::string path = dir_ + "/laser_timeline.json";
+    {
+      std::ofstream out(path + ".tmp");
+      out << j.dump(2) << '\n';
+      if (!out) {
+        ALACS_LOG_WARN("debug", "cannot write %s", path.c_str());
+        return;
+      }
+    }
+    std::rename((path + ".tmp").c_str(), path.c_str());
+    laser_.clearEdges();
+  }
+
+ private:
+  std::string dir_;
+  ports::FakeDigitalOut& laser_;
+  int maxOnMs_;
+};
+
+class SimPlatform final : public Platform {
+ public:
+  const char* name() const override { return replay_ != nullptr ? "replay" : "sim"; }
+  const ports::SensorLines& lines() const override { return lines_; }
+  ports::FrameSource& camera() override { return faulty_ ? static_cast<ports::FrameSource&>(*faulty_) : *camera_; }
+  std::function<double()> frameSlideMm() override {
+    if (replay_ == nullptr) return {};
+    return [r = replay_] { return r->lastSlideMm(); };
+  }
+  ScanObserver* observer() override { return timeline_.get(); }
+  TimeNs workerSlackNs() const override { return 60 * kNsPerS; }
+
+  // Everything but the camera: slide, laser, switches, optional bench GPIO, CAN.
+  Status openCommon(const DaemonConfig& cfg, const SimOptions& opts, const Clock& clock) {
+    if (!opts.fault.empty() && opts.fault != "camera-timeout" && opts.fault != "camera-corrupt" &&
+        opts.fault != "home-stuck")
+      return {Error::kInvalidArgument, "--sim-fault must be camera-timeout|camera-corrupt|home-stuck, got '" + opts.fault + "'"};
+    slide_ = std::make_unique<sim::SimSlide>(clock, cfg.motion.stepsPerMm, cfg.motion.strokeMm, opts.startMm);
+    laser_ = std::make_unique<ports::FakeDigitalOut>(clock);
+    if (Status s = openBenchGpio(cfg); !s) return s;
+    if (lines_.step != nullptr) {
+      // The bench: real lines, and the simulated slide listens to the same pulses.
+      teeStep_ = std::make_unique<ports::TeeDigitalOut>(*lines_.step, slide_->stepInput());
+      teeDir_ = std::make_unique<ports::TeeDigitalOut>(*lines_.dir, slide_->dirInput());
+      teeEnable_ = std::make_unique<ports::TeeDigitalOut>(*lines_.enable, slide_->enableInput());
+      teeLaser_ = std::make_unique<ports::TeeDigitalOut>(*lines_.laser, *laser_);
+      lines_ = {teeStep_.get(), teeDir_.get(), teeEnable_.get(), teeLaser_.get(), lines_.home, lines_.end};
+    } else {
+      lines_ = {&slide_->stepInput(), &slide_->dirInput(), &slide_->enableInput(), laser_.get(), nullptr, nullptr};
+    }
+    // The simulated slide closes its own switches; a real END line (bench) can close the
+    // end switch too, as a limit hit mid-move.
+    if (lines_.end != nullptr) {
+      endSwitch_ = std::make_unique<ports::AnyOfDigitalIn>(*lines_.end, slide_->endSwitch());
+      lines_.end = endSwitch_.get();
+    } else {
+      lines_.end = &slide_->endSwitch();
+    }
+    lines_.home = opts.fault == "home-stuck" ? static_cast<ports::DigitalIn*>(&stuckOpenHome_) : &slide_->homeSwitch();
+    if (!opts.debugDir.empty()) timeline_ = std::make_unique<LaserTimelineWriter>(opts.debugDir, *laser_, cfg.laserMaxOnMs);
+    return openCan(cfg);
+  }
+
+  Status openRenderedCamera(const sim::SimScene& scene, const Clock& clock, Sleeper& sleeper) {
+    ports::FakeDigitalOut* laser = laser_.get();
+    sim::SimSlide* slide = slide_.get();
+    camera_ = std::make_unique<sim::SimCamera>(scene, clock, sleeper, [laser] { return laser->level(); },
+                                               [slide] { return slide->positionMm(); });
+    return Status::ok();
+  }
+
+  Status openReplayCamera(const std::string& dir, const Clock& clock) {
+    ports::FakeDigitalOut* laser = laser_.get();
+    sim::SimSlide* slide = slide_.get();
+    Result<std::unique_ptr<replay::ReplaySource>> rs = replay::ReplaySource::open(
+        dir, clock, [laser] { return laser->level(); }, [slide] { return slide->positionMm(); });
+    if (!rs) return rs.status();
+    replay_ = rs->get();
+    camera_ = std::move(*rs);
+    ALACS_LOG_INFO("replay", "camera: %zu frames of %s", replay_->manifest().frames.size(), dir.c_str());
+    return Status::ok();
+  }
+
+  void injectCameraFault(const std::string& fault, const Clock& clock, Sleeper& sleeper) {
+    if (fault != "camera-timeout" && fault != "camera-corrupt") return;
+    faulty_ = std::make_unique<ports::FaultInjectingFrameSource>(*camera_, clock, sleeper);
+    faulty_->setFault(fault == "camera-timeout" ? ports::CameraFault::kTimeout : ports::CameraFault::kCorrupt);
+  }
+
+  using Platform::setCalibration;
+
+ private:
+  Status openBenchGpio(const DaemonConfig& cfg) {
+    if (cfg.gpioChip.empty()) return Status::ok();
+#ifdef ALACS_HAVE_GPIOD
+    Result<std::unique_ptr<drivers::GpiodLines>> g = drivers::GpiodLines::open(cfg.gpioChip, cfg.lines, "alacsd");
+    if (!g) return g.status();
+    gpio_ = std::move(*g);
+    lines_ = gpio_->lines();
+    ALACS_LOG_INFO("gpio", "lines requested on %s", gpio_->chipName().c_str());
+    return Status::ok();
+#else
+    return {Error::kUnsupported, "this build has no libgpiod driver (gpio.chip is set)"};
+#endif
+  }
+
+#ifdef ALACS_HAVE_GPIOD
+  std::unique_ptr<drivers::GpiodLines> gpio_;
+#endif
+  ports::SensorLines lines_;
+  std::unique_ptr<sim::SimSlide> slide_;
+  std::unique_ptr<ports::FakeDigitalOut> laser_;
+  std::unique_ptr<ports::DigitalOut> teeStep_, teeDir_, teeEnable_, teeLaser_;
+  std::unique_ptr<ports::AnyOfDigitalIn> endSwitch_;
+  ports::FakeDigitalIn stuckOpenHome_{false};
+  std::unique_ptr<ports::FrameSource> camera_;
+  replay::ReplaySource* replay_ = nullptr;  // the camera, when replaying (owned by camera_)
+  std::unique_ptr<ports::FaultInjectingFrameSource> faulty_;
+  std::unique_ptr<LaserTimelineWriter> timeline_;
+};
+
+}  // namespace
+
+Result<std::unique_ptr<Platform>> openSimPlatform(const DaemonConfig& cfg, const SimOptions& opts, const Clock& clock,
+                                                  Sleeper& sleeper) {
+  sim::SimScene scene = sim::defaultScene();
+  if (!opts.scenePath.empty()) {
+    Result<sim::SimScene> s = sim::loadScene(opts.scenePath);
+    if (!s) return s.status();
+    scene = *s;
+  }
+  if (!opts.truthOut.empty()) {
+    if (Status s = sim::saveSceneTruth(scene, opts.truthOut); !s) return s;
+  }
+  auto p = std::make_unique<SimPlatform>();
+  if (Status s = p->openCommon(cfg, opts, clock); !s) return s;
+  if (opts.calibrationPath.empty()) {
+    ALACS_LOG_WARN("cal", "--sim without --calibration: using the simulator's true calibration");
+    p->setCalibration(scene.truth);
+  } else {
+    p->setCalibration(geometry::loadCalibration(opts.calibrationPath));
+  }
+  if (Status s = p->openRenderedCamera(scene, clock, sleeper); !s) return s;
+  p->injectCameraFault(opts.fault, clock, sleeper);
+  return std::unique_ptr<Platform>(std::move(p));
+}
+
+Result<std::unique_ptr<Platform>> openReplayPlatform(const DaemonConfig& cfg, const std::string& dir,
+                                                     const SimOptions& opts, const Clock& clock, Sleeper& sleeper) {
+  auto p = std::make_unique<SimPlatform>();
+  if (Status s = p->openCommon(cfg, opts, clock); !s) return s;
+  p->setCalibration(
+      geometry::loadCalibration(opts.calibrationPath.empty() ? dir + "/calibration.json" : opts.calibrationPath));
+  if (Status s = p->openReplayCamera(dir, clock); !s) return s;
+  p->injectCameraFault(opts.fault, clock, sleeper);
+  return std::unique_ptr<Platform>(std::move(p));
+}
+
+}  // namespace alacs::app

@@ -1,0 +1,32 @@
+// The simulated and the replay platforms (library alacs_app_sim, the only part of the
+// daemon that links the simulator; the board's build leaves it out with
+// -DALACS_WITH_SIM=OFF). The slide and the laser are simulated from the same STEP, DIR,
+// ENABLE and LASER pulses the hardware gets; on the bench a real GPIO chip is driven too
+// (tee) and its END line can close the end switch. The camera renders the scene
+// (sim) or serves a recorded scan directory (replay, docs/scan-format.md).
+#pragma once
+
+#include <memory>
+#include <string>
+
+#include "app/platform.h"
+
+namespace alacs::app {
+
+struct SimOptions {
+  std::string scenePath;        // empty: sim::defaultScene()
+  std::string truthOut;         // write the scene's truth here (tests)
+  std::string calibrationPath;  // empty: the scene's true calibration (sim), the directory's (replay)
+  std::string fault;            // camera-timeout | camera-corrupt | home-stuck | empty
+  std::string debugDir;         // the laser timeline of each scan goes here (laser_timeline.json)
+  double startMm = 37.0;        // where the simulated slide starts
+};
+
+// Errors: a bad scene file, a bad fault name, the GPIO chip (when gpio.chip is set), CAN.
+Result<std::unique_ptr<Platform>> openSimPlatform(const DaemonConfig& cfg, const SimOptions& opts, const Clock& clock,
+                                                  Sleeper& sleeper);
+// The camera replays `dir`; its calibration.json unless opts.calibrationPath is given.
+Result<std::unique_ptr<Platform>> openReplayPlatform(const DaemonConfig& cfg, const std::string& dir,
+                                                     const SimOptions& opts, const Clock& clock, Sleeper& sleeper);
+
+}  // namespace alacs::app
