@@ -96,20 +96,8 @@ int runDaemon(const Options& o, const DaemonConfig& cfg) {
   }
   RecordingObserver observer(recorder.get(), platform.observer());
   const int eventFd = ::eventfd(0, EFD_NONBLOCK | EFD_CLOEXEC);
-  WorkerDeps deps;
-  deps.clock = &clock;
-  deps.sleeper = &sleeper;
-  deps.limits = cfg.motion;
-  deps.stepLines = {lines.step, lines.dir, lines.home, lines.end};
-  deps.enable = lines.enable;
-  deps.laser = &laser;
-  deps.camera = recording ? static_cast<ports::FrameSource*>(recording.get()) : &platform.camera();
-  deps.captureRetries = cfg.frameRetries;
-  deps.realtimePriority = cfg.realtimePriority;
-  deps.capture.exposureUs = cfg.exposureUs;
-  deps.capture.timeoutMs = cfg.frameTimeoutMs;
-  deps.debugDir = o.simOpts.debugDir;
-  deps.frameSlideMm = platform.frameSlideMm();
+  const WorkerDeps deps = workerDepsFor(cfg, platform, clock, sleeper, laser,
+                                        recording ? *recording : platform.camera(), o.simOpts.debugDir);
   worker = std::make_unique<ScanWorker>(deps, eventFd);
   Sensor sensor(cfg, {&platform.can(), worker.get(), &laser, lines.home, &observer}, platform.calibration(), kVersion);
   sensor.setWorkerSlack(platform.workerSlackNs());
@@ -219,14 +207,14 @@ int main(int argc, char** argv) {
                                           "laser simulated; its calibration unless --calibration")->excludes(sim);
   cli.add_option("--record", o.recordDir, "write every scan as a scan directory DIR/scan_NNNN");
   cli.add_option("--debug-dir", o.simOpts.debugDir, "write an overlay PNG of the lines found per scan (overlay_NNNN.png)");
+  bool laserOff = false;
+  cli.add_flag("--laser-off", laserOff, "drive the configured LASER line off and exit (the unit's ExecStopPost)");
   cli.add_option("--log-level", o.level, "log level")->check(CLI::IsMember({"error", "warning", "info", "debug"}))
       ->capture_default_str();
   try {
     cli.parse(argc, argv);
     if (!o.simOpts.fault.empty() && !o.sim && o.replayDir.empty()) throw CLI::ValidationError("--sim-fault needs --sim or --replay");
-  } catch (const CLI::CallForHelp& e) {
-    return cli.exit(e);
-  } catch (const CLI::CallForVersion& e) {
+  } catch (const CLI::Success& e) {  // --help, --version
     return cli.exit(e);
   } catch (const CLI::ParseError& e) {
     std::fprintf(stderr, "alacsd: %s (see --help)\n", e.what());
@@ -235,21 +223,21 @@ int main(int argc, char** argv) {
   log::Level level = log::Level::kInfo;
   (void)log::parseLevel(o.level.c_str(), &level);
   log::setLevel(level);
-  app::DaemonConfig cfg;
-  if (!o.configPath.empty()) {
-    Result<app::DaemonConfig> loaded = app::loadConfig(o.configPath);
-    if (!loaded) {
-      std::fprintf(stderr, "alacsd: %s\n", loaded.status().toString().c_str());
-      return 2;
-    }
-    cfg = *loaded;
+  Result<app::DaemonConfig> cfg = o.configPath.empty() ? app::DaemonConfig{} : app::loadConfig(o.configPath);
+  if (cfg) {
+    if (!o.canInterface.empty()) cfg->canInterface = o.canInterface;
+    if (o.nodeId > 0) cfg->nodeId = o.nodeId;
+    if (!o.gpioChip.empty()) cfg->gpioChip = o.gpioChip;
+    if (Status s = app::validateConfig(*cfg); !s) cfg = s;
   }
-  if (!o.canInterface.empty()) cfg.canInterface = o.canInterface;
-  if (o.nodeId > 0) cfg.nodeId = o.nodeId;
-  if (!o.gpioChip.empty()) cfg.gpioChip = o.gpioChip;
-  if (Status s = app::validateConfig(cfg); !s) {
-    std::fprintf(stderr, "alacsd: %s\n", s.toString().c_str());
+  if (!cfg) {
+    std::fprintf(stderr, "alacsd: %s\n", cfg.status().toString().c_str());
     return 2;
   }
-  return app::runDaemon(o, cfg);
+  if (laserOff) {
+    const Status s = app::driveLaserOff(*cfg);
+    std::fprintf(stderr, "alacsd: laser off: %s\n", s.toString().c_str());
+    return s ? 0 : 1;
+  }
+  return app::runDaemon(o, *cfg);
 }

@@ -65,6 +65,38 @@ class HardwarePlatform final : public Platform {
 
 }  // namespace
 
+WorkerDeps workerDepsFor(const DaemonConfig& cfg, Platform& platform, const Clock& clock, Sleeper& sleeper,
+                         LaserGuard& laser, ports::FrameSource& camera, const std::string& debugDir) {
+  const ports::SensorLines& lines = platform.lines();
+  WorkerDeps deps;
+  deps.clock = &clock;
+  deps.sleeper = &sleeper;
+  deps.limits = cfg.motion;
+  deps.stepLines = {lines.step, lines.dir, lines.home, lines.end};
+  deps.enable = lines.enable;
+  deps.laser = &laser;
+  deps.camera = &camera;
+  deps.captureRetries = cfg.frameRetries;
+  deps.realtimePriority = cfg.realtimePriority;
+  deps.capture.exposureUs = cfg.exposureUs;
+  deps.capture.timeoutMs = cfg.frameTimeoutMs;
+  deps.debugDir = debugDir;
+  deps.frameSlideMm = platform.frameSlideMm();
+  return deps;
+}
+
+Status driveLaserOff(const DaemonConfig& cfg) {
+#ifdef ALACS_HAVE_GPIOD
+  if (cfg.gpioChip.empty()) return {Error::kInvalidArgument, "no GPIO chip configured (gpio.chip)"};
+  Result<std::unique_ptr<drivers::GpiodLines>> g = drivers::GpiodLines::open(cfg.gpioChip, cfg.lines, "alacsd-laser-off");
+  if (!g) return g.status();
+  return (*g)->lines().laser->set(false);
+#else
+  (void)cfg;
+  return {Error::kUnsupported, "this build has no libgpiod driver"};
+#endif
+}
+
 Result<std::unique_ptr<Platform>> openHardwarePlatform(const DaemonConfig& cfg, const std::string& calibrationPath) {
 #if defined(ALACS_HAVE_GPIOD) && defined(ALACS_HAVE_LIBCAMERA)
   return HardwarePlatform::open(cfg, calibrationPath);

@@ -10,6 +10,8 @@
 #include <string>
 
 #include "app/config.h"
+#include "app/laser_guard.h"
+#include "app/scan_worker.h"
 #include "app/sensor.h"
 #include "drivers/socketcan/socketcan.h"
 #include "geometry/calibration.h"
@@ -58,5 +60,16 @@ class Platform {
 // camera, a build without those drivers, the CAN interface. A bad calibration is not an
 // error: the platform opens and reports why it is not calibrated.
 Result<std::unique_ptr<Platform>> openHardwarePlatform(const DaemonConfig& cfg, const std::string& calibrationPath);
+
+// What the scan worker needs from the config and the platform: its lines, `camera`
+// (the platform's, or a recorder in front of it), the laser guard, the clock.
+WorkerDeps workerDepsFor(const DaemonConfig& cfg, Platform& platform, const Clock& clock, Sleeper& sleeper,
+                         LaserGuard& laser, ports::FrameSource& camera, const std::string& debugDir);
+
+// `alacsd --laser-off` (the unit's ExecStopPost): requests the configured chip's LASER
+// line (gpio.chip, gpio.laser: the names in force, not a fixed one), drives it off and
+// releases it. Errors: no GPIO configured, the chip or line missing, a build without
+// libgpiod.
+Status driveLaserOff(const DaemonConfig& cfg);
 
 }  // namespace alacs::app

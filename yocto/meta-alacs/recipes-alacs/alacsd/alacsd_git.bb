@@ -12,7 +12,7 @@ LICENSE = "Apache-2.0"
 LIC_FILES_CHKSUM = "file://${COMMON_LICENSE_DIR}/Apache-2.0;md5=89aea4e17d99a7cacdbeed46a0096b10"
 CVE_PRODUCT = "alacsd"
 
-DEPENDS = "libeigen libpng opencv nlohmann-json cli11"
+DEPENDS = "cli11 libeigen libpng nlohmann-json opencv"
 
 PV = "0.1.0+git"
 
