@@ -426,16 +426,10 @@ Result<SphereFit> finish(const std::vector<Eigen::Vector3d>& pts, const std::vec
   return out;
 }
 
-// One line: the points fix a circle in the laser plane and nothing else; every sphere
-// through that circle fits them equally. The priors (radius, rough position) choose the
-// centre's offset δ from the plane: c = c0 + δ·n, R = sqrt(ρ² + δ²), δ at the minimum of
-//   (R(δ) − R0)²/σR² + |c(δ) − rough|²/σc²,
-// its variance from that function's curvature. (Gauss–Newton on the sphere itself would
-// wander along the valley of equally good spheres, driven by the noise.)
-Result<SphereFit> finishOneLine(const std::vector<Eigen::Vector3d>& pts, const Pieces& pieces, const Hypothesis& h,
-                                const SphereFitParams& p) {
-  const size_t n = pts.size();
-  // The points the hypothesis explains: pieces it explains for the most part.
+// The one line's points that the hypothesis explains: of the line whose pieces it
+// explains best, the pieces it explains for the most part.
+std::vector<size_t> oneLinePoints(const std::vector<Eigen::Vector3d>& pts, const Pieces& pieces, const Hypothesis& h,
+                                  const SphereFitParams& p) {
   const double band = std::max(p.outlierMm, 2.0 * p.ransacBandMm);
   std::vector<size_t> idx;
   int line = -1;
@@ -455,6 +449,19 @@ Result<SphereFit> finishOneLine(const std::vector<Eigen::Vector3d>& pts, const P
     if (static_cast<double>(count) >= 0.5 * static_cast<double>(pieces.members[g].size()))
       idx.insert(idx.end(), pieces.members[g].begin(), pieces.members[g].end());
   }
+  return idx;
+}
+
+// One line: the points fix a circle in the laser plane and nothing else; every sphere
+// through that circle fits them equally. The priors (radius, rough position) choose the
+// centre's offset δ from the plane: c = c0 + δ·n, R = sqrt(ρ² + δ²), δ at the minimum of
+//   (R(δ) − R0)²/σR² + |c(δ) − rough|²/σc²,
+// its variance from that function's curvature. (Gauss–Newton on the sphere itself would
+// wander along the valley of equally good spheres, driven by the noise.)
+Result<SphereFit> finishOneLine(const std::vector<Eigen::Vector3d>& pts, const Pieces& pieces, const Hypothesis& h,
+                                const SphereFitParams& p) {
+  const size_t n = pts.size();
+  const std::vector<size_t> idx = oneLinePoints(pts, pieces, h, p);
   if (idx.size() < p.minPoints) return Status(Error::kBadInput, "too few points on the one line");
   // Plane and in-plane frame.
   Eigen::Vector3d mean;

@@ -1,5 +1,6 @@
 #include "image/lle.h"
 
+#include <algorithm>
 #include <string>
 
 #include "image/lle_focus.h"

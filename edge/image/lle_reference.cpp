@@ -4,6 +4,8 @@
 // recurrence, so the comparison also checks that recurrence.
 #include <Eigen/Dense>
 
+#include <algorithm>
+
 #include "image/lle_focus.h"
 #include "image/lle_internal.h"
 

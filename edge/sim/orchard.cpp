@@ -168,6 +168,115 @@ bool leafTouchesApple(const SimLeaf& l, const std::vector<SimApple>& apples) {
 
 double shareWith(const SimScene& base, const SimApple& target) { return occlusionShare(base, target, 400); }
 
+// Neighbours in the cluster: beside or behind the target, never in front of it.
+void addNeighbours(SimScene& s, const SimApple& target, int maxNeighbours, CaseRng& rng) {
+  const Eigen::Vector3d tc = target.centerMm;
+  const int neighbours = rng.integer(0, maxNeighbours);
+  for (int k = 0; k < neighbours; ++k) {
+    for (int attempt = 0; attempt < 30; ++attempt) {
+      SimApple a = randomApple(rng, 2 + k);
+      Eigen::Vector3d dir = rng.unitVector();
+      dir.z() = std::abs(dir.z()) * 0.8;
+      dir.normalize();
+      a.centerMm = tc + dir * (target.radiusMm + a.radiusMm + rng.uniform(1.0, 30.0));
+      bool ok = a.centerMm.z() + a.radiusMm < s.background.depthMm;
+      for (const auto& b : s.apples) ok = ok && (a.centerMm - b.centerMm).norm() > a.radiusMm + b.radiusMm + 0.5;
+      if (!ok) continue;
+      SimScene trial = s;
+      trial.apples.push_back(a);
+      if (shareWith(trial, target) > 0.02) continue;
+      s.apples.push_back(a);
+      break;
+    }
+  }
+}
+
+// The canopy: leaves around the cluster that do not hide the target.
+void addCanopy(SimScene& s, const SimApple& target, CaseRng& rng) {
+  const Eigen::Vector3d tc = target.centerMm;
+  const int canopy = rng.integer(12, 30);
+  for (int k = 0; k < canopy; ++k) {
+    for (int attempt = 0; attempt < 10; ++attempt) {
+      const Eigen::Vector3d c = tc + Eigen::Vector3d(rng.uniform(-260.0, 260.0), rng.uniform(-200.0, 200.0),
+                                                     rng.uniform(-150.0, 300.0));
+      SimLeaf l = randomLeaf(rng, c);
+      if (leafTouchesApple(l, s.apples) || c.z() + 60.0 > s.background.depthMm) continue;
+      SimScene trial = s;
+      trial.leaves.push_back(l);
+      if (shareWith(trial, target) > 0.0) continue;
+      s.leaves.push_back(l);
+      break;
+    }
+  }
+}
+
+// Twigs and branches, behind or beside the target.
+void addBranches(SimScene& s, const SimApple& target, CaseRng& rng) {
+  const Eigen::Vector3d tc = target.centerMm;
+  const int branches = rng.integer(0, 2);
+  for (int k = 0; k < branches; ++k) {
+    for (int attempt = 0; attempt < 10; ++attempt) {
+      SimBranch b;
+      b.radiusMm = rng.uniform(5.0, 16.0);
+      const Eigen::Vector3d mid = tc + Eigen::Vector3d(rng.uniform(-200.0, 200.0), rng.uniform(-150.0, 150.0),
+                                                       rng.uniform(0.0, 250.0));
+      Eigen::Vector3d ax = Eigen::Vector3d(rng.uniform(-1.0, 1.0), rng.uniform(-1.0, 1.0), rng.uniform(-0.3, 0.3)).normalized();
+      const double half = rng.uniform(150.0, 300.0);
+      b.aMm = mid - half * ax;
+      b.bMm = mid + half * ax;
+      b.albedoRgb = Eigen::Vector3d(rng.uniform(0.15, 0.25), rng.uniform(0.12, 0.18), rng.uniform(0.08, 0.12));
+      bool ok = std::max(b.aMm.z(), b.bMm.z()) + b.radiusMm < s.background.depthMm && std::min(b.aMm.z(), b.bMm.z()) > 300.0;
+      for (const auto& a : s.apples) {
+        const Eigen::Vector3d ba = b.bMm - b.aMm;
+        const double t = std::clamp((a.centerMm - b.aMm).dot(ba) / ba.squaredNorm(), 0.0, 1.0);
+        ok = ok && (a.centerMm - (b.aMm + t * ba)).norm() > a.radiusMm + b.radiusMm + 2.0;
+      }
+      if (!ok) continue;
+      SimScene trial = s;
+      trial.branches.push_back(b);
+      if (shareWith(trial, target) > 0.0) continue;
+      s.branches.push_back(b);
+      break;
+    }
+  }
+
+}
+
+// One to three leaves in front of the target, until 15-50 % of it is hidden (40 rounds);
+// false when no round got there.
+bool occludeTarget(SimScene& s, const SimApple& target, CaseRng& rng) {
+  const Eigen::Vector3d tc = target.centerMm;
+  bool done = false;
+  for (int round = 0; round < 40 && !done; ++round) {
+    SimScene trial = s;
+    const int count = rng.integer(1, 3);
+    for (int k = 0; k < count; ++k) {
+      for (int attempt = 0; attempt < 20; ++attempt) {
+        const double dz = rng.uniform(25.0, 160.0);
+        const double zl = tc.z() - target.radiusMm - dz;
+        const double ang = rng.uniform(0.0, 2.0 * M_PI);
+        const double off = rng.uniform(0.35, 1.2) * target.radiusMm;
+        const Eigen::Vector3d onAxis = tc * (zl / tc.z());
+        const Eigen::Vector3d c = onAxis + off * Eigen::Vector3d(std::cos(ang), std::sin(ang), 0.0);
+        SimLeaf l = randomLeaf(rng, c);
+        l.normal = (Eigen::Vector3d(rng.uniform(-0.5, 0.5), rng.uniform(-0.5, 0.5), -1.0)).normalized();
+        l.axis = (l.normal.unitOrthogonal()).normalized();
+        const double spin = rng.uniform(0.0, 2.0 * M_PI);
+        l.axis = (std::cos(spin) * l.axis + std::sin(spin) * l.normal.cross(l.axis)).normalized();
+        if (leafTouchesApple(l, trial.apples)) continue;
+        trial.leaves.push_back(l);
+        break;
+      }
+    }
+    const double share = shareWith(trial, target);
+    if (share >= 0.15 && share <= 0.5) {
+      s = trial;
+      done = true;
+    }
+  }
+  return done;
+}
+
 }  // namespace
 
 Result<OrchardCase> makeOrchardCase(const CaseSpec& spec, uint64_t seed) {
@@ -217,101 +326,13 @@ Result<OrchardCase> makeOrchardCase(const CaseSpec& spec, uint64_t seed) {
     s.background.textureCellMm = rng.uniform(25.0, 45.0);
   }
 
-  // Neighbours in the cluster: beside or behind the target, never in front of it.
-  const int neighbours = rng.integer(0, spec.maxNeighbours);
-  for (int k = 0; k < neighbours; ++k) {
-    for (int attempt = 0; attempt < 30; ++attempt) {
-      SimApple a = randomApple(rng, 2 + k);
-      Eigen::Vector3d dir = rng.unitVector();
-      dir.z() = std::abs(dir.z()) * 0.8;
-      dir.normalize();
-      a.centerMm = tc + dir * (target.radiusMm + a.radiusMm + rng.uniform(1.0, 30.0));
-      bool ok = a.centerMm.z() + a.radiusMm < s.background.depthMm;
-      for (const auto& b : s.apples) ok = ok && (a.centerMm - b.centerMm).norm() > a.radiusMm + b.radiusMm + 0.5;
-      if (!ok) continue;
-      SimScene trial = s;
-      trial.apples.push_back(a);
-      if (shareWith(trial, target) > 0.02) continue;
-      s.apples.push_back(a);
-      break;
-    }
-  }
-
-  // The canopy: leaves around the cluster that do not hide the target.
-  const int canopy = rng.integer(12, 30);
-  for (int k = 0; k < canopy; ++k) {
-    for (int attempt = 0; attempt < 10; ++attempt) {
-      const Eigen::Vector3d c = tc + Eigen::Vector3d(rng.uniform(-260.0, 260.0), rng.uniform(-200.0, 200.0),
-                                                     rng.uniform(-150.0, 300.0));
-      SimLeaf l = randomLeaf(rng, c);
-      if (leafTouchesApple(l, s.apples) || c.z() + 60.0 > s.background.depthMm) continue;
-      SimScene trial = s;
-      trial.leaves.push_back(l);
-      if (shareWith(trial, target) > 0.0) continue;
-      s.leaves.push_back(l);
-      break;
-    }
-  }
-  // Twigs and branches, behind or beside the target.
-  const int branches = rng.integer(0, 2);
-  for (int k = 0; k < branches; ++k) {
-    for (int attempt = 0; attempt < 10; ++attempt) {
-      SimBranch b;
-      b.radiusMm = rng.uniform(5.0, 16.0);
-      const Eigen::Vector3d mid = tc + Eigen::Vector3d(rng.uniform(-200.0, 200.0), rng.uniform(-150.0, 150.0),
-                                                       rng.uniform(0.0, 250.0));
-      Eigen::Vector3d ax = Eigen::Vector3d(rng.uniform(-1.0, 1.0), rng.uniform(-1.0, 1.0), rng.uniform(-0.3, 0.3)).normalized();
-      const double half = rng.uniform(150.0, 300.0);
-      b.aMm = mid - half * ax;
-      b.bMm = mid + half * ax;
-      b.albedoRgb = Eigen::Vector3d(rng.uniform(0.15, 0.25), rng.uniform(0.12, 0.18), rng.uniform(0.08, 0.12));
-      bool ok = std::max(b.aMm.z(), b.bMm.z()) + b.radiusMm < s.background.depthMm && std::min(b.aMm.z(), b.bMm.z()) > 300.0;
-      for (const auto& a : s.apples) {
-        const Eigen::Vector3d ba = b.bMm - b.aMm;
-        const double t = std::clamp((a.centerMm - b.aMm).dot(ba) / ba.squaredNorm(), 0.0, 1.0);
-        ok = ok && (a.centerMm - (b.aMm + t * ba)).norm() > a.radiusMm + b.radiusMm + 2.0;
-      }
-      if (!ok) continue;
-      SimScene trial = s;
-      trial.branches.push_back(b);
-      if (shareWith(trial, target) > 0.0) continue;
-      s.branches.push_back(b);
-      break;
-    }
-  }
+  addNeighbours(s, target, spec.maxNeighbours, rng);
+  addCanopy(s, target, rng);
+  addBranches(s, target, rng);
 
   // Occlusion: one to three leaves in front of the target, until 15-50 % of it is hidden.
-  if (spec.occluded) {
-    bool done = false;
-    for (int round = 0; round < 40 && !done; ++round) {
-      SimScene trial = s;
-      const int count = rng.integer(1, 3);
-      for (int k = 0; k < count; ++k) {
-        for (int attempt = 0; attempt < 20; ++attempt) {
-          const double dz = rng.uniform(25.0, 160.0);
-          const double zl = tc.z() - target.radiusMm - dz;
-          const double ang = rng.uniform(0.0, 2.0 * M_PI);
-          const double off = rng.uniform(0.35, 1.2) * target.radiusMm;
-          const Eigen::Vector3d onAxis = tc * (zl / tc.z());
-          const Eigen::Vector3d c = onAxis + off * Eigen::Vector3d(std::cos(ang), std::sin(ang), 0.0);
-          SimLeaf l = randomLeaf(rng, c);
-          l.normal = (Eigen::Vector3d(rng.uniform(-0.5, 0.5), rng.uniform(-0.5, 0.5), -1.0)).normalized();
-          l.axis = (l.normal.unitOrthogonal()).normalized();
-          const double spin = rng.uniform(0.0, 2.0 * M_PI);
-          l.axis = (std::cos(spin) * l.axis + std::sin(spin) * l.normal.cross(l.axis)).normalized();
-          if (leafTouchesApple(l, trial.apples)) continue;
-          trial.leaves.push_back(l);
-          break;
-        }
-      }
-      const double share = shareWith(trial, target);
-      if (share >= 0.15 && share <= 0.5) {
-        s = trial;
-        done = true;
-      }
-    }
-    if (!done) return Status(Error::kInternal, "could not occlude the target by 15-50 %");
-  }
+  if (spec.occluded && !occludeTarget(s, target, rng))
+    return Status(Error::kInternal, "could not occlude the target by 15-50 %");
   oc.occlusionShare = occlusionShare(s, *s.apple(1));
 
   // What the RGB-D camera reports: the truth plus its error.

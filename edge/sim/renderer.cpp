@@ -103,6 +103,113 @@ double skinBlushMask(const SimApple& a, const Eigen::Vector3d& nrm) {
   return smooth(std::clamp((x - (tau - 0.2)) / 0.4, 0.0, 1.0));
 }
 
+// The surface of the object hit at p (normal nrm): albedo with its texture, gloss, halo.
+Surface objectSurface(const SimScene& s, const Hit& hit, const Eigen::Vector3d& p, const Eigen::Vector3d& nrm) {
+  Surface surf;
+  switch (hit.kind) {
+    case SurfaceKind::kApple: {
+      const SimApple& a = s.apples[static_cast<size_t>(hit.index)];
+      const Eigen::Vector3d outward = appleNormal(a, p);
+      const double blush = skinBlushMask(a, outward);
+      const double fine = 0.9 + 0.2 * fbm((p.x() + 0.7 * p.z()) / 3.0, p.y() / 3.0, 17 + static_cast<uint64_t>(a.id));
+      surf.albedo = (blush * a.skinRgb + (1.0 - blush) * a.groundRgb) * fine;
+      surf.laserAlbedo = surf.albedo.x();
+      surf.specular = a.specular;
+      surf.shininess = a.shininess;
+      surf.halo = s.laser.haloShare;
+      break;
+    }
+    case SurfaceKind::kLeaf: {
+      const SimLeaf& l = s.leaves[static_cast<size_t>(hit.index)];
+      const Eigen::Vector3d q = p - l.centerMm;
+      const double vein = std::abs(q.dot(l.normal.cross(l.axis))) < 1.0 ? 1.25 : 1.0;
+      surf.albedo = l.albedoRgb * (0.85 + 0.3 * valueNoise(q.dot(l.axis) / 6.0, q.dot(l.normal.cross(l.axis)) / 6.0, 31 + static_cast<uint64_t>(hit.index))) * vein;
+      surf.laserAlbedo = surf.albedo.x();
+      surf.specular = 0.03;
+      surf.shininess = 25.0;
+      surf.twoSided = true;
+      break;
+    }
+    case SurfaceKind::kBranch: {
+      const SimBranch& b = s.branches[static_cast<size_t>(hit.index)];
+      const Eigen::Vector3d ax = (b.bMm - b.aMm).normalized();
+      surf.albedo = b.albedoRgb * (0.75 + 0.5 * valueNoise((p - b.aMm).dot(ax) / 12.0, std::atan2(nrm.y(), nrm.x()) * 3.0, 41 + static_cast<uint64_t>(hit.index)));
+      surf.laserAlbedo = surf.albedo.x();
+      break;
+    }
+    case SurfaceKind::kBoard: {
+      const SimBoard& b = *s.board;
+      const Eigen::Vector3d local = b.rotation.transpose() * (p - b.originMm);
+      double alb = b.whiteAlbedo;
+      if (b.checkerboard && local.x() >= 0 && local.y() >= 0 && local.x() < b.squaresX * b.squareMm &&
+          local.y() < b.squaresY * b.squareMm) {
+        const auto cx = static_cast<int64_t>(std::floor(local.x() / b.squareMm));
+        const auto cy = static_cast<int64_t>(std::floor(local.y() / b.squareMm));
+        if ((cx + cy) % 2 == 0) alb = b.blackAlbedo;
+      }
+      surf.albedo = Eigen::Vector3d::Constant(alb);
+      surf.laserAlbedo = alb;
+      surf.twoSided = false;
+      break;
+    }
+  }
+  return surf;
+}
+
+// The background's surface at p: foliage or a backdrop. False where the foliage is sky
+// (value noise below skyThreshold): no surface.
+bool backgroundSurface(const SimBackground& bgd, const Eigen::Vector3d& p, double skyThreshold, Surface* surf) {
+  if (bgd.kind == SimBackground::Kind::kFoliage) {
+    const double gap = fbm(p.x() / (3.0 * bgd.textureCellMm), p.y() / (3.0 * bgd.textureCellMm), 1234);
+    if (gap < skyThreshold) return false;
+    const double clump = valueNoise(p.x() / bgd.textureCellMm, p.y() / bgd.textureCellMm, 99);
+    const double fine = valueNoise(p.x() / 6.0, p.y() / 6.0, 7);
+    surf->albedo = bgd.albedoRgb * (0.5 + 0.8 * clump) * (0.85 + 0.3 * fine);
+  } else {
+    surf->albedo = bgd.albedoRgb * (0.9 + 0.2 * valueNoise(p.x() / 20.0, p.y() / 20.0, 8));
+  }
+  return true;
+}
+
+// Specular illuminance (lux) of a glossy surface (surf.specular > 0) seen along dir: the
+// sun's highlight when the sun reaches it (directE > 0), and the sky reflected in the wax.
+double specularLux(const SimLighting& light, const Surface& surf, const Eigen::Vector3d& nrm,
+                   const Eigen::Vector3d& dir, const Eigen::Vector3d& sun, double directE, double cosSun) {
+  double specE = 0.0;
+  const Eigen::Vector3d view = -dir;
+  const double cosView = std::max(0.0, nrm.dot(view));
+  if (directE > 0.0) {
+    const Eigen::Vector3d h = (sun + view).normalized();
+    const double fres = surf.specular + (1.0 - surf.specular) * std::pow(1.0 - std::max(0.0, h.dot(view)), 5);
+    specE += light.directLux * fres * (surf.shininess + 8.0) / 8.0 * std::pow(std::max(0.0, nrm.dot(h)), surf.shininess) * (cosSun > 0 ? 1.0 : 0.0);
+  }
+  // The sky (or room) reflected in the wax: Fresnel rises towards the limb.
+  const double fresView = surf.specular + (1.0 - surf.specular) * std::pow(1.0 - cosView, 5);
+  specE += 0.5 * fresView * light.skyLuminanceFactor * light.diffuseLux;
+  return specE;
+}
+
+// One position of the laser during the exposure: its origin and its plane's offset.
+struct LaserSub {
+  Eigen::Vector3d origin;
+  double offset;
+};
+
+// Laser: sub-positions across the exposure, so that a moving slide smears the line (none
+// with the laser off).
+std::vector<LaserSub> laserSubs(const SimScene& s, const FrameRequest& request) {
+  const auto& las = s.truth.laser;
+  const double sigmaRef = s.laser.sheetSigmaMrad * 1.2;  // mm at 1.2 m
+  const double travel = std::abs(las.planeOffsetAt(request.slideEndMm) - las.planeOffsetAt(request.slideStartMm));
+  const int subSamples = request.laserFraction > 0.0 ? std::clamp(static_cast<int>(std::ceil(travel / (0.25 * sigmaRef))), 1, 64) : 0;
+  std::vector<LaserSub> subs;
+  for (int k = 0; k < subSamples; ++k) {
+    const double sl = request.slideStartMm + (request.slideEndMm - request.slideStartMm) * (k + 0.5) / subSamples;
+    subs.push_back({s.laser.originAt(las, sl), las.planeOffsetAt(sl)});
+  }
+  return subs;
+}
+
 }  // namespace
 
 RayTable::RayTable(const geometry::CameraIntrinsics& cam) : cam_(cam) {
@@ -234,19 +341,7 @@ void Renderer::shadeRegion(const FrameRequest& request, const cv::Rect& region, 
   const Eigen::Vector3d up(0.0, -1.0, 0.0);
   const Eigen::Vector3d sun = light.directDir.normalized();
   const bool haveSun = light.directLux > 0.0;
-  // Laser: sub-positions across the exposure, so that a moving slide smears the line.
-  const double sigmaRef = s.laser.sheetSigmaMrad * 1.2;  // mm at 1.2 m
-  const double travel = std::abs(las.planeOffsetAt(request.slideEndMm) - las.planeOffsetAt(request.slideStartMm));
-  const int subSamples = request.laserFraction > 0.0 ? std::clamp(static_cast<int>(std::ceil(travel / (0.25 * sigmaRef))), 1, 64) : 0;
-  struct Sub {
-    Eigen::Vector3d origin;
-    double offset;
-  };
-  std::vector<Sub> subs;
-  for (int k = 0; k < subSamples; ++k) {
-    const double sl = request.slideStartMm + (request.slideEndMm - request.slideStartMm) * (k + 0.5) / subSamples;
-    subs.push_back({s.laser.originAt(las, sl), las.planeOffsetAt(sl)});
-  }
+  const std::vector<LaserSub> subs = laserSubs(s, request);
   const Eigen::Vector3d n = las.planeNormal;
   const Eigen::Vector3d beam = (Eigen::Vector3d(0, 0, 1) - n.z() * n).normalized();
   const double cosHalfFan = std::cos(0.5 * s.laser.fanDeg * kPi / 180.0);
@@ -284,70 +379,16 @@ void Renderer::shadeRegion(const FrameRequest& request, const cv::Rect& region, 
         nrm = hit.normal;
         kind = hit.kind;
         index = hit.index;
-        switch (hit.kind) {
-          case SurfaceKind::kApple: {
-            const SimApple& a = s.apples[static_cast<size_t>(hit.index)];
-            const Eigen::Vector3d outward = appleNormal(a, p);
-            const double blush = skinBlushMask(a, outward);
-            const double fine = 0.9 + 0.2 * fbm((p.x() + 0.7 * p.z()) / 3.0, p.y() / 3.0, 17 + static_cast<uint64_t>(a.id));
-            surf.albedo = (blush * a.skinRgb + (1.0 - blush) * a.groundRgb) * fine;
-            surf.laserAlbedo = surf.albedo.x();
-            surf.specular = a.specular;
-            surf.shininess = a.shininess;
-            surf.halo = s.laser.haloShare;
-            break;
-          }
-          case SurfaceKind::kLeaf: {
-            const SimLeaf& l = s.leaves[static_cast<size_t>(hit.index)];
-            const Eigen::Vector3d q = p - l.centerMm;
-            const double vein = std::abs(q.dot(l.normal.cross(l.axis))) < 1.0 ? 1.25 : 1.0;
-            surf.albedo = l.albedoRgb * (0.85 + 0.3 * valueNoise(q.dot(l.axis) / 6.0, q.dot(l.normal.cross(l.axis)) / 6.0, 31 + static_cast<uint64_t>(hit.index))) * vein;
-            surf.laserAlbedo = surf.albedo.x();
-            surf.specular = 0.03;
-            surf.shininess = 25.0;
-            surf.twoSided = true;
-            break;
-          }
-          case SurfaceKind::kBranch: {
-            const SimBranch& b = s.branches[static_cast<size_t>(hit.index)];
-            const Eigen::Vector3d ax = (b.bMm - b.aMm).normalized();
-            surf.albedo = b.albedoRgb * (0.75 + 0.5 * valueNoise((p - b.aMm).dot(ax) / 12.0, std::atan2(nrm.y(), nrm.x()) * 3.0, 41 + static_cast<uint64_t>(hit.index)));
-            surf.laserAlbedo = surf.albedo.x();
-            break;
-          }
-          case SurfaceKind::kBoard: {
-            const SimBoard& b = *s.board;
-            const Eigen::Vector3d local = b.rotation.transpose() * (p - b.originMm);
-            double alb = b.whiteAlbedo;
-            if (b.checkerboard && local.x() >= 0 && local.y() >= 0 && local.x() < b.squaresX * b.squareMm &&
-                local.y() < b.squaresY * b.squareMm) {
-              const auto cx = static_cast<int64_t>(std::floor(local.x() / b.squareMm));
-              const auto cy = static_cast<int64_t>(std::floor(local.y() / b.squareMm));
-              if ((cx + cy) % 2 == 0) alb = b.blackAlbedo;
-            }
-            surf.albedo = Eigen::Vector3d::Constant(alb);
-            surf.laserAlbedo = alb;
-            surf.twoSided = false;
-            break;
-          }
-        }
+        surf = objectSurface(s, hit, p, nrm);
       } else {
         p = wallT * dir;
         nrm = Eigen::Vector3d(0.0, 0.0, -1.0);
         index = -1;
-        if (bgd.kind == SimBackground::Kind::kFoliage) {
-          const double gap = fbm(p.x() / (3.0 * bgd.textureCellMm), p.y() / (3.0 * bgd.textureCellMm), 1234);
-          if (gap < skyThreshold_) {
-            // Sky: luminance factor · E_diffuse / π, tinted.
-            const double k = light.skyLuminanceFactor * light.diffuseLux * ambientK * cos4;
-            for (int c = 0; c < 3; ++c) out[3 * col + c] = static_cast<float>(k * light.skyRgb(c) * ambientFilter(c));
-            continue;
-          }
-          const double clump = valueNoise(p.x() / bgd.textureCellMm, p.y() / bgd.textureCellMm, 99);
-          const double fine = valueNoise(p.x() / 6.0, p.y() / 6.0, 7);
-          surf.albedo = bgd.albedoRgb * (0.5 + 0.8 * clump) * (0.85 + 0.3 * fine);
-        } else {
-          surf.albedo = bgd.albedoRgb * (0.9 + 0.2 * valueNoise(p.x() / 20.0, p.y() / 20.0, 8));
+        if (!backgroundSurface(bgd, p, skyThreshold_, &surf)) {
+          // Sky: luminance factor · E_diffuse / π, tinted.
+          const double k = light.skyLuminanceFactor * light.diffuseLux * ambientK * cos4;
+          for (int c = 0; c < 3; ++c) out[3 * col + c] = static_cast<float>(k * light.skyRgb(c) * ambientFilter(c));
+          continue;
         }
         surf.laserAlbedo = surf.albedo.x();
       }
@@ -358,19 +399,7 @@ void Renderer::shadeRegion(const FrameRequest& request, const cv::Rect& region, 
       double directE = 0.0;
       const double cosSun = nrm.dot(sun);
       if (haveSun && cosSun > 0.0 && !geometry_.blocked(p, sun, 1e-3, 1e9, kind, index)) directE = light.directLux * cosSun;
-      double specE = 0.0;
-      if (surf.specular > 0.0) {
-        const Eigen::Vector3d view = -dir;
-        const double cosView = std::max(0.0, nrm.dot(view));
-        if (directE > 0.0) {
-          const Eigen::Vector3d h = (sun + view).normalized();
-          const double fres = surf.specular + (1.0 - surf.specular) * std::pow(1.0 - std::max(0.0, h.dot(view)), 5);
-          specE += light.directLux * fres * (surf.shininess + 8.0) / 8.0 * std::pow(std::max(0.0, nrm.dot(h)), surf.shininess) * (cosSun > 0 ? 1.0 : 0.0);
-        }
-        // The sky (or room) reflected in the wax: Fresnel rises towards the limb.
-        const double fresView = surf.specular + (1.0 - surf.specular) * std::pow(1.0 - cosView, 5);
-        specE += 0.5 * fresView * light.skyLuminanceFactor * light.diffuseLux;
-      }
+      const double specE = surf.specular > 0.0 ? specularLux(light, surf, nrm, dir, sun, directE, cosSun) : 0.0;
       for (int c = 0; c < 3; ++c) e[c] = (surf.albedo(c) * (diffuseE + directE) + specE) * ambientK * cos4 * ambientFilter(c);
 
       // Laser.
@@ -378,7 +407,7 @@ void Renderer::shadeRegion(const FrameRequest& request, const cv::Rect& region, 
         double irr = 0.0;  // W/m², averaged over the exposure's sub-positions
         const double cosPlane = n.dot(nrm);
         const double g = std::max(0.2, std::sqrt(std::max(0.0, 1.0 - cosPlane * cosPlane)));
-        for (const Sub& sub : subs) {
+        for (const LaserSub& sub : subs) {
           const double delta = n.dot(p) - sub.offset;
           const Eigen::Vector3d toLaser = sub.origin - p;
           const double range = toLaser.norm();

@@ -1,0 +1,967 @@
+// LLE stages 3-5 of kRobust (line focusing, continuity, curve fit, output) and the paper's
+// stages 3-4, over either arithmetic (lle_focus.h), instantiated for both at the end.
+#include "image/lle_focus.h"
+
+#include <algorithm>
+#include <cmath>
+#include <cstdlib>
+#include <cstring>
+#include <type_traits>
+
+namespace alacs::image::detail {
+
+namespace {
+
+// Scale of the MAD to a 3σ rejection limit: 3 · 1.4826 ≈ 18218 / 4096, in both arithmetics.
+constexpr int64_t kMadToLimitQ12 = 18218;
+
+// Carves typed arrays out of one byte buffer that only ever grows.
+class Arena {
+ public:
+  explicit Arena(std::vector<uint8_t>& buf) : buf_(buf) {}
+  template <class T>
+  void reserve(size_t n) {
+    need_ += n * sizeof(T) + 16;
+  }
+  void commit() {
+    if (buf_.size() < need_) buf_.resize(need_);
+    at_ = 0;
+  }
+  template <class T>
+  T* take(size_t n) {
+    static_assert(std::is_trivially_copyable_v<T>);
+    at_ = (at_ + 15) & ~size_t{15};
+    T* p = reinterpret_cast<T*>(buf_.data() + at_);  // NOLINT: storage for trivially copyable T
+    at_ += n * sizeof(T);
+    return p;
+  }
+
+ private:
+  std::vector<uint8_t>& buf_;
+  size_t need_ = 0;
+  size_t at_ = 0;
+};
+
+// Sums of one run's red excess over the local background: the background is the straight
+// line between the red values `step` columns beyond each end of the run (the pixels bRCE
+// compared against). Every term is an integer: excess·span = R(x)·span − (rl·(xr−x) + rr·(x−xl)).
+// `area` and `excess` are of the excess itself; the centroid's weights are the excess
+// less 1/8 of the largest.
+struct RunSums {
+  int64_t sumW = 0;   // Σ excess·span over pixels with positive excess
+  int64_t sumXW = 0;  // Σ x · excess·span
+  int32_t area = 0;   // Σ excess (DN·px), the peak's strength
+  int32_t excess = 0; // largest excess (DN)
+  int32_t margin = 0; // largest bRCE margin min(c - l, c - r) over the run (the red bRCE saw)
+  bool saturated = false;
+  bool edge = false;   // the background steps across the run (an occluder's edge)
+};
+
+inline int redAt(const uint8_t* on, const uint8_t* off, int redOffset, int x) {
+  const size_t i = 3U * static_cast<size_t>(x) + static_cast<size_t>(redOffset);
+  return off == nullptr ? on[i] : static_cast<int>(on[i]) - static_cast<int>(off[i]);
+}
+
+// The red value bRCE compares (the laser-off frame subtracted with saturation at 0).
+inline int brceRedAt(const uint8_t* on, const uint8_t* off, int redOffset, int x) {
+  return std::max(0, redAt(on, off, redOffset, x));
+}
+
+inline RunSums runSums(const uint8_t* on, const uint8_t* off, int redOffset, int w, int a, int b, int step,
+                       int edgeRatio) {
+  RunSums s;
+  for (int x = std::max(a, step); x <= std::min(b, w - 1 - step); ++x) {
+    const int c = brceRedAt(on, off, redOffset, x);
+    s.margin = std::max(s.margin, std::min(c - brceRedAt(on, off, redOffset, x - step),
+                                           c - brceRedAt(on, off, redOffset, x + step)));
+  }
+  const int xl = std::max(0, a - step);
+  const int xr = std::min(w - 1, b + step);
+  const int span = xr - xl;
+  if (span <= 1) return s;
+  const int64_t rl = redAt(on, off, redOffset, xl);
+  const int64_t rr = redAt(on, off, redOffset, xr);
+  // An occluding edge next to the line: one side's background (a leaf, a gap) is several
+  // times darker than the other's (the skin the line is on). Integer test, 8 DN of slack.
+  if (edgeRatio > 0) s.edge = std::max(rl, rr) > edgeRatio * std::max<int64_t>(0, std::min(rl, rr)) + 8;
+  int64_t maxW = 0;
+  for (int x = xl + 1; x < xr; ++x)
+    maxW = std::max(maxW, redAt(on, off, redOffset, x) * static_cast<int64_t>(span) - (rl * (xr - x) + rr * (x - xl)));
+  // Weights: the excess above 1/8 of the peak's, so the tails, where speckle and the
+  // background estimate dominate, weigh less (measured on the twin: see docs/lle.md).
+  const int64_t floorW = maxW >> 3;
+  for (int x = xl + 1; x < xr; ++x) {
+    const int64_t wq =
+        redAt(on, off, redOffset, x) * static_cast<int64_t>(span) - (rl * (xr - x) + rr * (x - xl)) - floorW;
+    if (wq <= 0) continue;
+    s.sumW += wq;
+    s.sumXW += wq * x;
+  }
+  for (int x = a; x <= b; ++x) s.saturated = s.saturated || on[3U * static_cast<size_t>(x) + static_cast<size_t>(redOffset)] == 255;
+  s.area = static_cast<int32_t>(s.sumW / span);
+  s.excess = static_cast<int32_t>(maxW / span);
+  return s;
+}
+
+// Decisions: columns as Q24.8 keys, computed the same way from the same integer sums in
+// both arithmetics, so both decide alike.
+struct KeyArith {
+  using Col = int32_t;  // Q24.8
+  static Col fromPx(double px) { return static_cast<Col>(std::lround(px * 256.0)); }
+  static Col fromInt(int px) { return static_cast<Col>(px * 256); }
+  static Col ratio(int64_t num, int64_t den) { return static_cast<Col>(roundDiv(num * 256, den)); }
+  static Col absDiff(Col a, Col b) { return a > b ? a - b : b - a; }
+  // lastCol + (lastCol - prevCol) · gap / dr
+  static Col extrapolate(Col last, Col prev, int gap, int dr) {
+    return static_cast<Col>(last + roundDiv(static_cast<int64_t>(last - prev) * gap, dr));
+  }
+  static Col madLimit(Col mad) { return static_cast<Col>((static_cast<int64_t>(mad) * kMadToLimitQ12 + 2048) >> 12); }
+  // 256 at zero residual down to 128 at the limit and beyond.
+  static int fitTerm(Col res, Col limit) {
+    return 256 - static_cast<int>(std::min<int64_t>(128, static_cast<int64_t>(res) * 128 / std::max<Col>(1, limit)));
+  }
+  // Least-squares line through (r[i], c[i]), evaluated at m: the closed form over integers.
+  static Col lineAt(const int* r, const Col* c, int n, int m) {
+    Int128 sr = 0, sc = 0, srr = 0, src = 0;
+    for (int i = 0; i < n; ++i) {
+      sr += r[i];
+      sc += c[i];
+      srr += static_cast<Int128>(r[i]) * r[i];
+      src += static_cast<Int128>(r[i]) * c[i];
+    }
+    const Int128 d = n * srr - sr * sr;
+    if (d == 0) return static_cast<Col>(roundDiv(static_cast<int64_t>(sc), n));
+    const Int128 num = sc * d + (n * src - sr * sc) * (static_cast<Int128>(n) * m - sr);
+    const Int128 den = static_cast<Int128>(n) * d;
+    const Int128 q = num >= 0 ? (num + den / 2) / den : -((-num + den / 2) / den);
+    return static_cast<Col>(q);
+  }
+  // The robust fit's decisions: the fixed-point fit through the keys.
+  struct Fit {
+    FitQ q;
+    int64_t* scratch = nullptr;  // 3n
+    int32_t* data = nullptr;     // n
+    bool fit(const int32_t* rows, const Col* keys, const uint8_t* use, int n, int order, int first, int last) {
+      for (int i = 0; i < n; ++i) data[i] = keys[i] * 256;  // Q8 -> Q16, exact
+      return fitPolyQ(rows, data, use, n, order, first, last, scratch, q);
+    }
+    Col eval(int row) const { return static_cast<Col>(roundDiv(q.evalQ16(row), 256)); }
+  };
+};
+
+namespace focus {
+
+// The next set bit at or after `from` in a row of `nbits` bits, or nbits.
+inline int nextSet(const uint64_t* words, int nbits, int from) {
+  if (from >= nbits) return nbits;
+  int k = from / 64;
+  uint64_t word = words[k] & (~uint64_t{0} << (from % 64));
+  const int nwords = (nbits + 63) / 64;
+  while (word == 0) {
+    if (++k >= nwords) return nbits;
+    word = words[k];
+  }
+  return std::min(nbits, k * 64 + __builtin_ctzll(word));
+}
+
+// The next clear bit at or after `from`, or nbits.
+inline int nextClear(const uint64_t* words, int nbits, int from) {
+  if (from >= nbits) return nbits;
+  int k = from / 64;
+  uint64_t word = ~words[k] & (~uint64_t{0} << (from % 64));
+  const int nwords = (nbits + 63) / 64;
+  while (word == 0) {
+    if (++k >= nwords) return nbits;
+    word = ~words[k];
+  }
+  return std::min(nbits, k * 64 + __builtin_ctzll(word));
+}
+
+template <class Col>
+struct Peak {
+  Col col;          // ROI columns, the value
+  int32_t key;      // the same in Q8, on which decisions are taken
+  int32_t area;
+  int32_t excess;
+  int32_t chain;
+  int32_t next;     // next peak of the same chain (row order), -1
+  uint8_t saturated;
+  uint8_t strong;   // its bRCE margin passes the strong threshold (not only the weak share)
+  uint8_t edge;     // at an occluding edge (RunSums::edge): reported kEdge, not smoothed over
+};
+
+struct Chain {
+  int32_t first;
+  int32_t last;
+  int32_t prevRow;
+  int32_t count;
+  int64_t area;
+  int32_t lastKey;
+  int32_t prevKey;
+  int32_t head;     // first peak
+  int32_t tail;     // last peak
+  int32_t segment;  // index in LaserLine::segments, -1: too short
+  int32_t strong;   // rows whose peak is strong
+  uint8_t onLine;
+};
+
+}  // namespace focus
+
+}  // namespace
+
+FixedArith::Col FixedArith::quadAtZero(const int* u, const Col* c, const int32_t* wt, int n, int order) {
+  int64_t s0 = 0, s1 = 0, s2 = 0, s3 = 0, s4 = 0, t0 = 0, t1 = 0, t2 = 0;
+  if (order >= 2) {
+    for (int i = 0; i < n; ++i) {
+      const int64_t x = u[i];
+      const int64_t x2 = x * x;
+      const int64_t w = wt[i];
+      const int64_t wc = w * c[i];
+      s0 += w;
+      s1 += w * x;
+      s2 += w * x2;
+      s3 += w * x2 * x;
+      s4 += w * x2 * x2;
+      t0 += wc;
+      t1 += x * wc;
+      t2 += x2 * wc;
+    }
+  } else {  // the linear fit (the default) needs no third or fourth moments
+    for (int i = 0; i < n; ++i) {
+      const int64_t x = u[i];
+      const int64_t w = wt[i];
+      const int64_t wx = w * x;
+      s0 += w;
+      s1 += wx;
+      s2 += wx * x;
+      t0 += w * c[i];
+      t1 += wx * c[i];
+    }
+  }
+  auto div = [](Int128 a, Int128 b) {
+    if (b < 0) {
+      a = -a;
+      b = -b;
+    }
+    return static_cast<Col>(a >= 0 ? (a + b / 2) / b : -((-a + b / 2) / b));
+  };
+  if (order >= 2 && n >= 3) {
+    const Int128 S2 = s2, S3 = s3, S4 = s4, S1 = s1, T1 = t1, T2 = t2;
+    const Int128 det = s0 * (S2 * S4 - S3 * S3) - S1 * (S1 * S4 - S3 * S2) + S2 * (S1 * S3 - S2 * S2);
+    if (det != 0) {
+      const Int128 det0 = t0 * (S2 * S4 - S3 * S3) - S1 * (T1 * S4 - S3 * T2) + S2 * (T1 * S3 - S2 * T2);
+      return div(det0, det);
+    }
+  }
+  const int64_t d2 = s0 * s2 - s1 * s1;
+  if (order >= 1 && n >= 2 && d2 != 0) return div(static_cast<Int128>(t0) * s2 - static_cast<Int128>(s1) * t1, d2);
+  return div(t0, s0);
+}
+
+FloatArith::Col FloatArith::quadAtZero(const int* u, const Col* c, const int32_t* wt, int n, int order) {
+  double s0 = 0, s1 = 0, s2 = 0, s3 = 0, s4 = 0, t0 = 0, t1 = 0, t2 = 0;
+  for (int i = 0; i < n; ++i) {
+    const double x = u[i];
+    const double w = wt[i];
+    s0 += w;
+    s1 += w * x;
+    s2 += w * x * x;
+    s3 += w * x * x * x;
+    s4 += w * x * x * x * x;
+    t0 += w * c[i];
+    t1 += w * x * c[i];
+    t2 += w * x * x * c[i];
+  }
+  const double det = s0 * (s2 * s4 - s3 * s3) - s1 * (s1 * s4 - s3 * s2) + s2 * (s1 * s3 - s2 * s2);
+  if (order >= 2 && n >= 3 && det != 0.0)
+    return (t0 * (s2 * s4 - s3 * s3) - s1 * (t1 * s4 - s3 * t2) + s2 * (t1 * s3 - s2 * t2)) / det;
+  const double d2 = s0 * s2 - s1 * s1;
+  if (order >= 1 && n >= 2 && d2 != 0.0) return (t0 * s2 - s1 * t1) / d2;
+  return t0 / s0;
+}
+
+namespace {
+
+using focus::Chain;
+using focus::Peak;
+using Q = KeyArith;  // decisions, on the exact Q8 keys shared by both arithmetics
+
+// The arrays of one focusRobust call, carved out of ws.scratch (no allocation once warm).
+// Rows of the ROI: h; peak slots: h · maxPeaksPerRow, row y's at [y·kMax, y·kMax + nPeaks[y]).
+template <class Col>
+struct RobustArrays {
+  Peak<Col>* peaks;
+  int32_t* nPeaks;      // peaks per row
+  Chain* chains;
+  int32_t* active;      // active chains
+  int32_t* owner;       // the line's peak of each row, -1
+  int32_t* order;       // segments by strength
+  int32_t* fitRows;     // the robust fit's rows (full frame)
+  int32_t* fitKeys;     // ... their keys (Q8)
+  Col* fitCols;         // ... their values
+  uint8_t* use;         // ... kept
+  uint8_t* usePrev;     // ... kept in the previous iteration
+  int32_t* residual;    // ... residuals (Q8)
+  int32_t* sorted;      // residuals for the median; later the line's excess
+  int64_t* fitScratch;  // fixed-point fit scratch (3h)
+  int32_t* fitData;     // fixed-point fit data
+  int* endRows;         // 64: rows of a local line fit (4b, 5a, 5b)
+  int32_t* endKeys;     // 64: their keys
+  Col* smoothCols;      // 64: their values (5b)
+  Col* outCol;          // per output sample: centroid
+  int32_t* outKey;      // ... smoothing key: -2 line, -3 outlier, -4 edge, else segment
+  int32_t* outWt;       // ... smoothing weight
+  int32_t* outPeakKey;  // ... peak key (Q8)
+  uint8_t* outEdge;     // ... at an occluding edge
+  int32_t* smoothWt;    // 64: weights of a local fit (5b)
+};
+
+template <class Col>
+RobustArrays<Col> carveArrays(LleWorkspace& ws, int h, int kMax) {
+  const auto uh = static_cast<size_t>(h);
+  const size_t slots = uh * static_cast<size_t>(kMax);
+  Arena arena(ws.scratch);
+  arena.reserve<Peak<Col>>(slots);
+  arena.reserve<int32_t>(uh);
+  arena.reserve<Chain>(slots);
+  arena.reserve<int32_t>(slots);
+  arena.reserve<int32_t>(uh);
+  arena.reserve<int32_t>(slots);
+  arena.reserve<int32_t>(uh);
+  arena.reserve<int32_t>(uh);
+  arena.reserve<Col>(uh);
+  arena.reserve<uint8_t>(uh);
+  arena.reserve<uint8_t>(uh);
+  arena.reserve<int32_t>(uh);
+  arena.reserve<int32_t>(uh);
+  arena.reserve<int64_t>(3 * uh);
+  arena.reserve<int32_t>(uh);
+  arena.reserve<int>(64);
+  arena.reserve<int32_t>(64);
+  arena.reserve<Col>(64);
+  arena.reserve<Col>(slots);
+  arena.reserve<int32_t>(slots);
+  arena.reserve<int32_t>(slots);
+  arena.reserve<int32_t>(slots);
+  arena.reserve<uint8_t>(slots);
+  arena.reserve<int32_t>(64);
+  arena.commit();
+  RobustArrays<Col> r{};
+  r.peaks = arena.take<Peak<Col>>(slots);
+  r.nPeaks = arena.take<int32_t>(uh);
+  r.chains = arena.take<Chain>(slots);
+  r.active = arena.take<int32_t>(slots);
+  r.owner = arena.take<int32_t>(uh);
+  r.order = arena.take<int32_t>(slots);
+  r.fitRows = arena.take<int32_t>(uh);
+  r.fitKeys = arena.take<int32_t>(uh);
+  r.fitCols = arena.take<Col>(uh);
+  r.use = arena.take<uint8_t>(uh);
+  r.usePrev = arena.take<uint8_t>(uh);
+  r.residual = arena.take<int32_t>(uh);
+  r.sorted = arena.take<int32_t>(uh);
+  r.fitScratch = arena.take<int64_t>(3 * uh);
+  r.fitData = arena.take<int32_t>(uh);
+  r.endRows = arena.take<int>(64);
+  r.endKeys = arena.take<int32_t>(64);
+  r.smoothCols = arena.take<Col>(64);
+  r.outCol = arena.take<Col>(slots);
+  r.outKey = arena.take<int32_t>(slots);
+  r.outWt = arena.take<int32_t>(slots);
+  r.outPeakKey = arena.take<int32_t>(slots);
+  r.outEdge = arena.take<uint8_t>(slots);
+  r.smoothWt = arena.take<int32_t>(64);
+  return r;
+}
+
+// Stage 3: per row, every run of candidates is a peak (holes of up to mergeGap pixels,
+// speckle, are bridged); its centre is the centroid of the red excess. The strongest
+// kMax peaks of the row go on, ordered by area (ties: leftmost first).
+template <class A>
+void findPeaks(const ImageView& frame, const ImageView* laserOff, const Roi& roi, const LleParams& p,
+               const LleWorkspace& ws, Peak<typename A::Col>* peaks, int32_t* nPeaks) {
+  const int w = roi.width;
+  const int h = roi.height;
+  const int words = paddedWidth(w) / 64;
+  const int kMax = p.maxPeaksPerRow;
+  const int redOff = redOffset(frame.format);
+  const int step = p.brceStep;
+  const int mergeGap = std::max(1, step / 2);
+  const int strongTh = p.strongThreshold();
+  for (int y = 0; y < h; ++y) {
+    const uint64_t* bits = ws.bits.data() + static_cast<size_t>(y) * static_cast<size_t>(words);
+    const uint8_t* on = frame.row(roi.y + y) + static_cast<size_t>(roi.x) * 3U;
+    const uint8_t* off = laserOff != nullptr ? laserOff->row(roi.y + y) + static_cast<size_t>(roi.x) * 3U : nullptr;
+    Peak<typename A::Col>* row = peaks + static_cast<size_t>(y) * static_cast<size_t>(kMax);
+    int n = 0;
+    int x = ws.rowAny[static_cast<size_t>(y)] != 0 ? focus::nextSet(bits, w, 0) : w;
+    while (x < w) {
+      const int a = x;
+      int b = focus::nextClear(bits, w, a) - 1;
+      for (;;) {
+        const int nx = focus::nextSet(bits, w, b + 1);
+        if (nx >= w || nx - b - 1 > mergeGap) {
+          x = nx;
+          break;
+        }
+        b = focus::nextClear(bits, w, nx) - 1;
+      }
+      const RunSums s = runSums(on, off, redOff, w, a, b, step, p.edgeRatio);
+      if (s.area <= 0) continue;
+      if (n == kMax && s.area <= row[n - 1].area) continue;
+      int i = n < kMax ? n++ : n - 1;
+      while (i > 0 && row[i - 1].area < s.area) {
+        row[i] = row[i - 1];
+        --i;
+      }
+      row[i] = Peak<typename A::Col>{A::ratio(s.sumXW, s.sumW), Q::ratio(s.sumXW, s.sumW), s.area, s.excess, -1, -1,
+                                     static_cast<uint8_t>(s.saturated ? 1 : 0),
+                                     static_cast<uint8_t>(s.margin > strongTh ? 1 : 0),
+                                     static_cast<uint8_t>(s.edge ? 1 : 0)};
+    }
+    nPeaks[y] = n;
+  }
+}
+
+// Stage 4a: link peaks of successive rows into chains. A peak continues the active chain
+// whose prediction (its last two rows extrapolated) is nearest, when within maxJump
+// (growing by half of it per skipped row); stronger peaks choose first. Returns the
+// number of chains.
+template <class Col>
+int linkChains(const LleParams& p, int h, Peak<Col>* peaks, const int32_t* nPeaks, Chain* chains, int32_t* active) {
+  const int kMax = p.maxPeaksPerRow;
+  const int32_t jump = Q::fromPx(p.maxJumpPx);
+  int nChains = 0;
+  int nActive = 0;
+  for (int y = 0; y < h; ++y) {
+    int keep = 0;
+    for (int i = 0; i < nActive; ++i)
+      if (y - chains[active[i]].last <= p.maxGapRows + 1) active[keep++] = active[i];
+    nActive = keep;
+    const int activeBefore = nActive;
+    for (int j = 0; j < nPeaks[y]; ++j) {
+      const int pi = y * kMax + j;
+      Peak<Col>& pk = peaks[pi];
+      int best = -1;
+      int32_t bestD = 0;
+      for (int i = 0; i < activeBefore; ++i) {
+        const Chain& c = chains[active[i]];
+        if (c.last >= y) continue;  // already continued in this row
+        const int gap = y - c.last;
+        const int32_t pred = c.count >= 2 ? Q::extrapolate(c.lastKey, c.prevKey, gap, c.last - c.prevRow) : c.lastKey;
+        const int32_t d = Q::absDiff(pk.key, pred);
+        const int32_t tol = jump + jump * (gap - 1) / 2;
+        if (d <= tol && (best < 0 || d < bestD)) {
+          best = active[i];
+          bestD = d;
+        }
+      }
+      if (best < 0) {
+        best = nChains++;
+        chains[best] = Chain{y, y, -1, 0, 0, pk.key, pk.key, pi, pi, -1, 0, 0};
+        active[nActive++] = best;
+      } else {
+        Chain& c = chains[best];
+        peaks[c.tail].next = pi;
+        c.tail = pi;
+        c.prevRow = c.last;
+        c.prevKey = c.lastKey;
+        c.last = y;
+        c.lastKey = pk.key;
+      }
+      Chain& c = chains[best];
+      c.count += 1;
+      c.area += pk.area;
+      c.strong += pk.strong;
+      pk.chain = best;
+    }
+  }
+  return nChains;
+}
+
+// Segments: chains of at least minSegmentRows rows of which at least two, and a quarter,
+// pass the strong threshold itself (hysteresis: a weak line needs strong parts; a faint laser
+// line on a far background, never strong, stays out).
+bool isSegment(const Chain& c, const LleParams& p) {
+  return c.count >= p.minSegmentRows && c.strong >= std::min(2, c.count) && 4 * c.strong >= c.count;
+}
+
+// The segments' chain indices into `order`, strongest first; returns how many.
+int segmentsByStrength(const LleParams& p, const Chain* chains, int nChains, int32_t* order) {
+  int nSeg = 0;
+  for (int c = 0; c < nChains; ++c)
+    if (isSegment(chains[c], p)) order[nSeg++] = c;
+  std::sort(order, order + nSeg, [&](int32_t a, int32_t b) {
+    return chains[a].area != chains[b].area ? chains[a].area > chains[b].area : a < b;
+  });
+  return nSeg;
+}
+
+// The straight line through the first (fromTop) or the last 8 peaks of the chain that
+// starts at peak `head`, at row m (Q8). endRows/endKeys: 8 each, scratch.
+template <class Col>
+int32_t chainEndAt(const Peak<Col>* peaks, int kMax, int head, bool fromTop, int m, int* endRows, int32_t* endKeys) {
+  int n = 0;
+  if (fromTop) {
+    for (int pi = head; pi >= 0 && n < 8; pi = peaks[pi].next) {
+      endRows[n] = pi / kMax;
+      endKeys[n++] = peaks[pi].key;
+    }
+  } else {
+    // The last 8 peaks (chains are singly linked: keep a ring of them).
+    int cnt = 0;
+    for (int pi = head; pi >= 0; pi = peaks[pi].next) {
+      endRows[cnt % 8] = pi / kMax;
+      endKeys[cnt % 8] = peaks[pi].key;
+      ++cnt;
+    }
+    n = std::min(cnt, 8);
+  }
+  return Q::lineAt(endRows, endKeys, n, m);
+}
+
+// The straight line through up to 8 line rows from `from` going in `dir`, within 64 rows,
+// at row m (Q8).
+template <class Col>
+int32_t lineEndAt(const Peak<Col>* peaks, const int32_t* owner, int h, int from, int dir, int m, int* endRows,
+                  int32_t* endKeys) {
+  int n = 0;
+  for (int y = from; y >= 0 && y < h && n < 8 && std::abs(y - from) <= 64; y += dir) {
+    if (owner[y] < 0) continue;
+    endRows[n] = y;
+    endKeys[n++] = peaks[owner[y]].key;
+  }
+  return Q::lineAt(endRows, endKeys, n, m);
+}
+
+// Whether segment c continues the line (the rows owned so far): no more than a few rows
+// shared with it, and across each gap to it both ends, extrapolated as straight lines to
+// the middle of the gap, agree within bridgePx + bridgePxPerRow·gap.
+template <class Col>
+bool continuesLine(const Chain& c, const LleParams& p, int h, const Peak<Col>* peaks, const int32_t* owner,
+                   int* endRows, int32_t* endKeys) {
+  const int kMax = p.maxPeaksPerRow;
+  const int32_t bridge = Q::fromPx(p.bridgePx);
+  const int32_t bridgePerRow = Q::fromPx(p.bridgePxPerRow);
+  int shared = 0;
+  for (int pi = c.head; pi >= 0; pi = peaks[pi].next) shared += owner[pi / kMax] >= 0 ? 1 : 0;
+  if (shared > std::max(2, c.count / 10)) return false;
+  int above = -1;
+  for (int y = c.first - 1; y >= 0; --y)
+    if (owner[y] >= 0) {
+      above = y;
+      break;
+    }
+  int below = -1;
+  for (int y = c.last + 1; y < h; ++y)
+    if (owner[y] >= 0) {
+      below = y;
+      break;
+    }
+  bool agrees = above >= 0 || below >= 0;
+  if (above >= 0) {
+    const int gap = c.first - above;
+    const int m = (above + c.first) / 2;
+    const int32_t d = Q::absDiff(lineEndAt(peaks, owner, h, above, -1, m, endRows, endKeys),
+                                 chainEndAt(peaks, kMax, c.head, true, m, endRows, endKeys));
+    agrees = agrees && d <= bridge + bridgePerRow * gap;
+  }
+  if (below >= 0) {
+    const int gap = below - c.last;
+    const int m = (below + c.last) / 2;
+    const int32_t d = Q::absDiff(lineEndAt(peaks, owner, h, below, +1, m, endRows, endKeys),
+                                 chainEndAt(peaks, kMax, c.head, false, m, endRows, endKeys));
+    agrees = agrees && d <= bridge + bridgePerRow * gap;
+  }
+  return agrees;
+}
+
+// Stage 4b: the line = the strongest segment plus every segment that continues it
+// (continuesLine), in order of strength. Sets Chain::onLine and owner[y], the line's
+// peak of each row (-1: none).
+template <class Col>
+void assembleLine(const LleParams& p, int h, const Peak<Col>* peaks, Chain* chains, const int32_t* order, int nSeg,
+                  int32_t* owner, int* endRows, int32_t* endKeys) {
+  const int kMax = p.maxPeaksPerRow;
+  std::fill(owner, owner + h, -1);
+  for (int s = 0; s < nSeg; ++s) {
+    Chain& c = chains[order[s]];
+    if (s > 0 && !continuesLine(c, p, h, peaks, owner, endRows, endKeys)) continue;
+    c.onLine = 1;
+    for (int pi = c.head; pi >= 0; pi = peaks[pi].next)
+      if (owner[pi / kMax] < 0) owner[pi / kMax] = pi;
+  }
+}
+
+// The robust fit's outcome: n rows (the line's), `fitted`, and the rejection limit (Q8).
+struct RobustFit {
+  int n = 0;
+  bool fitted = false;
+  int32_t limit = 0;
+};
+
+// Stage 4c: robust curve fit over the line's rows (full-frame coordinates): rows beyond
+// max(outlierPx, 3·1.4826·MAD) are dropped and the fit repeated until stable. The
+// decisions are taken on the keys with the fixed-point fit; the curve reported is then
+// fitted (in A) through the values of the rows kept. Fills a.fitRows/fitKeys/fitCols,
+// a.use (kept) and a.residual.
+template <class A>
+RobustFit robustFit(const Roi& roi, const LleParams& p, const RobustArrays<typename A::Col>& a,
+                    typename A::Fit& curve) {
+  const int h = roi.height;
+  int32_t* fitRows = a.fitRows;
+  int32_t* fitKeys = a.fitKeys;
+  typename A::Col* fitCols = a.fitCols;
+  uint8_t* use = a.use;
+  int32_t* residual = a.residual;
+  int32_t* sorted = a.sorted;
+  int n = 0;
+  for (int y = 0; y < h; ++y) {
+    if (a.owner[y] < 0) continue;
+    fitRows[n] = roi.y + y;
+    fitKeys[n] = a.peaks[a.owner[y]].key + Q::fromInt(roi.x);
+    fitCols[n] = a.peaks[a.owner[y]].col + A::fromInt(roi.x);
+    use[n] = 1;
+    ++n;
+  }
+  Q::Fit decide;
+  decide.scratch = a.fitScratch;
+  decide.data = a.fitData;
+  const int32_t outlier = Q::fromPx(p.outlierPx);
+  int32_t limit = outlier;
+  bool fitted = false;
+  const int fitOrder = std::max(0, std::min(p.polyOrder, n / 2 - 1));
+  if (n >= p.minRows) {
+    for (int iteration = 0; iteration < 8; ++iteration) {
+      int inl = 0;
+      for (int i = 0; i < n; ++i) inl += use[i];
+      if (inl < p.minRows || !decide.fit(fitRows, fitKeys, use, n, fitOrder, fitRows[0], fitRows[n - 1])) {
+        fitted = false;
+        break;
+      }
+      fitted = true;
+      for (int i = 0; i < n; ++i) {
+        residual[i] = Q::absDiff(fitKeys[i], decide.eval(fitRows[i]));
+        sorted[i] = residual[i];
+      }
+      std::nth_element(sorted, sorted + n / 2, sorted + n);
+      limit = std::max(outlier, Q::madLimit(sorted[n / 2]));
+      bool changed = false;
+      for (int i = 0; i < n; ++i) {
+        a.usePrev[i] = use[i];
+        use[i] = residual[i] <= limit ? 1 : 0;
+        changed = changed || use[i] != a.usePrev[i];
+      }
+      if (!changed) break;
+    }
+  }
+  if constexpr (A::kFixed) curve.scratch = a.fitScratch;
+  if (fitted) fitted = curve.fit(fitRows, fitCols, use, n, fitOrder, fitRows[0], fitRows[n - 1]);
+  return RobustFit{n, fitted, limit};
+}
+
+// Numbers the segments (Chain::segment, in chain order) and lists them in out.segments.
+void listSegments(const Roi& roi, const LleParams& p, Chain* chains, int nChains, LaserLine& out) {
+  int nOut = 0;
+  for (int c = 0; c < nChains; ++c)
+    if (isSegment(chains[c], p)) chains[c].segment = nOut++;
+  for (int c = 0; c < nChains; ++c)
+    if (chains[c].segment >= 0)
+      out.segments.push_back(LineSegment{roi.y + chains[c].first, roi.y + chains[c].last, 0, chains[c].onLine != 0});
+}
+
+// Appends the sample of peak pk in ROI row y to out.rows, and its smoothing inputs to the
+// a.out* arrays at the same index.
+template <class A>
+void emitSample(const Roi& roi, int y, const Peak<typename A::Col>& pk, const Chain* chains, RowStatus status,
+                int fitTerm, const RobustArrays<typename A::Col>& a, LaserLine& out) {
+  using Col = typename A::Col;
+  // Built in place (out.rows is reserved: no allocation), not copied from the stack.
+  const size_t idx = out.rows.size();
+  RowSample& sm = out.rows.emplace_back();
+  sm.row = roi.y + y;
+  const Col col = pk.col + A::fromInt(roi.x);
+  sm.centroidQ8 = A::toQ8(col);
+  sm.columnQ8 = sm.centroidQ8;
+  sm.column = A::toFloat(col);
+  sm.status = status;
+  sm.inlier = status == RowStatus::kLine;
+  sm.saturated = pk.saturated != 0;
+  sm.segment = chains[pk.chain].segment;
+  if (status != RowStatus::kOutlier) {
+    int conf = std::min(256, pk.excess * 256 / 96) * fitTerm / 256;
+    if (sm.saturated) conf = conf * 3 / 4;
+    sm.confidence = static_cast<float>(conf) / 256.0F;
+  }
+  if (sm.segment >= 0) out.segments[static_cast<size_t>(sm.segment)].rows += 1;
+  a.outCol[idx] = col;
+  // The smoothing weight: the peak's area cubed, area³ / 2^18 in 1..4096 (an integer: the
+  // sums of the weighted fit stay within int64). Rows where part of the profile is hidden
+  // (a leaf's edge crossing the line, a grazing limb) are weaker and count far less.
+  {
+    const int64_t ar = std::max(1, pk.area);
+    a.outWt[idx] = static_cast<int32_t>(std::clamp<int64_t>(ar * ar * ar >> 18, 1, kMaxSmoothWeight));
+  }
+  a.outKey[idx] = status == RowStatus::kLine ? -2 : status == RowStatus::kOutlier ? -3 : sm.segment;
+  a.outPeakKey[idx] = pk.key;
+  a.outEdge[idx] = static_cast<uint8_t>(pk.edge != 0 && status != RowStatus::kOutlier ? 1 : 0);
+}
+
+// Stage 5: the samples of each row: the line's first, then those of the other segments
+// (keepOtherSegments), stronger segments first. Returns the sum of the squared residuals
+// (px²) of the line's kLine rows to the curve.
+template <class A>
+double emitRows(const Roi& roi, const LleParams& p, const RobustArrays<typename A::Col>& a, const Chain* chains,
+                const RobustFit& f, const typename A::Fit& curve, LaserLine& out) {
+  const int h = roi.height;
+  const int kMax = p.maxPeaksPerRow;
+  const auto* peaks = a.peaks;
+  const int32_t* owner = a.owner;
+  double sumSq = 0.0;
+  int fi = 0;
+  int others[8];
+  for (int y = 0; y < h; ++y) {
+    if (owner[y] >= 0) {
+      RowStatus status = RowStatus::kSegment;
+      int fitTerm = 128;
+      if (f.fitted && a.use[fi] != 0) {
+        status = RowStatus::kLine;
+        fitTerm = Q::fitTerm(a.residual[fi], f.limit);
+        const double d = A::toPx(A::absDiff(a.fitCols[fi], curve.eval(a.fitRows[fi])));
+        sumSq += d * d;
+      } else if (f.fitted) {
+        status = RowStatus::kOutlier;
+      }
+      ++fi;
+      emitSample<A>(roi, y, peaks[owner[y]], chains, status, fitTerm, a, out);
+    }
+    if (!p.keepOtherSegments) continue;
+    int n2 = 0;
+    for (int j = 0; j < a.nPeaks[y]; ++j) {
+      const int pi = y * kMax + j;
+      if (pi == owner[y] || chains[peaks[pi].chain].segment < 0) continue;
+      int i = n2++;
+      while (i > 0 && chains[peaks[others[i - 1]].chain].area < chains[peaks[pi].chain].area) {
+        others[i] = others[i - 1];
+        --i;
+      }
+      others[i] = pi;
+    }
+    for (int i = 0; i < n2; ++i) emitSample<A>(roi, y, peaks[others[i]], chains, RowStatus::kSegment, 128, a, out);
+  }
+  return sumSq;
+}
+
+// Stage 5a: a sample at an occluding edge (RunSums::edge) is kept only when its centroid
+// agrees with the straight line through the keys of the same line or segment within
+// ±smoothRows rows that are not at an edge themselves (at least 4 of them), within
+// edgeAgreePx; otherwise it is kEdge: invalid, not smoothed, not used for smoothing.
+// Then counts the line's rows (inliers, first and last).
+template <class Col>
+void markEdges(const LleParams& p, const RobustArrays<Col>& a, LaserLine& out) {
+  const int nRows = static_cast<int>(out.rows.size());
+  const int32_t edgeTolQ8 = Q::fromPx(p.edgeAgreePx);
+  int* endRows = a.endRows;
+  int32_t* endKeys = a.endKeys;
+  const uint8_t* outEdge = a.outEdge;
+  int32_t* outKey = a.outKey;
+  const int32_t* outPeakKey = a.outPeakKey;
+  for (int k = 0; k < nRows; ++k) {
+    if (outEdge[k] == 0) continue;
+    const int r0 = out.rows[static_cast<size_t>(k)].row;
+    int lo = k;
+    while (lo > 0 && r0 - out.rows[static_cast<size_t>(lo - 1)].row <= p.smoothRows) --lo;
+    int m = 0;
+    for (int j = lo; j < nRows && out.rows[static_cast<size_t>(j)].row - r0 <= p.smoothRows && m < 64; ++j) {
+      if (j == k || outEdge[j] != 0 || outKey[j] != outKey[k]) continue;
+      endRows[m] = out.rows[static_cast<size_t>(j)].row - r0;
+      endKeys[m++] = outPeakKey[j];
+    }
+    if (m >= 4 && Q::absDiff(Q::lineAt(endRows, endKeys, m, 0), outPeakKey[k]) <= edgeTolQ8) continue;
+    RowSample& sm = out.rows[static_cast<size_t>(k)];
+    sm.status = RowStatus::kEdge;
+    sm.inlier = false;
+    sm.confidence = 0.0F;
+    outKey[k] = -4;
+  }
+  for (const RowSample& sm : out.rows) {
+    if (sm.status != RowStatus::kLine) continue;
+    if (out.inliers == 0) out.firstLineRow = sm.row;
+    out.lastLineRow = sm.row;
+    out.inliers += 1;
+  }
+}
+
+// Stage 5b: along the line, each row's column is the local fit (smoothOrder: mean, line,
+// quadratic) through the centroids within ±smoothRows rows of the same line or segment,
+// each weighted by its peak's area cubed (speckle averages out over rows; rows whose
+// profile is partly hidden are weak and barely count). Rows at an occluding edge (kEdge)
+// and rejected rows are neither smoothed nor used.
+template <class A>
+void smoothAlongLine(const LleParams& p, const RobustArrays<typename A::Col>& a, LaserLine& out) {
+  using Col = typename A::Col;
+  const int nRows = static_cast<int>(out.rows.size());
+  int* endRows = a.endRows;
+  Col* smoothCols = a.smoothCols;
+  int32_t* smoothWt = a.smoothWt;
+  const int32_t* outKey = a.outKey;
+  const Col* outCol = a.outCol;
+  const int32_t* outWt = a.outWt;
+  for (int k = 0; k < nRows; ++k) {
+    if (outKey[k] == -3 || outKey[k] == -4) continue;
+    const int r0 = out.rows[static_cast<size_t>(k)].row;
+    int lo = k;
+    while (lo > 0 && r0 - out.rows[static_cast<size_t>(lo - 1)].row <= p.smoothRows) --lo;
+    int m = 0;
+    for (int j = lo; j < nRows && out.rows[static_cast<size_t>(j)].row - r0 <= p.smoothRows; ++j) {
+      if (outKey[j] != outKey[k]) continue;
+      endRows[m] = out.rows[static_cast<size_t>(j)].row - r0;
+      smoothCols[m] = outCol[j];
+      smoothWt[m] = outWt[j];
+      if (++m == 64) break;
+    }
+    const Col smooth = A::quadAtZero(endRows, smoothCols, smoothWt, m, p.smoothOrder);
+    RowSample& sm = out.rows[static_cast<size_t>(k)];
+    sm.columnQ8 = A::toQ8(smooth);
+    sm.column = A::toFloat(smooth);
+  }
+}
+
+// The line's strength: the median excess of its kLine rows' peaks (an integer, the same
+// in both arithmetics); 0 without a line.
+template <class Col>
+int lineStrength(int h, const RobustArrays<Col>& a, bool fitted) {
+  int32_t* sorted = a.sorted;
+  int nLine = 0;
+  int fi = 0;
+  for (int y = 0; y < h; ++y) {
+    if (a.owner[y] < 0) continue;
+    if (fitted && a.use[fi] != 0) sorted[nLine++] = a.peaks[a.owner[y]].excess;
+    ++fi;
+  }
+  if (nLine == 0) return 0;
+  std::nth_element(sorted, sorted + nLine / 2, sorted + nLine);
+  return sorted[nLine / 2];
+}
+
+// Stages 3-5 of kRobust over the candidate mask in ws.bits. Returns the median peak excess
+// (DN) of the line's kLine rows, 0 without a line: how strong the line is.
+template <class A>
+int focusRobust(const ImageView& frame, const ImageView* laserOff, const Roi& roi, const LleParams& p,
+                LleWorkspace& ws, LaserLine& out) {
+  const int h = roi.height;
+  const RobustArrays<typename A::Col> a = carveArrays<typename A::Col>(ws, h, p.maxPeaksPerRow);
+  findPeaks<A>(frame, laserOff, roi, p, ws, a.peaks, a.nPeaks);
+  const int nChains = linkChains(p, h, a.peaks, a.nPeaks, a.chains, a.active);
+  const int nSeg = segmentsByStrength(p, a.chains, nChains, a.order);
+  assembleLine(p, h, a.peaks, a.chains, a.order, nSeg, a.owner, a.endRows, a.endKeys);
+  typename A::Fit curve;
+  const RobustFit f = robustFit<A>(roi, p, a, curve);
+  listSegments(roi, p, a.chains, nChains, out);
+  const double sumSq = emitRows<A>(roi, p, a, a.chains, f, curve, out);
+  markEdges(p, a, out);
+  if (p.smoothRows > 0) smoothAlongLine<A>(p, a, out);
+  if (f.fitted) {
+    curve.describe(out);
+    out.valid = true;
+    out.rmsResidualPx = out.inliers > 0 ? std::sqrt(sumSq / out.inliers) : 0.0;
+  }
+  if (out.inliers > 0) out.coverage = static_cast<double>(out.inliers) / (out.lastLineRow - out.firstLineRow + 1);
+  return lineStrength(h, a, f.fitted);
+}
+
+}  // namespace
+
+template <class A>
+void extractRobust(const ImageView& frame, const ImageView* laserOff, const Roi& roi, const LleParams& p,
+                   const SimdKernels* kernels, LleWorkspace& ws, LaserLine& out) {
+  candidateMask(frame, laserOff, roi, p, kernels, ws);
+  const int strength = focusRobust<A>(frame, laserOff, roi, p, ws, out);
+  if (p.weakLineExcessDn <= 0 || strength >= p.weakLineExcessDn || p.weakLineThresholdPct >= p.robustThresholdPct)
+    return;
+  LleParams low = p;
+  low.robustThresholdPct = p.weakLineThresholdPct;
+  reserveOutput(roi, low, out);
+  candidateMask(frame, laserOff, roi, low, kernels, ws);
+  focusRobust<A>(frame, laserOff, roi, low, ws, out);
+}
+
+template <class A>
+void focusPaper(const Roi& roi, const LleParams& p, LleWorkspace& ws, LaserLine& out) {
+  using Col = typename A::Col;
+  const int w = roi.width;
+  const int h = roi.height;
+  const int words = paddedWidth(w) / 64;
+  const auto uh = static_cast<size_t>(h);
+  Arena arena(ws.scratch);
+  arena.reserve<int32_t>(uh);
+  arena.reserve<Col>(uh);
+  arena.reserve<uint8_t>(uh);
+  arena.reserve<int32_t>(uh);
+  arena.reserve<int64_t>(3 * uh);
+  arena.commit();
+  int32_t* fitRows = arena.take<int32_t>(uh);
+  Col* fitCols = arena.take<Col>(uh);
+  uint8_t* use = arena.take<uint8_t>(uh);
+  int32_t* counts = arena.take<int32_t>(uh);
+  int64_t* fitScratch = arena.take<int64_t>(3 * uh);
+  // Line focusing as printed: the mean of the candidate columns of each row.
+  int n = 0;
+  for (int y = 0; y < h; ++y) {
+    if (ws.rowAny[static_cast<size_t>(y)] == 0) continue;
+    const uint64_t* bits = ws.bits.data() + static_cast<size_t>(y) * static_cast<size_t>(words);
+    int64_t sumX = 0;
+    int count = 0;
+    for (int x = focus::nextSet(bits, w, 0); x < w; x = focus::nextSet(bits, w, x + 1)) {
+      sumX += x;
+      ++count;
+    }
+    if (count == 0) continue;
+    fitRows[n] = roi.y + y;
+    fitCols[n] = A::ratio(sumX, count) + A::fromInt(roi.x);
+    use[n] = 1;
+    counts[n] = count;
+    ++n;
+  }
+  // Curve fitting as printed: least squares, every focused row counts.
+  typename A::Fit fit;
+  if constexpr (A::kFixed) fit.scratch = fitScratch;
+  const bool fitted = n >= p.minRows && fit.fit(fitRows, fitCols, use, n, std::min(p.polyOrder, n - 1),
+                                               fitRows[0], fitRows[n - 1]);
+  double sumSq = 0.0;
+  for (int i = 0; i < n; ++i) {
+    RowSample sm;
+    sm.row = fitRows[i];
+    sm.columnQ8 = A::toQ8(fitCols[i]);
+    sm.centroidQ8 = sm.columnQ8;
+    sm.column = A::toFloat(fitCols[i]);
+    sm.status = RowStatus::kLine;
+    sm.inlier = true;
+    sm.confidence = static_cast<float>(std::min(counts[i], 4)) / 4.0F;
+    out.rows.push_back(sm);
+    if (fitted) {
+      const double d = A::toPx(A::absDiff(fitCols[i], fit.eval(fitRows[i])));
+      sumSq += d * d;
+    }
+  }
+  out.inliers = n;
+  if (n > 0) {
+    out.firstLineRow = fitRows[0];
+    out.lastLineRow = fitRows[n - 1];
+    out.coverage = static_cast<double>(n) / (out.lastLineRow - out.firstLineRow + 1);
+  }
+  if (fitted) {
+    fit.describe(out);
+    out.valid = true;
+    out.rmsResidualPx = std::sqrt(sumSq / n);
+  }
+}
+
+template void extractRobust<FixedArith>(const ImageView&, const ImageView*, const Roi&, const LleParams&,
+                                        const SimdKernels*, LleWorkspace&, LaserLine&);
+template void extractRobust<FloatArith>(const ImageView&, const ImageView*, const Roi&, const LleParams&,
+                                        const SimdKernels*, LleWorkspace&, LaserLine&);
+template void focusPaper<FixedArith>(const Roi&, const LleParams&, LleWorkspace&, LaserLine&);
+template void focusPaper<FloatArith>(const Roi&, const LleParams&, LleWorkspace&, LaserLine&);
+
+}  // namespace alacs::image::detail
