@@ -6,6 +6,7 @@
 #include <iostream>
 #include <limits>
 #include <string>
+#include <vector>
 
 namespace alacs::tools {
 
@@ -29,6 +30,10 @@ inline int parseCommandLine(CLI::App& app, int argc, const char* const* argv) {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {
     if (e.get_exit_code() == static_cast<int>(CLI::ExitCodes::Success)) return app.exit(e);
+    // An argument no option took (a typo) is the cause to name, before what it left
+    // missing ("--scans is required"), which CLI11 checks first.
+    const std::vector<std::string> extra = app.remaining(true);
+    if (!extra.empty() && e.get_name() != "ExtrasError") return usageError(app, "unexpected argument " + extra.front());
     return usageError(app, e.what());
   }
   return -1;
