@@ -4,7 +4,6 @@
 #include <CLI/CLI.hpp>
 #include <algorithm>
 #include <iostream>
-#include <limits>
 #include <string>
 #include <vector>
 
@@ -37,12 +36,6 @@ inline int parseCommandLine(CLI::App& app, int argc, const char* const* argv) {
     return usageError(app, e.what());
   }
   return -1;
-}
-
-// CLI11 check: a value of at least `min` (CLI::Range also caps, these options have no cap).
-template <typename T>
-CLI::Validator atLeast(T min) {
-  return CLI::Range(min, std::numeric_limits<T>::max());
 }
 
 }  // namespace alacs::tools
