@@ -3,6 +3,7 @@
 #include <png.h>
 
 #include <cerrno>
+#include <cstdint>
 #include <csetjmp>
 #include <cstdio>
 #include <cstring>
@@ -40,22 +41,67 @@ void onError(png_structp png, png_const_charp msg) {
 
 void onWarning(png_structp, png_const_charp) {}
 
+uint32_t bigEndian32(const png_byte* p) {
+  return (uint32_t{p[0]} << 24) | (uint32_t{p[1]} << 16) | (uint32_t{p[2]} << 8) | uint32_t{p[3]};
+}
+
+// Checks the IHDR chunk (the 25 bytes after the signature) before libpng sees the file:
+// the declared size, bit depth and colour type. libpng checks the CRC when it reads the
+// chunk again.
+Status checkHeader(const std::string& path, const png_byte* ihdr) {
+  if (bigEndian32(ihdr) != 13 || std::memcmp(ihdr + 4, "IHDR", 4) != 0)
+    return {Error::kBadInput, "'" + path + "': the PNG does not start with its IHDR header"};
+  const uint32_t width = bigEndian32(ihdr + 8);
+  const uint32_t height = bigEndian32(ihdr + 12);
+  const int depth = ihdr[16];
+  const int colour = ihdr[17];
+  const std::string declared = std::to_string(width) + " x " + std::to_string(height);
+  if (width == 0 || height == 0)
+    return {Error::kBadInput, "'" + path + "': the PNG header declares " + declared + " pixels"};
+  if (width > kMaxPngSidePx || height > kMaxPngSidePx ||
+      uint64_t{width} * height * 3U > uint64_t{kMaxPngDecodedBytes})
+    return {Error::kBadInput, "'" + path + "': the PNG header declares " + declared + " pixels, beyond the limit of " +
+                                  std::to_string(kMaxPngSidePx) + " x " + std::to_string(kMaxPngSidePx) + " and " +
+                                  std::to_string(kMaxPngDecodedBytes >> 20) + " MiB decoded"};
+  // The combinations of the PNG specification (11.2.2).
+  bool valid = false;
+  switch (colour) {
+    case PNG_COLOR_TYPE_GRAY: valid = depth == 1 || depth == 2 || depth == 4 || depth == 8 || depth == 16; break;
+    case PNG_COLOR_TYPE_PALETTE: valid = depth == 1 || depth == 2 || depth == 4 || depth == 8; break;
+    case PNG_COLOR_TYPE_RGB:
+    case PNG_COLOR_TYPE_GRAY_ALPHA:
+    case PNG_COLOR_TYPE_RGB_ALPHA: valid = depth == 8 || depth == 16; break;
+    default: break;
+  }
+  if (!valid)
+    return {Error::kBadInput, "'" + path + "' (" + declared + "): the PNG header declares colour type " +
+                                  std::to_string(colour) + " at bit depth " + std::to_string(depth) +
+                                  ", not a valid combination"};
+  return Status::ok();
+}
+
 // Decodes into `out`: allocated (or reused) when `allocate`, else it must have the size.
 Status decode(const std::string& path, cv::Mat& out, bool allocate) {
   PngState s;
   s.file = std::fopen(path.c_str(), "rb");
   if (s.file == nullptr)
     return {errno == ENOENT ? Error::kNotFound : Error::kIo, "cannot open '" + path + "': " + std::strerror(errno)};
-  png_byte sig[8] = {};
-  if (std::fread(sig, 1, sizeof sig, s.file) != sizeof sig || png_sig_cmp(sig, 0, sizeof sig) != 0)
-    return {Error::kBadInput, "'" + path + "' is not a PNG file"};
+  png_byte head[8 + 25] = {};  // the signature, then the IHDR chunk: length, type, 13 bytes, CRC
+  const size_t got = std::fread(head, 1, sizeof head, s.file);
+  if (got < 8 || png_sig_cmp(head, 0, 8) != 0) return {Error::kBadInput, "'" + path + "' is not a PNG file"};
+  if (got < sizeof head) return {Error::kBadInput, "'" + path + "': the PNG is cut short in its header"};
+  if (Status st = checkHeader(path, head + 8); !st) return st;
+  if (std::fseek(s.file, 8, SEEK_SET) != 0) return {Error::kIo, "cannot read '" + path + "': " + std::strerror(errno)};
   s.png = png_create_read_struct(PNG_LIBPNG_VER_STRING, &s, onError, onWarning);
   if (s.png == nullptr) return {Error::kInternal, "libpng: out of memory"};
   s.info = png_create_info_struct(s.png);
   if (s.info == nullptr) return {Error::kInternal, "libpng: out of memory"};
   if (setjmp(png_jmpbuf(s.png))) return {Error::kBadInput, "'" + path + "': " + s.message};
+  png_set_user_limits(s.png, kMaxPngSidePx, kMaxPngSidePx);
+  png_set_chunk_malloc_max(s.png, kMaxPngChunkBytes);
+  png_set_chunk_cache_max(s.png, 64);  // ancillary chunks kept (sPLT, text, unknown)
   png_init_io(s.png, s.file);
-  png_set_sig_bytes(s.png, sizeof sig);
+  png_set_sig_bytes(s.png, 8);
   png_read_info(s.png, s.info);
   const png_uint_32 width = png_get_image_width(s.png, s.info);
   const png_uint_32 height = png_get_image_height(s.png, s.info);
@@ -72,7 +118,6 @@ Status decode(const std::string& path, cv::Mat& out, bool allocate) {
   png_read_update_info(s.png, s.info);
   if (png_get_rowbytes(s.png, s.info) != static_cast<size_t>(width) * 3U)
     return {Error::kBadInput, "'" + path + "': unsupported PNG layout"};
-  if (width > 1U << 15 || height > 1U << 15) return {Error::kBadInput, "'" + path + "': image too large"};
   const int w = static_cast<int>(width);
   const int h = static_cast<int>(height);
   if (allocate) {

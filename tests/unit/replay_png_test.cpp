@@ -126,3 +126,85 @@ TEST_CASE("Frames of a scan load into one buffer, crops zeroed around", "[replay
   CHECK(s.code() == Error::kBadInput);
   CHECK(s.reason().find("64x48") != std::string::npos);
 }
+
+namespace {
+
+// CRC-32 of the PNG specification (ISO 3309), bit by bit: a test needs a few bytes.
+uint32_t pngCrc(const std::string& bytes) {
+  uint32_t c = 0xFFFFFFFFU;
+  for (const char ch : bytes) {
+    c ^= static_cast<uint8_t>(ch);
+    for (int k = 0; k < 8; ++k) c = (c & 1U) != 0 ? 0xEDB88320U ^ (c >> 1) : c >> 1;
+  }
+  return c ^ 0xFFFFFFFFU;
+}
+
+std::string bigEndian(uint32_t v) {
+  return {static_cast<char>(v >> 24), static_cast<char>(v >> 16), static_cast<char>(v >> 8), static_cast<char>(v)};
+}
+
+// One chunk: length, type, data, CRC over type and data.
+std::string chunk(const std::string& type, const std::string& data) {
+  return bigEndian(static_cast<uint32_t>(data.size())) + type + data + bigEndian(pngCrc(type + data));
+}
+
+// A PNG whose header declares `width` x `height` at `depth` bits and colour type
+// `colour`, with valid CRCs and an IDAT of one empty stored zlib block.
+std::string pngWithHeader(uint32_t width, uint32_t height, uint8_t depth, uint8_t colour) {
+  const std::string ihdr = bigEndian(width) + bigEndian(height) + std::string{static_cast<char>(depth),
+                                                                               static_cast<char>(colour), 0, 0, 0};
+  const std::string zlibEmpty("\x78\x01\x01\x00\x00\xff\xff\x00\x00\x00\x01", 11);
+  return std::string("\x89PNG\r\n\x1a\n", 8) + chunk("IHDR", ihdr) + chunk("IDAT", zlibEmpty) + chunk("IEND", "");
+}
+
+}  // namespace
+
+TEST_CASE("A PNG header beyond the limits is refused before anything is allocated", "[replay][png]") {
+  const test::TempDir tmp("alacs_png");
+  CHECK(pngCrc("IEND") == 0xAE426082U);  // the CRC every PNG ends with
+  cv::Mat out;
+  const std::string huge = tmp.write("huge.png", pngWithHeader(60000, 60000, 8, 2));
+  const Status s = replay::readPng(huge, out);
+  CHECK(s.code() == Error::kBadInput);
+  CHECK(s.reason().find("huge.png") != std::string::npos);
+  CHECK(s.reason().find("60000 x 60000") != std::string::npos);
+  CHECK(out.empty());
+  cv::Mat view(10, 10, CV_8UC3);
+  CHECK(replay::readPngInto(huge, view).code() == Error::kBadInput);
+
+  // Each side within the limit, but the pixels beyond the decoded-bytes cap.
+  const std::string wide = tmp.write("wide.png", pngWithHeader(replay::kMaxPngSidePx, replay::kMaxPngSidePx, 8, 2));
+  CHECK(replay::readPng(wide, out).reason().find("8192 x 8192") != std::string::npos);
+  // One side only.
+  CHECK(replay::readPng(tmp.write("tall.png", pngWithHeader(16, replay::kMaxPngSidePx + 1, 8, 2)), out).code() ==
+        Error::kBadInput);
+  // Zero pixels, and bit depths the colour type does not allow.
+  CHECK(replay::readPng(tmp.write("empty.png", pngWithHeader(0, 16, 8, 2)), out).code() == Error::kBadInput);
+  const Status depth = replay::readPng(tmp.write("depth.png", pngWithHeader(16, 16, 4, 2)), out);
+  CHECK(depth.code() == Error::kBadInput);
+  CHECK(depth.reason().find("bit depth 4") != std::string::npos);
+  CHECK(replay::readPng(tmp.write("colour.png", pngWithHeader(16, 16, 8, 5)), out).code() == Error::kBadInput);
+  // A small header passes the checks; its empty image data is libpng's error, not a crash.
+  CHECK(replay::readPng(tmp.write("small.png", pngWithHeader(16, 16, 8, 2)), out).code() == Error::kBadInput);
+}
+
+TEST_CASE("A PNG cut anywhere is an error naming the file, never a crash", "[replay][png]") {
+  const test::TempDir tmp("alacs_png");
+  const std::string whole = tmp.file("whole.png");
+  cv::Mat img(24, 40, CV_8UC3);
+  cv::randu(img, 0, 256);
+  REQUIRE(replay::writePng(whole, img, 0).isOk());
+  std::ifstream in(whole, std::ios::binary);
+  const std::string bytes((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  cv::Mat out;
+  for (size_t n : {size_t{0}, size_t{7}, size_t{8}, size_t{20}, size_t{33}, size_t{40}, bytes.size() / 3,
+                   bytes.size() - 13, bytes.size() - 1}) {
+    const Status s = replay::readPng(tmp.write("cut.png", bytes.substr(0, n)), out);
+    INFO(n << " of " << bytes.size() << " bytes: " << s.toString());
+    CHECK(s.code() == Error::kBadInput);
+    CHECK(s.reason().find("cut.png") != std::string::npos);
+  }
+  std::string flipped = bytes;  // a byte of the image data changed: the CRC or zlib says so
+  flipped[bytes.size() / 2] = static_cast<char>(flipped[bytes.size() / 2] ^ 0x55);
+  CHECK(replay::readPng(tmp.write("flipped.png", flipped), out).code() == Error::kBadInput);
+}

@@ -31,6 +31,7 @@
 #include "localize/localizer.h"
 #include "sim/renderer.h"
 #include "sim/scene.h"
+#include "tool_common/cli.h"
 
 using namespace alacs;
 namespace fs = std::filesystem;
@@ -153,21 +154,22 @@ int main(int argc, char** argv) {
   bool runPython = true;
   bool pin = true;
   int profileFrames = 0;  // --profile N: only LLE on the full frame, N times (for perf)
-  for (int i = 1; i < argc; ++i) {
-    const std::string a = argv[i];
-    if (a == "--frames" && i + 1 < argc) frames = std::max(10, std::atoi(argv[++i]));
-    else if (a == "--image" && i + 1 < argc) imagePath = argv[++i];
-    else if (a == "--python" && i + 1 < argc) python = argv[++i];
-    else if (a == "--no-python") runPython = false;
-    else if (a == "--no-pin") pin = false;
-    else if (a == "--profile" && i + 1 < argc) profileFrames = std::max(1, std::atoi(argv[++i]));
-    else {
-      std::fprintf(stderr,
-                   "usage: alacs_lle_bench [--frames N] [--image PNG] [--python PATH] [--no-python] [--no-pin]"
-                   " [--profile N]\n");
-      return 2;
-    }
-  }
+  bool noPython = false, noPin = false;
+  CLI::App app("LLE against memcpy of the frame, the paper's method in OpenCV float and in numpy: ratios measured "
+               "in the same run (a benchmark, not a test).",
+               "alacs_lle_bench");
+  app.add_option("--frames", frames, "frames timed (at least 10)")->capture_default_str();
+  app.add_option("--image", imagePath, "a PNG frame (default: a rendered one)");
+  app.add_option("--python", python, "the Python with numpy for the paper's method")->capture_default_str();
+  app.add_flag("--no-python", noPython, "skip the numpy measurement");
+  app.add_flag("--no-pin", noPin, "do not pin to CPU 0");
+  CLI::Option* profile =
+      app.add_option("--profile", profileFrames, "only LLE on the full frame, N times (for perf; at least 1)");
+  if (const int rc = tools::parseCommandLine(app, argc, argv); rc >= 0) return rc;
+  frames = std::max(10, frames);
+  if (profile->count() > 0) profileFrames = std::max(1, profileFrames);
+  runPython = !noPython;
+  pin = !noPin;
   if (pin) {
     cpu_set_t set;
     CPU_ZERO(&set);

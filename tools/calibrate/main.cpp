@@ -1,5 +1,5 @@
 // alacs_calibrate: the sensor's calibration from a directory of calibration scans (from
-// the twin here, from the rig in the field), with the quality gate. See usage() and
+// the twin here, from the rig in the field), with the quality gate. See --help and
 // docs/calibration.md.
 #include <Eigen/Core>
 #include <cstdio>
@@ -13,41 +13,22 @@
 #include "geometry/calibration.h"
 #include "geometry/calibration_gate.h"
 #include "replay/scan_dir.h"
+#include "tool_common/cli.h"
 
 using namespace alacs;
 namespace fs = std::filesystem;
 
 namespace {
 
-void usage(FILE* out) {
-  std::fprintf(out,
-               "usage: alacs_calibrate --scans DIR [--out FILE] [--limits FILE] [--board SXxSYxMM]\n"
-               "                       [--margin-mm MM] [--slide-axis X,Y,Z] [--free-k3]\n"
-               "                       [--sigma-draws N] [--verbose]\n"
-               "\n"
-               "  --scans DIR       a directory of scan directories (docs/scan-format.md):\n"
-               "                    kind \"checkerboard\": every laser-off frame is a camera view;\n"
-               "                    kind \"laser_plane\": one board placement, a laser-off frame and\n"
-               "                    laser-on frames at several slide positions\n"
-               "  --out FILE        calibration.json to write (default DIR/calibration.json); written\n"
-               "                    atomically and only when the quality gate passes; a refused\n"
-               "                    calibration goes to FILE.refused for diagnosis\n"
-               "  --limits FILE     the gate's limits (JSON, docs/calibration.md); default built in\n"
-               "  --board           checkerboard squares and square size (default 10x7x40)\n"
-               "  --margin-mm       the board's plain margin around the squares (default 60)\n"
-               "  --slide-axis      the slide's direction in the camera frame from the drawing\n"
-               "                    (default 1,0,0; only its component along the laser normal is\n"
-               "                    observable, see docs/calibration.md)\n"
-               "  --free-k3         estimate the sixth-order radial term too\n"
-               "  --sigma-draws N   total σ by a Monte Carlo of N intrinsics draws (seeded) instead\n"
-               "                    of the default ±1σ per direction; for checking, N × slower\n"
-               "\n"
-               "exit status: 0 calibrated and accepted, 3 refused by the quality gate, 1 failed, 2 usage\n");
-}
+constexpr const char* kDescription =
+    "The sensor's calibration from a directory of calibration scans, with the quality gate\n"
+    "(docs/calibration.md). Exit status: 0 calibrated and accepted, 3 refused by the quality gate,\n"
+    "1 failed, 2 usage.";
 
-bool parseTriple(const char* s, Eigen::Vector3d* out) {
+bool parseTriple(const std::string& s, Eigen::Vector3d* out) {
   double x = 0, y = 0, z = 0;
-  if (std::sscanf(s, "%lf,%lf,%lf", &x, &y, &z) != 3) return false;
+  char tail = 0;
+  if (std::sscanf(s.c_str(), "%lf,%lf,%lf%c", &x, &y, &z, &tail) != 3) return false;
   *out = Eigen::Vector3d(x, y, z);
   return out->norm() > 0.0;
 }
@@ -91,62 +72,46 @@ int main(int argc, char** argv) {
   std::string limitsPath;
   bool verbose = false;
   calib::CalibrationInput input;
-  for (int i = 1; i < argc; ++i) {
-    const std::string k = argv[i];
-    auto value = [&]() -> const char* {
-      if (i + 1 >= argc) {
-        std::fprintf(stderr, "alacs_calibrate: %s needs a value\n", k.c_str());
-        std::exit(2);
-      }
-      return argv[++i];
-    };
-    if (k == "--scans") {
-      scansDir = value();
-    } else if (k == "--out") {
-      outPath = value();
-    } else if (k == "--limits") {
-      limitsPath = value();
-    } else if (k == "--board") {
-      int sx = 0, sy = 0;
-      double mm = 0;
-      if (std::sscanf(value(), "%dx%dx%lf", &sx, &sy, &mm) != 3 || sx < 3 || sy < 3 || !(mm > 0)) {
-        std::fprintf(stderr, "alacs_calibrate: --board wants SXxSYxMM, e.g. 10x7x40\n");
-        return 2;
-      }
-      input.board.squaresX = sx;
-      input.board.squaresY = sy;
-      input.board.squareMm = mm;
-    } else if (k == "--margin-mm") {
-      input.board.marginMm = std::atof(value());
-    } else if (k == "--slide-axis") {
-      if (!parseTriple(value(), &input.nominalSlideAxis)) {
-        std::fprintf(stderr, "alacs_calibrate: --slide-axis wants X,Y,Z\n");
-        return 2;
-      }
-      input.nominalSlideAxis.normalize();
-    } else if (k == "--free-k3") {
-      input.cameraOptions.fixK3 = false;
-    } else if (k == "--sigma-draws") {
-      input.uncertaintyDraws = std::atoi(value());
-      if (input.uncertaintyDraws < 0) {
-        std::fprintf(stderr, "alacs_calibrate: --sigma-draws wants N >= 0\n");
-        return 2;
-      }
-    } else if (k == "--verbose") {
-      verbose = true;
-    } else if (k == "--help" || k == "-h") {
-      usage(stdout);
-      return 0;
-    } else {
-      std::fprintf(stderr, "alacs_calibrate: unknown option %s\n", k.c_str());
-      usage(stderr);
-      return 2;
-    }
+  std::string board, slideAxis;
+  CLI::App app(kDescription, "alacs_calibrate");
+  app.add_option("--scans", scansDir,
+                 "a directory of scan directories (docs/scan-format.md): kind \"checkerboard\": every laser-off "
+                 "frame is a camera view; kind \"laser_plane\": one board placement, a laser-off frame and laser-on "
+                 "frames at several slide positions")
+      ->required();
+  app.add_option("--out", outPath,
+                 "calibration.json to write (default DIR/calibration.json); written atomically and only when the "
+                 "quality gate passes; a refused calibration goes to FILE.refused for diagnosis");
+  app.add_option("--limits", limitsPath, "the gate's limits (JSON, docs/calibration.md); default built in");
+  app.add_option("--board", board, "checkerboard squares and square size SXxSYxMM (default 10x7x40)");
+  app.add_option("--margin-mm", input.board.marginMm, "the board's plain margin around the squares")
+      ->capture_default_str();
+  app.add_option("--slide-axis", slideAxis,
+                 "X,Y,Z: the slide's direction in the camera frame from the drawing (default 1,0,0; only its "
+                 "component along the laser normal is observable, see docs/calibration.md)");
+  bool freeK3 = false;
+  app.add_flag("--free-k3", freeK3, "estimate the sixth-order radial term too");
+  app.add_option("--sigma-draws", input.uncertaintyDraws,
+                 "total sigma by a Monte Carlo of N intrinsics draws (seeded) instead of the default +-1 sigma per "
+                 "direction; for checking, N x slower")
+      ->check(CLI::NonNegativeNumber);
+  app.add_flag("--verbose", verbose, "where the total sigma comes from, per working distance");
+  if (const int rc = tools::parseCommandLine(app, argc, argv); rc >= 0) return rc;
+  if (!board.empty()) {
+    int sx = 0, sy = 0;
+    double mm = 0;
+    char tail = 0;
+    if (std::sscanf(board.c_str(), "%dx%dx%lf%c", &sx, &sy, &mm, &tail) != 3 || sx < 3 || sy < 3 || !(mm > 0))
+      return tools::usageError(app, "--board wants SXxSYxMM, e.g. 10x7x40");
+    input.board.squaresX = sx;
+    input.board.squaresY = sy;
+    input.board.squareMm = mm;
   }
-  if (scansDir.empty()) {
-    usage(stderr);
-    return 2;
+  if (!slideAxis.empty()) {
+    if (!parseTriple(slideAxis, &input.nominalSlideAxis)) return tools::usageError(app, "--slide-axis wants X,Y,Z");
+    input.nominalSlideAxis.normalize();
   }
+  if (freeK3) input.cameraOptions.fixK3 = false;
   if (outPath.empty()) outPath = (fs::path(scansDir) / "calibration.json").string();
   geometry::CalibrationLimits limits;
   if (!limitsPath.empty()) {

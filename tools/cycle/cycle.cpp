@@ -37,6 +37,7 @@
 #include "sim/sim_camera.h"
 #include "sim/sim_slide.h"
 #include "survey/survey.h"
+#include "tool_common/cli.h"
 
 using namespace alacs;
 
@@ -393,35 +394,31 @@ int replayCycle(const Options& o) {
 int main(int argc, char** argv) {
   app::mapLargeBlocks();  // as alacsd
   Options o;
-  const char* usage =
-      "usage: alacs_cycle [--cases N] [--mode stop-and-go|continuous|both] [--width W --height H] [--verbose]\n"
-      "                   [--follow-up-max-stops N (0: no second pass)] [--follow-up-diameter-sigma-mm MM (0: lines only)]\n"
-      "                   [--stops N --spacing-mm MM (the first pass; default: ScanParams')]\n"
-      "       alacs_cycle --export DIR [--cases N] [--width W --height H]\n"
-      "       alacs_cycle --replay [--mode stop-and-go|continuous|scan-all|both|all] [--verbose] DIR...\n";
-  for (int i = 1; i < argc; ++i) {
-    const std::string a = argv[i];
-    if (a == "--cases" && i + 1 < argc) o.cases = std::max(1, std::atoi(argv[++i]));
-    else if (a == "--mode" && i + 1 < argc) o.modes = argv[++i];
-    else if (a == "--width" && i + 1 < argc) o.widthPx = std::atoi(argv[++i]);
-    else if (a == "--height" && i + 1 < argc) o.heightPx = std::atoi(argv[++i]);
-    else if (a == "--verbose") o.verbose = true;
-    else if (a == "--follow-up-max-stops" && i + 1 < argc) o.followUpMaxStops = std::atoi(argv[++i]);
-    else if (a == "--follow-up-diameter-sigma-mm" && i + 1 < argc) o.followUpDiameterSigmaMm = std::atof(argv[++i]);
-    else if (a == "--stops" && i + 1 < argc) o.stops = std::atoi(argv[++i]);
-    else if (a == "--spacing-mm" && i + 1 < argc) o.spacingMm = std::atof(argv[++i]);
-    else if (a == "--export" && i + 1 < argc) o.exportDir = argv[++i];
-    else if (a == "--replay") o.replay = true;
-    else if (o.replay && a.rfind("--", 0) != 0) o.dirs.push_back(a);
-    else {
-      std::fprintf(stderr, "%s", usage);
-      return 2;
-    }
-  }
-  if ((o.widthPx > 0) != (o.heightPx > 0) || (o.replay && o.dirs.empty()) || (o.replay && !o.exportDir.empty())) {
-    std::fprintf(stderr, "%s", usage);
-    return 2;
-  }
+  CLI::App app("The localize cycle of the real scan worker on this machine's clock; --export and --replay measure "
+               "the peak memory with real-size frames (docs/daemon.md).\n"
+               "  alacs_cycle [--cases N] [--mode stop-and-go|continuous|both] [--width W --height H] [--verbose]\n"
+               "  alacs_cycle --export DIR [--cases N] [--width W --height H]\n"
+               "  alacs_cycle --replay [--mode stop-and-go|continuous|scan-all|both|all] [--verbose] DIR...",
+               "alacs_cycle");
+  app.add_option("--cases", o.cases, "orchard cases (at least 1)")->capture_default_str();
+  app.add_option("--mode", o.modes, "stop-and-go|continuous|both, with --replay also scan-all|all (default: both; with --replay stop-and-go)")
+      ->check(CLI::IsMember({"stop-and-go", "continuous", "both", "scan-all", "all"}));
+  app.add_option("--width", o.widthPx, "frame width, px (with --height)");
+  app.add_option("--height", o.heightPx, "frame height, px (with --width)");
+  app.add_flag("--verbose", o.verbose, "every trial");
+  app.add_option("--follow-up-max-stops", o.followUpMaxStops, "0: no second pass (default: ScanParams')");
+  app.add_option("--follow-up-diameter-sigma-mm", o.followUpDiameterSigmaMm, "0: lines only (default: ScanParams')");
+  app.add_option("--stops", o.stops, "stops of the first pass (default: ScanParams')");
+  app.add_option("--spacing-mm", o.spacingMm, "spacing of the first pass's stops (default: ScanParams')");
+  app.add_option("--export", o.exportDir, "write the orchard scans as scan directories into DIR");
+  app.add_flag("--replay", o.replay, "run the worker on the scan directories DIR...");
+  app.add_option("DIR", o.dirs, "scan directories (--replay)");
+  if (const int rc = tools::parseCommandLine(app, argc, argv); rc >= 0) return rc;
+  o.cases = std::max(1, o.cases);
+  if ((o.widthPx > 0) != (o.heightPx > 0)) return tools::usageError(app, "--width and --height go together");
+  if (o.replay && o.dirs.empty()) return tools::usageError(app, "--replay needs DIR...");
+  if (o.replay && !o.exportDir.empty()) return tools::usageError(app, "--replay and --export exclude each other");
+  if (!o.replay && !o.dirs.empty()) return tools::usageError(app, "DIR... only with --replay");
   if (!o.exportDir.empty()) return exportScans(o);
   if (o.replay) return replayCycle(o);
   return simulatedCycle(o);

@@ -1,5 +1,5 @@
 // alacs_geometry_eval: calibration scans from the twin, and the localization accuracy on
-// the twin with a calibration estimated from those scans (docs/calibration.md). See usage().
+// the twin with a calibration estimated from those scans (docs/calibration.md). See --help.
 //
 //   calib-scans  writes a directory of calibration scans (checkerboard views and board
 //                placements with laser lines) rendered by the twin, for alacs_calibrate
@@ -29,32 +29,12 @@
 #include "sim/scan_export.h"
 #include "sim/scene.h"
 #include "sim/truth.h"
+#include "tool_common/cli.h"
 #include "geometry/triangulation.h"
 
 using namespace alacs;
 
 namespace {
-
-void usage(FILE* out) {
-  std::fprintf(out,
-               "usage: alacs_geometry_eval calib-scans --out DIR [--views N] [--placements N] [--seed S]\n"
-               "       alacs_geometry_eval localize --calibration FILE [--cases N] [--distances MM,MM,...]\n"
-               "                           [--clear] [--lighting lab|overcast|direct|sun] [--seed S]\n"
-               "                           [--report FILE.md] [--csv FILE.csv] [--min-cases N]\n"
-               "                           [--stops N --spacing-mm MM (the first pass; default: ScanParams', 7 × 13.3;\n"
-               "                            the paper's: 5 × 20)] [--only CASE (debug one case)]\n"
-               "                           [--within-pct P (share within 20 mm required, default 99.5)]\n"
-               "                           [--prior-radius-sigma-mm MM (the fruit-size prior's 1σ; default: ScanParams')]\n"
-               "                           [--follow-up-max-stops N (the adaptive second pass; 0: off; default: ScanParams')]\n"
-               "                           [--follow-up-min-lines N (the pass is taken below N lines; default: ScanParams')]\n"
-               "                           [--follow-up-diameter-sigma-mm MM (... or above this diameter σ; 0: off)]\n"
-               "       alacs_geometry_eval check-calibration --calibration FILE --truth FILE [--max-mean-mm MM]\n"
-               "\n"
-               "  localize exits 0 when every target of issue 5 is met, 4 when one is not, 1 on errors.\n"
-               "  check-calibration triangulates the pixels of points on the true laser planes (1.0-1.6 m,\n"
-               "  the whole stroke, the whole frame) with the estimated calibration and reports the 3D\n"
-               "  error: the truth only checks the estimate, it never makes it. Exits 4 above the limit.\n");
-}
 
 // ---------------------------------------------------------------------------------------
 // Calibration scans
@@ -562,66 +542,77 @@ int checkCalibration(const std::string& estPath, const std::string& truthPath, d
 }  // namespace
 
 int main(int argc, char** argv) {
-  if (argc < 2) {
-    usage(stderr);
-    return 2;
-  }
-  const std::string cmd = argv[1];
-  std::map<std::string, std::string> opt;
+  CLI::App app("The twin's calibration scans, the localization accuracy on the twin, and the 3D error of an "
+               "estimated calibration (docs/calibration.md, docs/geometry.md).",
+               "alacs_geometry_eval");
+  app.require_subcommand(1);
+  uint64_t seed = 1;
+
+  CLI::App* scans = app.add_subcommand("calib-scans", "calibration scans of the twin into DIR");
+  std::string outDir;
+  int views = 16, placements = 6;
+  scans->add_option("--out", outDir, "the output directory")->required();
+  scans->add_option("--views", views, "checkerboard views")->capture_default_str();
+  scans->add_option("--placements", placements, "laser-plane board placements")->capture_default_str();
+  scans->add_option("--seed", seed, "random seed")->capture_default_str();
+
+  CLI::App* loc = app.add_subcommand(
+      "localize", "localization accuracy on orchard cases; exits 0 when every target of issue 5 is met, 4 when one "
+                  "is not, 1 on errors");
+  const localize::ScanParams defaults;
+  std::string calibration, distances = "1000,1200,1400,1600", lighting = "lab", report, csv;
+  int cases = 120, minCases = 120, only = -1, stops = defaults.stops, followUpMaxStops = -1, followUpMinLines = 0;
+  double spacingMm = defaults.stopSpacingMm, withinPct = 99.5, priorRadiusSigmaMm = 0.0, followUpDiameterSigmaMm = -1.0;
   bool clear = false;
-  for (int i = 2; i < argc; ++i) {
-    const std::string k = argv[i];
-    if (k == "--clear") {
-      clear = true;
-      continue;
-    }
-    if (k.rfind("--", 0) != 0 || i + 1 >= argc) {
-      usage(stderr);
-      return 2;
-    }
-    opt[k.substr(2)] = argv[++i];
+  loc->add_option("--calibration", calibration, "the calibration to localize with")->required();
+  loc->add_option("--cases", cases, "orchard cases")->capture_default_str();
+  loc->add_option("--distances", distances, "working distances MM,MM,...")->capture_default_str();
+  loc->add_flag("--clear", clear, "no occluding leaves");
+  loc->add_option("--lighting", lighting, "lab|overcast|direct|sun")->capture_default_str();
+  loc->add_option("--seed", seed, "random seed")->capture_default_str();
+  loc->add_option("--report", report, "a Markdown report into FILE.md");
+  loc->add_option("--csv", csv, "one row per case into FILE.csv");
+  loc->add_option("--min-cases", minCases, "cases needed for the targets")->capture_default_str();
+  loc->add_option("--stops", stops, "stops of the first pass (the paper's: 5)")->capture_default_str();
+  loc->add_option("--spacing-mm", spacingMm, "their spacing (the paper's: 20)")->capture_default_str();
+  CLI::Option* onlyOpt = loc->add_option("--only", only, "debug one CASE");
+  loc->add_option("--within-pct", withinPct, "share within 20 mm required")->capture_default_str();
+  loc->add_option("--prior-radius-sigma-mm", priorRadiusSigmaMm, "the fruit-size prior's 1 sigma (0: ScanParams')")
+      ->capture_default_str();
+  loc->add_option("--follow-up-max-stops", followUpMaxStops, "the adaptive second pass; 0: off; -1: ScanParams'")
+      ->capture_default_str();
+  loc->add_option("--follow-up-min-lines", followUpMinLines, "the pass is taken below N lines; 0: ScanParams'")
+      ->capture_default_str();
+  loc->add_option("--follow-up-diameter-sigma-mm", followUpDiameterSigmaMm,
+                  "... or above this diameter sigma; 0: off; -1: ScanParams'")
+      ->capture_default_str();
+
+  CLI::App* check = app.add_subcommand(
+      "check-calibration",
+      "triangulates the pixels of points on the true laser planes (1.0-1.6 m, the whole stroke, the whole frame) "
+      "with the estimated calibration and reports the 3D error: the truth only checks the estimate, it never makes "
+      "it. Exits 4 above the limit");
+  std::string truth;
+  double maxMeanMm = 0.5;
+  check->add_option("--calibration", calibration, "the estimated calibration")->required();
+  check->add_option("--truth", truth, "the true calibration")->required();
+  check->add_option("--max-mean-mm", maxMeanMm, "the limit of the worst mean 3D error")->capture_default_str();
+  check->add_option("--seed", seed, "accepted, unused");
+
+  if (const int rc = tools::parseCommandLine(app, argc, argv); rc >= 0) return rc;
+  if (scans->parsed()) return calibScans(outDir, views, placements, seed);
+  if (check->parsed()) return checkCalibration(calibration, truth, maxMeanMm);
+  std::vector<double> distanceList;
+  std::stringstream ss(distances);
+  for (std::string item; std::getline(ss, item, ',');) {
+    char* end = nullptr;
+    const double d = std::strtod(item.c_str(), &end);
+    if (item.empty() || *end != '\0' || !(d > 0.0)) return tools::usageError(app, "--distances wants MM,MM,... not '" + distances + "'");
+    distanceList.push_back(d);
   }
-  auto get = [&](const char* key, const char* fallback) { return opt.count(key) ? opt[key] : std::string(fallback); };
-  const uint64_t seed = std::strtoull(get("seed", "1").c_str(), nullptr, 10);
-  if (cmd == "calib-scans") {
-    if (!opt.count("out")) {
-      usage(stderr);
-      return 2;
-    }
-    return calibScans(opt["out"], std::atoi(get("views", "16").c_str()), std::atoi(get("placements", "6").c_str()),
-                      seed);
-  }
-  if (cmd == "check-calibration") {
-    if (!opt.count("calibration") || !opt.count("truth")) {
-      usage(stderr);
-      return 2;
-    }
-    return checkCalibration(opt["calibration"], opt["truth"], std::atof(get("max-mean-mm", "0.5").c_str()));
-  }
-  if (cmd == "localize") {
-    if (!opt.count("calibration")) {
-      usage(stderr);
-      return 2;
-    }
-    std::vector<double> distances;
-    std::stringstream ss(get("distances", "1000,1200,1400,1600"));
-    for (std::string item; std::getline(ss, item, ',');) distances.push_back(std::atof(item.c_str()));
-    Result<sim::LightingKind> lighting = sim::parseLighting(get("lighting", "lab"));
-    if (!lighting) {
-      std::fprintf(stderr, "%s\n", lighting.status().toString().c_str());
-      return 2;
-    }
-    return localizeEval(opt["calibration"], std::atoi(get("cases", "120").c_str()), distances, !clear, *lighting,
-                        seed, get("report", ""), get("csv", ""), std::atoi(get("min-cases", "120").c_str()),
-                        std::atoi(get("only", "-1").c_str()), opt.count("only") > 0,
-                        std::atoi(get("stops", std::to_string(localize::ScanParams{}.stops).c_str()).c_str()),
-                        std::atof(get("spacing-mm", std::to_string(localize::ScanParams{}.stopSpacingMm).c_str()).c_str()),
-                        std::atof(get("within-pct", "99.5").c_str()),
-                        std::atof(get("prior-radius-sigma-mm", "0").c_str()),
-                        std::atoi(get("follow-up-max-stops", "-1").c_str()),
-                        std::atoi(get("follow-up-min-lines", "0").c_str()),
-                        std::atof(get("follow-up-diameter-sigma-mm", "-1").c_str()));
-  }
-  usage(stderr);
-  return 2;
+  Result<sim::LightingKind> light = sim::parseLighting(lighting);
+  if (!light) return tools::usageError(app, light.status().toString());
+  return localizeEval(calibration, cases, distanceList, !clear, *light, seed, report, csv, minCases, only,
+                      onlyOpt->count() > 0, stops, spacingMm, withinPct, priorRadiusSigmaMm, followUpMaxStops,
+                      followUpMinLines, followUpDiameterSigmaMm);
 }

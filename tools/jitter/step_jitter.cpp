@@ -24,6 +24,7 @@
 
 #include "motion/step_runner.h"
 #include "ports/digital_io_fake.h"
+#include "tool_common/cli.h"
 
 using namespace alacs;
 
@@ -73,16 +74,12 @@ Stats measure(int moves) {
 int main(int argc, char** argv) {
   int moves = 20;
   bool load = false;
-  for (int i = 1; i < argc; ++i) {
-    if (std::strcmp(argv[i], "--moves") == 0 && i + 1 < argc) {
-      moves = std::max(1, std::atoi(argv[++i]));
-    } else if (std::strcmp(argv[i], "--load") == 0) {
-      load = true;
-    } else {
-      std::fprintf(stderr, "usage: alacs_step_jitter [--moves N] [--load]\n");
-      return 2;
-    }
-  }
+  CLI::App app("Timing of the step runner's STEP edges against the plan, on this machine's clock.",
+               "alacs_step_jitter");
+  app.add_option("--moves", moves, "moves of 20 mm measured per scheduling policy (at least 1)")->capture_default_str();
+  app.add_flag("--load", load, "load every core while measuring");
+  if (const int rc = alacs::tools::parseCommandLine(app, argc, argv); rc >= 0) return rc;
+  moves = std::max(1, moves);
   std::atomic<bool> stopLoad{false};
   std::vector<std::thread> loaders;
   if (load) {

@@ -33,11 +33,15 @@
 #include <thread>
 #include <vector>
 
+#include <nlohmann/json.hpp>
+
 #include "image/lle.h"
 #include "geometry/triangulation.h"
 #include "localize/localizer.h"
 #include "replay/scan_dir.h"
 #include "sim/orchard.h"
+#include "tool_common/cli.h"
+#include "tool_common/json.h"
 #include "sim/renderer.h"
 #include "sim/truth.h"
 
@@ -144,7 +148,9 @@ bool setParam(image::LleParams& p, const std::string& kv) {
   const size_t eq = kv.find('=');
   if (eq == std::string::npos) return false;
   const std::string k = kv.substr(0, eq);
-  const double v = std::atof(kv.c_str() + eq + 1);
+  char* end = nullptr;
+  const double v = std::strtod(kv.c_str() + eq + 1, &end);
+  if (end == kv.c_str() + eq + 1 || *end != '\0' || !std::isfinite(v)) return false;
   const int iv = static_cast<int>(v);
   if (k == "step") p.brceStep = iv;
   else if (k == "th") p.brceThreshold = iv;
@@ -391,43 +397,30 @@ CaseInput makeCase(int i, bool withOff, const std::string& dumpDir, const std::s
     const std::string base = dumpDir + name;
     cv::imwrite(base + "_on.png", crop);
     cv::imwrite(base + "_off.png", cropOff);
-    std::ofstream js(base + ".json");
-    js.precision(10);
-    js << "{\"id\": " << i << ", \"light\": \"" << in.light << "\", \"occluded\": "
-       << (spec.occluded ? "true" : "false") << ", \"distance_mm\": " << spec.distanceMm << ", \"slide_mm\": " << slide
-       << ", \"roi\": [" << roi.x << ", " << roi.y << ", " << roi.width << ", " << roi.height
-       << "], \"note\": \"" << oc->description << "\", \"truth\": [";
-    bool first = true;
-    for (const auto& t : truth) {
-      js << (first ? "" : ", ") << "[" << t.row << ", " << t.column << ", " << static_cast<int>(t.flags) << "]";
-      first = false;
-    }
-    js << "]}\n";
+    tools::Json truthRows = tools::Json::array();
+    for (const auto& t : truth) truthRows.push_back({t.row, t.column, static_cast<int>(t.flags)});
+    const tools::Json doc{{"id", i},
+                                     {"light", in.light},
+                                     {"occluded", spec.occluded},
+                                     {"distance_mm", spec.distanceMm},
+                                     {"slide_mm", slide},
+                                     {"roi", {roi.x, roi.y, roi.width, roi.height}},
+                                     {"note", oc->description},
+                                     {"truth", std::move(truthRows)}};
+    std::ofstream(base + ".json") << tools::jsonText(doc);
   }
   return in;
 }
 
 // A case of a benchmark set written by `alacs-twin generate` (a scan directory: manifest,
-// frame, calibration, truth CSV); light, occlusion and distance from the set's set.jsonl.
-std::string jsonField(const std::string& line, const std::string& key) {
-  const size_t k = line.find("\"" + key + "\":");
-  if (k == std::string::npos) return "";
-  size_t v = k + key.size() + 3;
-  while (v < line.size() && line[v] == ' ') ++v;
-  if (v < line.size() && line[v] == '"') {
-    const size_t e = line.find('"', v + 1);
-    return line.substr(v + 1, e - v - 1);
-  }
-  const size_t e = line.find_first_of(",}", v);
-  return line.substr(v, e - v);
-}
-
-CaseInput loadCase(int id, const std::string& dir, const std::string& setLine, bool withOff) {
+// frame, calibration, truth CSV); light, occlusion and distance from its line of the
+// set's set.jsonl.
+CaseInput loadCase(int id, const std::string& dir, const nlohmann::json& setLine, bool withOff) {
   CaseInput in;
   in.id = id;
-  in.light = jsonField(setLine, "lighting");
-  in.occluded = jsonField(setLine, "occluded") == "1";
-  in.distanceMm = std::atof(jsonField(setLine, "distance_mm").c_str());
+  in.light = setLine.value("lighting", std::string());
+  in.occluded = setLine.value("occluded", 0) == 1;
+  in.distanceMm = setLine.value("distance_mm", 0.0);
   Result<replay::ScanManifest> m = replay::readManifest(dir);
   if (!m) {
     in.note = m.status().toString();
@@ -531,39 +524,24 @@ int main(int argc, char** argv) {
   std::string csv;
   std::string dump;
   std::vector<std::string> sets;
-  for (int i = 1; i < argc; ++i) {
-    const std::string a = argv[i];
-    auto next = [&]() -> std::string {
-      if (i + 1 >= argc) {
-        std::fprintf(stderr, "alacs_lle_eval: %s needs a value\n", a.c_str());
-        std::exit(2);
-      }
-      return argv[++i];
-    };
-    if (a == "--cases") cases = std::atoi(next().c_str());
-    else if (a == "--first") first = std::atoi(next().c_str());
-    else if (a == "--jobs") jobs = std::max(1, std::atoi(next().c_str()));
-    else if (a == "--laser-off") laserOff = true;
-    else if (a == "--line") showLine = true;
-    else if (a == "--csv") csv = next();
-    else if (a == "--dump") dump = next();
-    else if (a == "--rows") gRowsCase = std::atoi(next().c_str());
-    else if (a == "--set-dir") sets.push_back(next());
-    else if (a == "--set") {
-      if (!setParam(gParams, next())) {
-        std::fprintf(stderr, "alacs_lle_eval: bad --set %s\n", argv[i]);
-        return 2;
-      }
-    }
-    else {
-      std::fprintf(stderr,
-                   "usage: alacs_lle_eval [--cases N] [--first K] [--set-dir DIR]... [--jobs J] [--laser-off] [--line]\n"
-                   "                      [--csv FILE] [--dump DIR] [--rows ID]\n"
-                   "                      [--set step|th|theta|gamma|order|outlier|minrows|peaks|jump|gap|minseg|bridge|\n"
-                   "                             bridgerow|smooth|sorder|weak|robustpct|weakline|weaklinepct|edge|edgeagree=VALUE]...\n");
-      return 2;
-    }
-  }
+  std::vector<std::string> overrides;
+  CLI::App app("Accuracy of LLE on the twin's cases: fixed = float, SIMD = scalar (docs/lle.md).", "alacs_lle_eval");
+  app.add_option("--cases", cases, "cases rendered here (ignored with --set-dir)")->capture_default_str();
+  app.add_option("--first", first, "the first rendered case")->capture_default_str();
+  app.add_option("--set-dir", sets, "a benchmark set of alacs-twin generate --set lle (repeatable)");
+  app.add_option("--jobs", jobs, "threads (at least 1)")->capture_default_str();
+  app.add_flag("--laser-off", laserOff, "subtract the laser-off frame");
+  app.add_flag("--line", showLine, "print the line-only statistics");
+  app.add_option("--csv", csv, "one row per case into FILE");
+  app.add_option("--dump", dump, "rendered cases (PNG + JSON) into DIR");
+  app.add_option("--rows", gRowsCase, "print the rows of case ID");
+  app.add_option("--set", overrides,
+                 "KEY=VALUE parameter override (repeatable), KEY one of step th theta gamma order outlier minrows "
+                 "peaks jump gap minseg bridge bridgerow smooth sorder weak robustpct weakline weaklinepct edge edgeagree");
+  if (const int rc = tools::parseCommandLine(app, argc, argv); rc >= 0) return rc;
+  jobs = std::max(1, jobs);
+  for (const std::string& kv : overrides)
+    if (!setParam(gParams, kv)) return tools::usageError(app, "bad --set " + kv);
   if (Status st = gParams.validate(); !st) {
     std::fprintf(stderr, "alacs_lle_eval: %s\n", st.toString().c_str());
     return 2;
@@ -582,7 +560,7 @@ int main(int argc, char** argv) {
   }
   // Cases from benchmark sets written by `alacs-twin generate --set lle`: every line of
   // DIR/set.jsonl names a scan directory.
-  std::vector<std::pair<std::string, std::string>> setCases;
+  std::vector<std::pair<std::string, nlohmann::json>> setCases;
   for (const std::string& dir : sets) {
     std::ifstream jl(dir + "/set.jsonl");
     if (!jl) {
@@ -590,9 +568,18 @@ int main(int argc, char** argv) {
                    dir.c_str());
       return 2;
     }
-    std::vector<std::pair<std::string, std::string>> here;
-    for (std::string line; std::getline(jl, line);)
-      if (!line.empty()) here.emplace_back(dir + "/" + jsonField(line, "case"), line);
+    std::vector<std::pair<std::string, nlohmann::json>> here;
+    int lineNo = 0;
+    for (std::string line; std::getline(jl, line);) {
+      ++lineNo;
+      if (line.empty()) continue;
+      nlohmann::json j = nlohmann::json::parse(line, nullptr, false);
+      if (j.is_discarded() || !j.is_object() || !j.contains("case") || !j["case"].is_string()) {
+        std::fprintf(stderr, "alacs_lle_eval: %s/set.jsonl:%d is not a case's JSON object\n", dir.c_str(), lineNo);
+        return 1;
+      }
+      here.emplace_back(dir + "/" + j["case"].get<std::string>(), std::move(j));
+    }
     std::sort(here.begin(), here.end());
     setCases.insert(setCases.end(), here.begin(), here.end());
   }

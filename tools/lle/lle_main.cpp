@@ -1,7 +1,7 @@
 // alacs_lle: Laser Line Extraction on one image or on a scan directory; writes per
 // frame a JSON document (every ROI row: row, sub-pixel column in full-frame pixels,
 // confidence, validity; the polynomial; segments and coverage) and an overlay PNG.
-// See usage() and docs/lle.md.
+// See --help and docs/lle.md.
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 
@@ -9,6 +9,7 @@
 #include <chrono>
 #include <cstdio>
 #include <cstdlib>
+#include <cstring>
 #include <filesystem>
 #include <fstream>
 #include <string>
@@ -16,7 +17,9 @@
 
 #include "image/lle.h"
 #include "lle_output.h"
+#include "tool_common/cli.h"
 #ifdef ALACS_LLE_HAVE_REPLAY
+#include "replay/png_io.h"
 #include "replay/scan_dir.h"
 #endif
 
@@ -25,26 +28,16 @@ namespace fs = std::filesystem;
 
 namespace {
 
-void usage(FILE* out) {
-  std::fprintf(out,
-               "usage: alacs_lle IMAGE [--roi X,Y,W,H] [--laser-off IMAGE] [--json FILE] [--overlay FILE.png] [options]\n"
-               "       alacs_lle --scan DIR --out DIR [--roi X,Y,W,H] [--subtract-off] [options]\n"
-               "\n"
-               "IMAGE mode writes FILE (default: IMAGE with .lle.json) and the overlay (default: IMAGE with\n"
-               ".lle.png; --overlay none: no overlay). --scan reads a scan directory (manifest.json, or\n"
-               "else every *.png in it) and writes one JSON and one overlay per laser-on frame into --out,\n"
-               "plus summary.json; the ROI is --roi, else the scan's planned ROI, else the whole frame.\n"
-               "--subtract-off subtracts the laser-off frame taken at the same slide position.\n"
-               "\n"
-               "options: --method robust|paper   --form meaning|literal   --step N (4)   --th N (40)\n"
-               "         --theta N (8)   --gamma N (3)   --order N (4)   --outlier PX (2)   --min-rows N (8)\n"
-               "         --smooth N (8)   --jump PX (2)   --gap N (3)   --min-segment N (6)   --peaks N (4)\n"
-               "         --edge N (3; 0 off: rows at an occluding edge are kept valid)\n"
-               "         --robust-pct N (60: the robust method's strong threshold, %% of --th)\n"
-               "         --weak-excess DN (a line weaker than this is run again at --weak-pct; 0: off)  --weak-pct N\n"
-               "         --only-line (no other segments)   --scalar (scalar kernels)   --reference (float reference)\n"
-               "exit status: 0 done, 1 an input or parameter was refused (the reason on stderr), 2 usage\n");
-}
+constexpr const char* kDescription =
+    "Laser Line Extraction on one image or on a scan directory (docs/lle.md).\n"
+    "  alacs_lle IMAGE [--roi X,Y,W,H] [--laser-off IMAGE] [--json FILE] [--overlay FILE.png] [options]\n"
+    "  alacs_lle --scan DIR --out DIR [--roi X,Y,W,H] [--subtract-off] [options]\n"
+    "IMAGE mode writes FILE (default: IMAGE with .lle.json) and the overlay (default: IMAGE with\n"
+    ".lle.png; --overlay none: no overlay). --scan reads a scan directory (manifest.json, or\n"
+    "else every *.png in it) and writes one JSON and one overlay per laser-on frame into --out,\n"
+    "plus summary.json; the ROI is --roi, else the scan's planned ROI, else the whole frame.\n"
+    "--subtract-off subtracts the laser-off frame taken at the same slide position.\n"
+    "Exit status: 0 done, 1 an input or parameter was refused (the reason on stderr), 2 usage.";
 
 struct Options {
   std::string image, laserOff, json, overlay, scan, out;
@@ -55,145 +48,97 @@ struct Options {
   image::LleParams params;
 };
 
-bool parseInt(const std::string& s, int& v) {
-  char* end = nullptr;
-  const long x = std::strtol(s.c_str(), &end, 10);
-  if (end == s.c_str() || *end != '\0' || x < -1000000000L || x > 1000000000L) return false;
-  v = static_cast<int>(x);
-  return true;
-}
-
-bool parseDouble(const std::string& s, double& v) {
-  char* end = nullptr;
-  v = std::strtod(s.c_str(), &end);
-  return end != s.c_str() && *end == '\0';
-}
-
+// "X,Y,W,H", four integers.
 bool parseRoi(const std::string& s, image::Roi& r) {
   int v[4];
-  size_t at = 0;
-  for (int i = 0; i < 4; ++i) {
-    const size_t comma = s.find(',', at);
-    const std::string part = s.substr(at, comma == std::string::npos ? std::string::npos : comma - at);
-    if (!parseInt(part, v[i])) return false;
-    if (i < 3 && comma == std::string::npos) return false;
-    at = comma + 1;
-  }
+  char tail = 0;
+  if (std::sscanf(s.c_str(), "%d,%d,%d,%d%c", &v[0], &v[1], &v[2], &v[3], &tail) != 4) return false;
   r = {v[0], v[1], v[2], v[3]};
   return true;
 }
 
-// Returns 0 on success, 2 on a usage error (message printed).
+// Returns -1 to go on, else the exit status (0 after --help, 2 on a usage error, printed).
 int parseArgs(int argc, char** argv, Options& o) {
   image::LleParams& p = o.params;
-  for (int i = 1; i < argc; ++i) {
-    const std::string a = argv[i];
-    auto value = [&](std::string& v) {
-      if (i + 1 >= argc) {
-        std::fprintf(stderr, "alacs_lle: %s needs a value\n", a.c_str());
-        return false;
-      }
-      v = argv[++i];
-      return true;
-    };
-    std::string v;
-    auto intOpt = [&](int& field) {
-      if (!value(v)) return false;
-      if (!parseInt(v, field)) {
-        std::fprintf(stderr, "alacs_lle: %s wants an integer, not '%s'\n", a.c_str(), v.c_str());
-        return false;
-      }
-      return true;
-    };
-    auto numOpt = [&](double& field) {
-      if (!value(v)) return false;
-      if (!parseDouble(v, field)) {
-        std::fprintf(stderr, "alacs_lle: %s wants a number, not '%s'\n", a.c_str(), v.c_str());
-        return false;
-      }
-      return true;
-    };
-    bool ok = true;
-    if (a == "-h" || a == "--help") {
-      usage(stdout);
-      std::exit(0);
-    } else if (a == "--roi") {
-      ok = value(v);
-      if (ok && !parseRoi(v, o.roi)) {
-        std::fprintf(stderr, "alacs_lle: --roi wants X,Y,W,H (integers), not '%s'\n", v.c_str());
-        ok = false;
-      }
-      o.haveRoi = true;
-    } else if (a == "--laser-off") ok = value(o.laserOff);
-    else if (a == "--json") ok = value(o.json);
-    else if (a == "--overlay") ok = value(o.overlay);
-    else if (a == "--scan") ok = value(o.scan);
-    else if (a == "--out") ok = value(o.out);
-    else if (a == "--subtract-off") o.subtractOff = true;
-    else if (a == "--reference") o.reference = true;
-    else if (a == "--scalar") p.kernels = image::LleKernels::kScalar;
-    else if (a == "--only-line") p.keepOtherSegments = false;
-    else if (a == "--method") {
-      ok = value(v);
-      if (ok && v == "paper") p.method = image::LleMethod::kPaper;
-      else if (ok && v == "robust") p.method = image::LleMethod::kRobust;
-      else if (ok) {
-        std::fprintf(stderr, "alacs_lle: --method is robust or paper, not '%s'\n", v.c_str());
-        ok = false;
-      }
-    } else if (a == "--form") {
-      ok = value(v);
-      if (ok && v == "literal") p.brceForm = image::BrceForm::kLiteral;
-      else if (ok && v == "meaning") p.brceForm = image::BrceForm::kMeaning;
-      else if (ok) {
-        std::fprintf(stderr, "alacs_lle: --form is meaning or literal, not '%s'\n", v.c_str());
-        ok = false;
-      }
-    } else if (a == "--step") ok = intOpt(p.brceStep);
-    else if (a == "--th") ok = intOpt(p.brceThreshold);
-    else if (a == "--theta") ok = intOpt(p.noiseTheta);
-    else if (a == "--gamma") ok = intOpt(p.noiseGamma);
-    else if (a == "--order") ok = intOpt(p.polyOrder);
-    else if (a == "--outlier") ok = numOpt(p.outlierPx);
-    else if (a == "--min-rows") ok = intOpt(p.minRows);
-    else if (a == "--smooth") ok = intOpt(p.smoothRows);
-    else if (a == "--edge") ok = intOpt(p.edgeRatio);
-    else if (a == "--robust-pct") ok = intOpt(p.robustThresholdPct);
-    else if (a == "--weak-excess") ok = intOpt(p.weakLineExcessDn);
-    else if (a == "--weak-pct") ok = intOpt(p.weakLineThresholdPct);
-    else if (a == "--jump") ok = numOpt(p.maxJumpPx);
-    else if (a == "--gap") ok = intOpt(p.maxGapRows);
-    else if (a == "--min-segment") ok = intOpt(p.minSegmentRows);
-    else if (a == "--peaks") ok = intOpt(p.maxPeaksPerRow);
-    else if (!a.empty() && a[0] == '-') {
-      std::fprintf(stderr, "alacs_lle: unknown option %s\n", a.c_str());
-      ok = false;
-    } else if (o.image.empty()) o.image = a;
-    else {
-      std::fprintf(stderr, "alacs_lle: one IMAGE only ('%s' is extra)\n", a.c_str());
-      ok = false;
-    }
-    if (!ok) return 2;
+  CLI::App app(kDescription, "alacs_lle");
+  app.add_option("IMAGE", o.image, "the image (PNG: the checked reader of edge/replay; else OpenCV)");
+  std::string roi;
+  app.add_option("--roi", roi, "the region of interest X,Y,W,H in pixels (default: the whole frame)");
+  app.add_option("--laser-off", o.laserOff, "a laser-off image of the same scene, subtracted");
+  app.add_option("--json", o.json, "the JSON output (default: IMAGE with .lle.json)");
+  app.add_option("--overlay", o.overlay, "the overlay PNG (default: IMAGE with .lle.png; none: no overlay)");
+  app.add_option("--scan", o.scan, "a scan directory instead of IMAGE");
+  app.add_option("--out", o.out, "the output directory of --scan");
+  app.add_flag("--subtract-off", o.subtractOff, "--scan: subtract the laser-off frame at the same slide position");
+  std::string method = "robust", form = "meaning";
+  app.add_option("--method", method, "robust|paper")->check(CLI::IsMember({"robust", "paper"}))->capture_default_str();
+  app.add_option("--form", form, "meaning|literal")->check(CLI::IsMember({"meaning", "literal"}))->capture_default_str();
+  app.add_option("--step", p.brceStep, "bRCE step")->capture_default_str();
+  app.add_option("--th", p.brceThreshold, "bRCE threshold")->capture_default_str();
+  app.add_option("--theta", p.noiseTheta, "noise removal theta")->capture_default_str();
+  app.add_option("--gamma", p.noiseGamma, "noise removal gamma")->capture_default_str();
+  app.add_option("--order", p.polyOrder, "polynomial order")->capture_default_str();
+  app.add_option("--outlier", p.outlierPx, "outlier distance, px")->capture_default_str();
+  app.add_option("--min-rows", p.minRows, "fewest rows of a fit")->capture_default_str();
+  app.add_option("--smooth", p.smoothRows, "smoothing rows")->capture_default_str();
+  app.add_option("--jump", p.maxJumpPx, "largest jump within a segment, px")->capture_default_str();
+  app.add_option("--gap", p.maxGapRows, "largest gap within a segment, rows")->capture_default_str();
+  app.add_option("--min-segment", p.minSegmentRows, "shortest segment, rows")->capture_default_str();
+  app.add_option("--peaks", p.maxPeaksPerRow, "peaks per row")->capture_default_str();
+  app.add_option("--edge", p.edgeRatio, "occluding-edge ratio (0 off: rows at an occluding edge are kept valid)")
+      ->capture_default_str();
+  app.add_option("--robust-pct", p.robustThresholdPct, "the robust method's strong threshold, % of --th")
+      ->capture_default_str();
+  app.add_option("--weak-excess", p.weakLineExcessDn, "a line weaker than this is run again at --weak-pct; 0: off")
+      ->capture_default_str();
+  app.add_option("--weak-pct", p.weakLineThresholdPct, "the threshold of the weak-line rerun, % of --th")
+      ->capture_default_str();
+  bool onlyLine = false, scalar = false;
+  app.add_flag("--only-line", onlyLine, "no other segments");
+  app.add_flag("--scalar", scalar, "scalar kernels");
+  app.add_flag("--reference", o.reference, "the float reference");
+  if (const int rc = tools::parseCommandLine(app, argc, argv); rc >= 0) return rc;
+  p.method = method == "paper" ? image::LleMethod::kPaper : image::LleMethod::kRobust;
+  p.brceForm = form == "literal" ? image::BrceForm::kLiteral : image::BrceForm::kMeaning;
+  if (onlyLine) p.keepOtherSegments = false;
+  if (scalar) p.kernels = image::LleKernels::kScalar;
+  if (!roi.empty()) {
+    if (!parseRoi(roi, o.roi)) return tools::usageError(app, "--roi wants X,Y,W,H (integers), not '" + roi + "'");
+    o.haveRoi = true;
   }
-  if (o.image.empty() == o.scan.empty()) {
-    std::fprintf(stderr, "alacs_lle: give either IMAGE or --scan DIR\n");
-    return 2;
-  }
-  if (!o.scan.empty() && o.out.empty()) {
-    std::fprintf(stderr, "alacs_lle: --scan needs --out DIR\n");
-    return 2;
-  }
-  return 0;
+  if (o.image.empty() == o.scan.empty()) return tools::usageError(app, "give either IMAGE or --scan DIR");
+  if (!o.scan.empty() && o.out.empty()) return tools::usageError(app, "--scan needs --out DIR");
+  return -1;
 }
 
 image::ImageView viewOf(const cv::Mat& m) {
   return {m.data, m.cols, m.rows, m.step[0], image::PixelFormat::kBgr888};
 }
 
-// Reads an 8-bit colour image (BGR). Errors name the file.
+bool isPng(const std::string& path) {
+  char sig[8] = {};
+  std::ifstream in(path, std::ios::binary);
+  return in.read(sig, sizeof sig) && std::memcmp(sig, "\x89PNG\r\n\x1a\n", sizeof sig) == 0;
+}
+
+// Reads an 8-bit colour image (BGR). Errors name the file. A PNG goes through the
+// replay reader, which checks the header's size before allocating; other formats through
+// OpenCV, whose refusals (an exception for a header beyond its own limits) become errors.
 Result<cv::Mat> readImage(const std::string& path) {
   if (!fs::exists(path)) return Status(Error::kNotFound, "'" + path + "' does not exist");
-  cv::Mat m = cv::imread(path, cv::IMREAD_UNCHANGED);
+#ifdef ALACS_LLE_HAVE_REPLAY
+  if (isPng(path)) {
+    cv::Mat m;
+    if (Status s = replay::readPng(path, m); !s) return s;
+    return m;
+  }
+#endif
+  cv::Mat m;
+  try {
+    m = cv::imread(path, cv::IMREAD_UNCHANGED);
+  } catch (const cv::Exception& e) {
+    return Status(Error::kBadInput, "'" + path + "': " + e.msg);
+  }
   if (m.empty()) return Status(Error::kBadInput, "'" + path + "' is not an image OpenCV can read");
   if (m.depth() != CV_8U) return Status(Error::kBadInput, "'" + path + "' is not 8 bits per channel");
   if (m.channels() == 1) cv::cvtColor(m, m, cv::COLOR_GRAY2BGR);
@@ -206,7 +151,7 @@ Result<cv::Mat> readImage(const std::string& path) {
 // when the library refused the input.
 bool processFrame(const Options& o, const std::string& name, const cv::Mat& frame, const cv::Mat* off,
                   const image::Roi& roi, const std::string& jsonPath, const std::string& overlayPath,
-                  image::LleWorkspace& ws, image::LaserLine& line, std::string* summary) {
+                  image::LleWorkspace& ws, image::LaserLine& line, tools::Json* summary) {
   tools::LleRun run;
   run.image = name;
   run.roi = roi;
@@ -234,13 +179,12 @@ bool processFrame(const Options& o, const std::string& name, const cv::Mat& fram
     return false;
   }
   if (summary != nullptr) {
-    char buf[512];
-    std::snprintf(buf, sizeof buf,
-                  "{\"frame\": \"%s\", \"json\": \"%s\", \"line_valid\": %s, \"line_rows\": %d, \"coverage\": %.4f, "
-                  "\"segments\": %zu}",
-                  name.c_str(), fs::path(jsonPath).filename().c_str(), line.valid ? "true" : "false", line.inliers,
-                  line.coverage, line.segments.size());
-    *summary += buf;
+    *summary = {{"frame", name},
+                {"json", fs::path(jsonPath).filename().string()},
+                {"line_valid", line.valid},
+                {"line_rows", line.inliers},
+                {"coverage", tools::jsonNumber(line.coverage, "%.4f")},
+                {"segments", line.segments.size()}};
   }
   std::printf("%s: %d line rows, coverage %.3f, %zu segments, curve %s -> %s\n", name.c_str(), line.inliers,
               line.coverage, line.segments.size(), line.valid ? "fitted" : "none", jsonPath.c_str());
@@ -285,9 +229,8 @@ int runScan(const Options& o) {
   }
   image::LleWorkspace ws;
   image::LaserLine line;
-  std::string summary = "{\n  \"scan\": \"" + o.scan + "\",\n  \"frames\": [";
+  tools::Json frames = tools::Json::array();
   int done = 0, failed = 0;
-  auto sep = [&]() { summary += done + failed > 0 ? ",\n    " : "\n    "; };
 #ifdef ALACS_LLE_HAVE_REPLAY
   if (fs::exists(fs::path(o.scan) / "manifest.json")) {
     Result<replay::ScanManifest> m = replay::readManifest(o.scan);
@@ -320,11 +263,10 @@ int runScan(const Options& o) {
       char stem[32];
       std::snprintf(stem, sizeof stem, "frame_%04d", fr.index);
       const std::string base = (fs::path(o.out) / stem).string();
-      std::string entry;
+      tools::Json entry;
       const bool ok = processFrame(o, fr.file, *img, haveOff ? &off : nullptr, roi, base + ".json", base + ".png", ws,
                                    line, &entry);
-      sep();
-      summary += ok ? entry : "{\"frame\": \"" + fr.file + "\", \"error\": true}";
+      frames.push_back(ok ? entry : tools::Json{{"frame", fr.file}, {"error", true}});
       (ok ? done : failed) += 1;
     }
   } else
@@ -347,16 +289,16 @@ int runScan(const Options& o) {
       }
       const image::Roi roi = o.haveRoi ? o.roi : image::Roi{0, 0, img->cols, img->rows};
       const std::string base = (fs::path(o.out) / path.stem()).string();
-      std::string entry;
+      tools::Json entry;
       const bool ok = processFrame(o, path.filename().string(), *img, nullptr, roi, base + ".json", base + ".png", ws,
                                    line, &entry);
-      sep();
-      summary += ok ? entry : "{\"frame\": \"" + path.filename().string() + "\", \"error\": true}";
+      frames.push_back(ok ? entry : tools::Json{{"frame", path.filename().string()}, {"error", true}});
       (ok ? done : failed) += 1;
     }
   }
-  summary += "\n  ],\n  \"processed\": " + std::to_string(done) + ", \"failed\": " + std::to_string(failed) + "\n}\n";
-  std::ofstream(fs::path(o.out) / "summary.json") << summary;
+  const tools::Json summary{
+      {"scan", o.scan}, {"frames", std::move(frames)}, {"processed", done}, {"failed", failed}};
+  std::ofstream(fs::path(o.out) / "summary.json") << tools::jsonText(summary, 2);
   std::printf("%d frames processed, %d failed; %s\n", done, failed, (fs::path(o.out) / "summary.json").c_str());
   if (done + failed == 0) {
     std::fprintf(stderr, "alacs_lle: no laser-on frames in %s\n", o.scan.c_str());
@@ -369,11 +311,7 @@ int runScan(const Options& o) {
 
 int main(int argc, char** argv) {
   Options o;
-  if (argc < 2) {
-    usage(stderr);
-    return 2;
-  }
-  if (const int rc = parseArgs(argc, argv, o); rc != 0) return rc;
+  if (const int rc = parseArgs(argc, argv, o); rc >= 0) return rc;
   if (Status s = o.params.validate(); !s) {
     std::fprintf(stderr, "alacs_lle: %s\n", s.toString().c_str());
     return 1;

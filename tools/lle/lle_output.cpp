@@ -4,35 +4,11 @@
 
 #include <cmath>
 #include <cstdio>
-#include <sstream>
+#include <cstdlib>
 
 namespace alacs::tools {
 
 namespace {
-
-std::string quoted(const std::string& s) {
-  std::string out = "\"";
-  for (char c : s) {
-    if (c == '"' || c == '\\') {
-      out += '\\';
-      out += c;
-    } else if (static_cast<unsigned char>(c) < 0x20) {
-      char buf[8];
-      std::snprintf(buf, sizeof buf, "\\u%04x", c);
-      out += buf;
-    } else {
-      out += c;
-    }
-  }
-  return out + "\"";
-}
-
-std::string num(double v, const char* fmt = "%.6f") {
-  if (!std::isfinite(v)) return "null";
-  char buf[64];
-  std::snprintf(buf, sizeof buf, fmt, v);
-  return buf;
-}
 
 const char* methodName(image::LleMethod m) { return m == image::LleMethod::kPaper ? "paper" : "robust"; }
 const char* formName(image::BrceForm f) { return f == image::BrceForm::kLiteral ? "literal" : "meaning"; }
@@ -49,72 +25,96 @@ const char* statusName(image::RowStatus s) {
   return "?";
 }
 
-std::string lleJson(const LleRun& run, int frameWidth, int frameHeight, const image::LaserLine& line) {
+Json lleDocument(const LleRun& run, int frameWidth, int frameHeight, const image::LaserLine& line) {
   const image::LleParams& p = run.params;
-  std::ostringstream o;
-  o << "{\n  \"format\": \"alacs-lle/1\",\n  \"image\": " << quoted(run.image) << ",\n";
-  o << "  \"laser_off\": " << (run.laserOff.empty() ? "null" : quoted(run.laserOff)) << ",\n";
-  o << "  \"width\": " << frameWidth << ", \"height\": " << frameHeight << ",\n";
-  o << "  \"roi\": [" << run.roi.x << ", " << run.roi.y << ", " << run.roi.width << ", " << run.roi.height << "],\n";
-  o << "  \"implementation\": " << quoted(run.reference ? "float-reference" : std::string("fixed-point/") + image::lleSimdName())
-    << ", \"millis\": " << num(run.millis, "%.3f") << ",\n";
-  o << "  \"params\": {\"method\": \"" << methodName(p.method) << "\", \"brce_step\": " << p.brceStep
-    << ", \"brce_threshold\": " << p.brceThreshold << ", \"brce_form\": \"" << formName(p.brceForm)
-    << "\", \"noise_theta\": " << p.noiseTheta << ", \"noise_gamma\": " << p.noiseGamma
-    << ", \"poly_order\": " << p.polyOrder << ", \"outlier_px\": " << num(p.outlierPx, "%g")
-    << ", \"min_rows\": " << p.minRows << ", \"smooth_rows\": " << p.smoothRows << ", \"robust_threshold_pct\": " << p.robustThresholdPct << ", \"weak_line_excess_dn\": " << p.weakLineExcessDn << ", \"weak_line_threshold_pct\": " << p.weakLineThresholdPct << ", \"edge_ratio\": " << p.edgeRatio << ", \"edge_agree_px\": " << p.edgeAgreePx
-    << ", \"max_jump_px\": " << num(p.maxJumpPx, "%g") << ", \"max_gap_rows\": " << p.maxGapRows
-    << ", \"min_segment_rows\": " << p.minSegmentRows << "},\n";
+  Json doc;
+  doc["format"] = "alacs-lle/1";
+  doc["image"] = run.image;
+  doc["laser_off"] = run.laserOff.empty() ? Json(nullptr) : Json(run.laserOff);
+  doc["width"] = frameWidth;
+  doc["height"] = frameHeight;
+  doc["roi"] = {run.roi.x, run.roi.y, run.roi.width, run.roi.height};
+  doc["implementation"] = run.reference ? std::string("float-reference") : std::string("fixed-point/") + image::lleSimdName();
+  doc["millis"] = jsonNumber(run.millis, "%.3f");
+  doc["params"] = {{"method", methodName(p.method)},
+                   {"brce_step", p.brceStep},
+                   {"brce_threshold", p.brceThreshold},
+                   {"brce_form", formName(p.brceForm)},
+                   {"noise_theta", p.noiseTheta},
+                   {"noise_gamma", p.noiseGamma},
+                   {"poly_order", p.polyOrder},
+                   {"outlier_px", jsonNumber(p.outlierPx, "%g")},
+                   {"min_rows", p.minRows},
+                   {"smooth_rows", p.smoothRows},
+                   {"robust_threshold_pct", p.robustThresholdPct},
+                   {"weak_line_excess_dn", p.weakLineExcessDn},
+                   {"weak_line_threshold_pct", p.weakLineThresholdPct},
+                   {"edge_ratio", p.edgeRatio},
+                   {"edge_agree_px", p.edgeAgreePx},
+                   {"max_jump_px", jsonNumber(p.maxJumpPx, "%g")},
+                   {"max_gap_rows", p.maxGapRows},
+                   {"min_segment_rows", p.minSegmentRows}};
   // Every ROI row: a row without a valid sample says so (column null, valid false). A row's
   // first sample (the line's when it has one) is the entry; further samples (other
   // segments crossing the row) are listed in its "others".
-  o << "  \"rows\": [";
-  size_t k = 0;
-  auto sample = [&](const image::RowSample& r) {
-    o << "\"column\": " << (r.valid() ? num(r.column) : "null") << ", \"confidence\": " << num(r.confidence, "%.4f")
-      << ", \"valid\": " << (r.valid() ? "true" : "false") << ", \"status\": \"" << statusName(r.status)
-      << "\", \"segment\": " << r.segment << ", \"column_q8\": " << r.columnQ8
-      << ", \"centroid\": " << num(r.centroidQ8 / 256.0) << ", \"saturated\": " << (r.saturated ? "true" : "false");
+  auto sample = [](Json& o, const image::RowSample& r) {
+    o["column"] = r.valid() ? jsonNumber(r.column, "%.6f") : Json(nullptr);
+    o["confidence"] = jsonNumber(r.confidence, "%.4f");
+    o["valid"] = r.valid();
+    o["status"] = statusName(r.status);
+    o["segment"] = r.segment;
+    o["column_q8"] = r.columnQ8;
+    o["centroid"] = jsonNumber(r.centroidQ8 / 256.0, "%.6f");
+    o["saturated"] = r.saturated;
   };
+  Json rows = Json::array();
+  size_t k = 0;
   for (int y = run.roi.y; y < run.roi.y + run.roi.height; ++y) {
     while (k < line.rows.size() && line.rows[k].row < y) ++k;
-    o << (y == run.roi.y ? "\n    " : ",\n    ");
+    Json row;
+    row["row"] = y;
     if (k >= line.rows.size() || line.rows[k].row != y) {
-      o << "{\"row\": " << y << ", \"column\": null, \"confidence\": 0, \"valid\": false, \"status\": \"none\"}";
+      row["column"] = nullptr;
+      row["confidence"] = 0;
+      row["valid"] = false;
+      row["status"] = "none";
+      rows.push_back(std::move(row));
       continue;
     }
-    o << "{\"row\": " << y << ", ";
-    sample(line.rows[k]);
-    size_t j = k + 1;
-    if (j < line.rows.size() && line.rows[j].row == y) {
-      o << ", \"others\": [";
-      for (bool first = true; j < line.rows.size() && line.rows[j].row == y; ++j, first = false) {
-        o << (first ? "{" : ", {");
-        sample(line.rows[j]);
-        o << "}";
-      }
-      o << "]";
+    sample(row, line.rows[k]);
+    Json others = Json::array();
+    for (size_t j = k + 1; j < line.rows.size() && line.rows[j].row == y; ++j) {
+      Json o;
+      sample(o, line.rows[j]);
+      others.push_back(std::move(o));
     }
-    o << "}";
+    if (!others.empty()) row["others"] = std::move(others);
+    rows.push_back(std::move(row));
   }
-  o << "\n  ],\n";
-  o << "  \"polynomial\": {\"valid\": " << (line.valid ? "true" : "false") << ", \"order\": " << line.order
-    << ", \"row_center\": " << num(line.rowCenter, "%.3f") << ", \"row_half_span\": " << num(line.rowHalfSpan, "%.3f")
-    << ", \"coeffs\": [";
-  for (int i = 0; i <= std::max(0, line.order); ++i)
-    o << (i ? ", " : "") << num(line.coeffs[static_cast<size_t>(i)], "%.9g");
-  o << "], \"form\": \"column = sum(coeffs[k] * t^k), t = (row - row_center) / row_half_span\", \"inliers\": "
-    << line.inliers << ", \"rms_residual_px\": " << num(line.rmsResidualPx, "%.4f") << "},\n";
-  o << "  \"segments\": [";
-  for (size_t i = 0; i < line.segments.size(); ++i) {
-    const auto& s = line.segments[i];
-    o << (i ? ", " : "") << "{\"first_row\": " << s.firstRow << ", \"last_row\": " << s.lastRow << ", \"rows\": " << s.rows
-      << ", \"on_line\": " << (s.onLine ? "true" : "false") << "}";
-  }
-  o << "],\n";
-  o << "  \"coverage\": {\"first_line_row\": " << line.firstLineRow << ", \"last_line_row\": " << line.lastLineRow
-    << ", \"line_rows\": " << line.inliers << ", \"share\": " << num(line.coverage, "%.4f") << "}\n}\n";
-  return o.str();
+  doc["rows"] = std::move(rows);
+  Json coeffs = Json::array();
+  for (int i = 0; i <= std::max(0, line.order); ++i) coeffs.push_back(jsonNumber(line.coeffs[static_cast<size_t>(i)], "%.9g"));
+  doc["polynomial"] = {{"valid", line.valid},
+                       {"order", line.order},
+                       {"row_center", jsonNumber(line.rowCenter, "%.3f")},
+                       {"row_half_span", jsonNumber(line.rowHalfSpan, "%.3f")},
+                       {"coeffs", std::move(coeffs)},
+                       {"form", "column = sum(coeffs[k] * t^k), t = (row - row_center) / row_half_span"},
+                       {"inliers", line.inliers},
+                       {"rms_residual_px", jsonNumber(line.rmsResidualPx, "%.4f")}};
+  Json segments = Json::array();
+  for (const auto& s : line.segments)
+    segments.push_back({{"first_row", s.firstRow}, {"last_row", s.lastRow}, {"rows", s.rows}, {"on_line", s.onLine}});
+  doc["segments"] = std::move(segments);
+  doc["coverage"] = {{"first_line_row", line.firstLineRow},
+                     {"last_line_row", line.lastLineRow},
+                     {"line_rows", line.inliers},
+                     {"share", jsonNumber(line.coverage, "%.4f")}};
+  return doc;
+}
+
+std::string lleJson(const LleRun& run, int frameWidth, int frameHeight, const image::LaserLine& line) {
+  return jsonText(lleDocument(run, frameWidth, frameHeight, line), -1);
 }
 
 cv::Mat lleOverlay(const cv::Mat& bgr, const image::Roi& roi, const image::LaserLine& line) {

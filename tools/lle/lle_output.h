@@ -7,6 +7,7 @@
 #include <string>
 
 #include "image/lle.h"
+#include "tool_common/json.h"
 
 namespace alacs::tools {
 
@@ -19,7 +20,8 @@ struct LleRun {
   double millis = 0.0;      // time of the extraction
 };
 
-// The JSON document for one frame.
+// The JSON document for one frame, and its text (one line).
+Json lleDocument(const LleRun& run, int frameWidth, int frameHeight, const image::LaserLine& line);
 std::string lleJson(const LleRun& run, int frameWidth, int frameHeight, const image::LaserLine& line);
 
 // The frame with the ROI, the rows (line: green, outliers: magenta, other segments: cyan)

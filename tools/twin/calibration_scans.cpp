@@ -69,10 +69,6 @@ Eigen::Vector3d atPixel(const geometry::CameraIntrinsics& cam, double u, double 
 }  // namespace
 
 int calibrationMain(const Args& args) {
-  if (Status s = args.allow({"out", "seed", "views", "jobs", "positions"}); !s) {
-    std::fprintf(stderr, "alacs-twin calib: %s\n", s.reason().c_str());
-    return 2;
-  }
   const std::string out = args.str("out");
   if (out.empty()) {
     std::fprintf(stderr, "alacs-twin calib: needs --out DIR\n");
@@ -153,12 +149,11 @@ int calibrationMain(const Args& args) {
         sim::ExportOptions opt;
         opt.firstFrameIndex = static_cast<uint64_t>(i) * 100;
         if (Status s = sim::exportScan(j.scene, rays, j.dir, j.info, j.frames, opt); !s) return s;
-        j.line = "{\"scan\": \"" + j.dir + "\", \"kind\": \"" + j.info.kind + "\", \"frames\": " +
-                 std::to_string(j.frames.size()) + "}";
+        j.line = tools::jsonText({{"scan", j.dir}, {"kind", j.info.kind}, {"frames", j.frames.size()}});
         return Status::ok();
       },
       [&](int i) {
-        std::printf("%s\n", work[static_cast<size_t>(i)].line.c_str());
+        std::printf("%s", work[static_cast<size_t>(i)].line.c_str());
         std::fflush(stdout);
       });
   if (!st) {
@@ -169,10 +164,6 @@ int calibrationMain(const Args& args) {
 }
 
 int examplesMain(const Args& args) {
-  if (Status s = args.allow({"out"}); !s) {
-    std::fprintf(stderr, "alacs-twin examples: %s\n", s.reason().c_str());
-    return 2;
-  }
   const std::string out = args.str("out");
   if (out.empty()) {
     std::fprintf(stderr, "alacs-twin examples: needs --out DIR\n");

@@ -37,12 +37,6 @@ bool exists(const std::string& path) {
 }  // namespace
 
 int generateMain(const Args& args) {
-  if (Status s = args.allow({"set", "out", "count", "seed", "distance-mm", "occluded", "lighting", "bayer", "jobs",
-                             "motion-mm-s", "resume", "bandpass-nm"});
-      !s) {
-    std::fprintf(stderr, "alacs-twin generate: %s\n", s.reason().c_str());
-    return 2;
-  }
   const std::string set = args.str("set");
   const std::string out = args.str("out");
   if ((set != "loc" && set != "lle") || out.empty()) {
@@ -173,20 +167,25 @@ int generateMain(const Args& args) {
           if (Status s = sim::exportScan(scene, rays, dir, info, frames, opt); !s)
             return Status(s.code(), job.name + ": " + s.reason());
         }
-        char buf[768];
-        std::snprintf(buf, sizeof buf,
-                      "{\"case\": \"%s\", \"dir\": \"%s\", \"set\": \"%s\", \"distance_mm\": %.0f, \"occluded\": %d, "
-                      "\"lighting\": \"%s\", \"lux\": %.0f, \"occlusion_share\": %.4f, \"exposure_us\": %lld, "
-                      "\"bandpass_nm\": %.0f, \"diameter_mm\": %.2f, \"neighbours\": %zu, \"leaves\": %zu, \"seed\": %llu}",
-                      job.name.c_str(), dir.c_str(), set.c_str(), job.spec.distanceMm, job.spec.occluded ? 1 : 0,
-                      sim::lightingName(job.spec.lighting), oc->lux, oc->occlusionShare,
-                      static_cast<long long>(scene.sensor.exposureUs), scene.sensor.bandpassFwhmNm, 2.0 * target.radiusMm, scene.apples.size() - 1,
-                      scene.leaves.size(), static_cast<unsigned long long>(job.seed));
-        lines[static_cast<size_t>(i)] = buf;
+        const tools::Json record{{"case", job.name},
+                               {"dir", dir},
+                               {"set", set},
+                               {"distance_mm", tools::jsonNumber(job.spec.distanceMm, "%.0f")},
+                               {"occluded", job.spec.occluded ? 1 : 0},
+                               {"lighting", sim::lightingName(job.spec.lighting)},
+                               {"lux", tools::jsonNumber(oc->lux, "%.0f")},
+                               {"occlusion_share", tools::jsonNumber(oc->occlusionShare, "%.4f")},
+                               {"exposure_us", static_cast<long long>(scene.sensor.exposureUs)},
+                               {"bandpass_nm", tools::jsonNumber(scene.sensor.bandpassFwhmNm, "%.0f")},
+                               {"diameter_mm", tools::jsonNumber(2.0 * target.radiusMm, "%.2f")},
+                               {"neighbours", scene.apples.size() - 1},
+                               {"leaves", scene.leaves.size()},
+                               {"seed", static_cast<unsigned long long>(job.seed)}};
+        lines[static_cast<size_t>(i)] = tools::jsonText(record);
         return Status::ok();
       },
       [&](int i) {
-        std::printf("%s\n", lines[static_cast<size_t>(i)].c_str());
+        std::printf("%s", lines[static_cast<size_t>(i)].c_str());
         std::fflush(stdout);
       });
   if (!st) {
@@ -200,7 +199,7 @@ int generateMain(const Args& args) {
     std::fprintf(stderr, "alacs-twin generate: cannot write %s\n", indexPath.c_str());
     return 1;
   }
-  for (const auto& l : lines) std::fprintf(f, "%s\n", l.c_str());
+  for (const auto& l : lines) std::fputs(l.c_str(), f);
   std::fclose(f);
   return 0;
 }

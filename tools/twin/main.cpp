@@ -7,45 +7,95 @@
 #include <opencv2/imgcodecs.hpp>
 #include <sstream>
 
+#include "tool_common/cli.h"
 #include "twin.h"
 
 namespace alacs::twin {
 
 namespace {
 
-void usage(FILE* out) {
-  std::fprintf(out,
-               "usage: alacs-twin COMMAND [options]\n"
-               "  generate --set lle|loc --out DIR [--count N] [--seed S] [--distance-mm Z[,Z..]]\n"
-               "           [--occluded 0|1|mix] [--lighting lab|overcast|direct|sun|outdoor] [--bayer 0|1]\n"
-               "           [--jobs N] [--motion-mm-s V] [--bandpass-nm FWHM (a 635 nm band-pass filter; 0 none)]\n"
-               "      benchmark scan directories DIR/case_NNNN (one JSON line per case on stdout)\n"
-               "  calib --out DIR [--seed S] [--views N] [--jobs N]\n"
-               "      calibration scans: DIR/checkerboard_NN (laser off), DIR/laser_plane_NNNN\n"
-               "  process [--calibration FILE] [--brce-step N] [--brce-threshold N] [--rows] [--jobs N] DIR...\n"
-               "      runs the pipeline (replay source + localizer) on scan directories; one JSON line each\n"
-               "  examples --out DIR\n"
-               "      example frames of the conditions, for docs/simulation.md\n"
-               "  render [--scene FILE] [--slide MM] [--slide-end MM] [--exposure-us US] [--laser 0|1]\n"
-               "         [--roi x,y,w,h] [--frame N] --out PNG\n"
-               "      one frame of a scene (default: the built-in scene)\n");
+double parseNumber(const std::string& s, bool* ok) {
+  char* end = nullptr;
+  const double v = std::strtod(s.c_str(), &end);
+  *ok = !s.empty() && *end == '\0' && std::isfinite(v);
+  return v;
+}
+
+// CLI11 checks of the values: numbers, integers (an integral number), comma lists.
+const CLI::Validator kNumberCheck(
+    [](std::string& s) {
+      bool ok = false;
+      parseNumber(s, &ok);
+      return ok ? std::string() : "needs a number, got '" + s + "'";
+    },
+    "NUMBER");
+const CLI::Validator kIntegerCheck(
+    [](std::string& s) {
+      bool ok = false;
+      const double v = parseNumber(s, &ok);
+      return ok && v == std::floor(v) ? std::string() : "needs an integer, got '" + s + "'";
+    },
+    "INT");
+const CLI::Validator kListCheck(
+    [](std::string& s) {
+      std::stringstream ss(s);
+      bool ok = !s.empty();
+      for (std::string part; ok && std::getline(ss, part, ',');) parseNumber(part, &ok);
+      return ok ? std::string() : "needs numbers separated by commas, got '" + s + "'";
+    },
+    "N,N,...");
+
+enum class Kind { kText, kNumber, kInteger, kList, kFlag };
+
+struct OptionSpec {
+  const char* name;  // without "--"
+  Kind kind;
+  const char* help;
+};
+
+// One subcommand: its options declared to CLI11, and after the parse the given ones copied
+// into the Args its function reads (flags as "1").
+struct Subcommand {
+  CLI::App* app = nullptr;
+  std::vector<std::pair<std::string, CLI::Option*>> options;
+  std::vector<std::string> positional;
+  int (*run)(const Args&) = nullptr;
+
+  Args args() const {
+    Args a;
+    for (const auto& [name, opt] : options)
+      if (opt->count() > 0) a.set(name, opt->get_type_size() == 0 ? std::string("1") : opt->as<std::string>());
+    for (const auto& p : positional) a.addPositional(p);
+    return a;
+  }
+};
+
+Subcommand declare(CLI::App& app, const char* name, const char* help, int (*run)(const Args&),
+                   std::initializer_list<OptionSpec> specs) {
+  Subcommand sub;
+  sub.app = app.add_subcommand(name, help);
+  sub.run = run;
+  for (const OptionSpec& spec : specs) {
+    const std::string flag = std::string("--") + spec.name;
+    CLI::Option* opt = nullptr;
+    if (spec.kind == Kind::kFlag) {
+      opt = sub.app->add_flag(flag, spec.help);
+    } else {
+      opt = sub.app->add_option(flag, spec.help)->type_size(1)->multi_option_policy(CLI::MultiOptionPolicy::TakeLast);
+      if (spec.kind == Kind::kNumber) opt->check(kNumberCheck);
+      if (spec.kind == Kind::kInteger) opt->check(kIntegerCheck);
+      if (spec.kind == Kind::kList) opt->check(kListCheck);
+    }
+    sub.options.emplace_back(spec.name, opt);
+  }
+  return sub;
 }
 
 }  // namespace
 
-Args::Args(int argc, char** argv, int first) {
-  for (int i = first; i < argc; ++i) {
-    const std::string a = argv[i];
-    if (a.rfind("--", 0) == 0) {
-      const std::string key = a.substr(2);
-      // Constructed, not assigned from a char*: GCC 12 -O3 warns (-Wrestrict) on the latter.
-      const bool hasValue = i + 1 < argc && std::strncmp(argv[i + 1], "--", 2) != 0;
-      values_[key] = hasValue ? std::string(argv[++i]) : std::string("1");
-    } else {
-      positional_.push_back(a);
-    }
-  }
-}
+void Args::set(const std::string& k, const std::string& v) { values_[k] = v; }
+
+void Args::addPositional(const std::string& v) { positional_.push_back(v); }
 
 std::string Args::str(const std::string& k, const std::string& fallback) const {
   used_[k] = true;
@@ -56,23 +106,11 @@ std::string Args::str(const std::string& k, const std::string& fallback) const {
 double Args::num(const std::string& k, double fallback) const {
   used_[k] = true;
   auto it = values_.find(k);
-  if (it == values_.end()) return fallback;
-  char* end = nullptr;
-  const double v = std::strtod(it->second.c_str(), &end);
-  if (*end != '\0' || !std::isfinite(v)) {
-    std::fprintf(stderr, "alacs-twin: --%s needs a number, got '%s'\n", k.c_str(), it->second.c_str());
-    std::exit(2);
-  }
-  return v;
+  return it == values_.end() ? fallback : std::strtod(it->second.c_str(), nullptr);
 }
 
 int64_t Args::integer(const std::string& k, int64_t fallback) const {
-  const double v = num(k, static_cast<double>(fallback));
-  if (v != std::floor(v)) {
-    std::fprintf(stderr, "alacs-twin: --%s needs an integer\n", k.c_str());
-    std::exit(2);
-  }
-  return static_cast<int64_t>(v);
+  return static_cast<int64_t>(num(k, static_cast<double>(fallback)));
 }
 
 std::vector<double> Args::list(const std::string& k, const std::vector<double>& fallback) const {
@@ -81,26 +119,8 @@ std::vector<double> Args::list(const std::string& k, const std::vector<double>& 
   if (it == values_.end()) return fallback;
   std::vector<double> out;
   std::stringstream ss(it->second);
-  std::string part;
-  while (std::getline(ss, part, ',')) {
-    char* end = nullptr;
-    const double v = std::strtod(part.c_str(), &end);
-    if (*end != '\0' || part.empty()) {
-      std::fprintf(stderr, "alacs-twin: --%s needs numbers separated by commas\n", k.c_str());
-      std::exit(2);
-    }
-    out.push_back(v);
-  }
+  for (std::string part; std::getline(ss, part, ',');) out.push_back(std::strtod(part.c_str(), nullptr));
   return out;
-}
-
-Status Args::allow(const std::vector<std::string>& known) const {
-  for (const auto& [k, v] : values_) {
-    bool ok = false;
-    for (const auto& n : known) ok = ok || n == k;
-    if (!ok) return {Error::kInvalidArgument, "unknown option --" + k};
-  }
-  return Status::ok();
 }
 
 Status parallelFor(int n, int jobs, const std::function<Status(int)>& work, const std::function<void(int)>& done) {
@@ -142,29 +162,11 @@ Result<RenderPlan> renderPlan(const geometry::Calibration& cal, const Eigen::Vec
   return out;
 }
 
-std::string jsonNum(double v) {
-  if (!std::isfinite(v)) return "null";
-  char buf[40];
-  std::snprintf(buf, sizeof buf, "%.6f", v);
-  return buf;
-}
-
-std::string jsonVec(const Eigen::Vector3d& v) {
-  std::string s = "[";  // appended, not concatenated: GCC 12 -O3 warns (-Wrestrict) on "x" + string
-  s += jsonNum(v.x());
-  s += ", ";
-  s += jsonNum(v.y());
-  s += ", ";
-  s += jsonNum(v.z());
-  s += "]";
-  return s;
+tools::Json jsonVec(const Eigen::Vector3d& v) {
+  return {tools::jsonNumber(v.x()), tools::jsonNumber(v.y()), tools::jsonNumber(v.z())};
 }
 
 int renderMain(const Args& args) {
-  if (Status s = args.allow({"scene", "slide", "slide-end", "exposure-us", "laser", "frame", "roi", "out"}); !s) {
-    std::fprintf(stderr, "alacs-twin render: %s\n", s.reason().c_str());
-    return 2;
-  }
   sim::SimScene scene = sim::defaultScene();
   const std::string scenePath = args.str("scene");
   if (!scenePath.empty()) {
@@ -183,8 +185,8 @@ int renderMain(const Args& args) {
   req.frameIndex = static_cast<uint64_t>(args.integer("frame", 0));
   const std::string out = args.str("out");
   const std::vector<double> roi = args.list("roi", {});
-  if (out.empty() || (!roi.empty() && roi.size() != 4)) {
-    usage(stderr);
+  if (!roi.empty() && roi.size() != 4) {
+    std::fprintf(stderr, "alacs-twin render: --roi wants x,y,w,h\n");
     return 2;
   }
   sim::Renderer r(scene);
@@ -205,22 +207,59 @@ int renderMain(const Args& args) {
 
 int main(int argc, char** argv) {
   using namespace alacs::twin;
-  if (argc < 2 || std::strcmp(argv[1], "--help") == 0 || std::strcmp(argv[1], "-h") == 0) {
-    usage(argc < 2 ? stderr : stdout);
-    return argc < 2 ? 2 : 0;
-  }
-  const std::string cmd = argv[1];
-  const Args args(argc, argv, 2);
-  int rc = 2;
-  if (cmd == "generate") rc = generateMain(args);
-  else if (cmd == "calib") rc = calibrationMain(args);
-  else if (cmd == "process") rc = processMain(args);
-  else if (cmd == "examples") rc = examplesMain(args);
-  else if (cmd == "render") rc = renderMain(args);
-  else {
-    std::fprintf(stderr, "alacs-twin: unknown command '%s'\n", cmd.c_str());
-    usage(stderr);
-    return 2;
-  }
-  return rc;
+  CLI::App app("The digital twin's command line (docs/simulation.md, docs/scan-format.md, docs/evaluation.md).",
+               "alacs-twin");
+  app.require_subcommand(1);
+  Subcommand subs[] = {
+      declare(app, "generate", "benchmark scan directories DIR/case_NNNN (one JSON line per case on stdout)",
+              generateMain,
+              {{"set", Kind::kText, "lle|loc (required)"},
+               {"out", Kind::kText, "DIR (required)"},
+               {"count", Kind::kInteger, "cases (default lle 320, loc 120)"},
+               {"seed", Kind::kInteger, "random seed (default 1)"},
+               {"distance-mm", Kind::kList, "Z[,Z..] (default lle 800..1600, loc 1000..1600)"},
+               {"occluded", Kind::kText, "0|1|both|mix (default lle mix, loc both)"},
+               {"lighting", Kind::kText, "lab|overcast|direct|sun|outdoor (default lle outdoor, loc lab)"},
+               {"bayer", Kind::kInteger, "0|1 (default 1)"},
+               {"jobs", Kind::kInteger, "threads (default 2)"},
+               {"motion-mm-s", Kind::kNumber, "slide speed during the exposure (default 0)"},
+               {"bandpass-nm", Kind::kNumber, "FWHM of a 635 nm band-pass filter; 0 none (default), else 5..80"},
+               {"resume", Kind::kFlag, "keep the cases already written"}}),
+      declare(app, "calib", "calibration scans: DIR/checkerboard_NN (laser off), DIR/laser_plane_NNNN",
+              calibrationMain,
+              {{"out", Kind::kText, "DIR (required)"},
+               {"seed", Kind::kInteger, "random seed (default 7)"},
+               {"views", Kind::kInteger, "checkerboard views (default 24)"},
+               {"jobs", Kind::kInteger, "threads (default 2)"},
+               {"positions", Kind::kList, "slide positions, mm (default 0,25,...,200)"}}),
+      declare(app, "process", "runs the pipeline (replay source + localizer) on scan directories; one JSON line each",
+              processMain,
+              {{"calibration", Kind::kText, "FILE instead of each scan's calibration"},
+               {"brce-step", Kind::kInteger, "bRCE step (default LleParams')"},
+               {"brce-threshold", Kind::kInteger, "bRCE threshold (default LleParams')"},
+               {"rows", Kind::kFlag, "every frame's rows, kept pixels and curve"},
+               {"jobs", Kind::kInteger, "threads (default 2)"}}),
+      declare(app, "examples", "example frames of the conditions, for docs/simulation.md", examplesMain,
+              {{"out", Kind::kText, "DIR (required)"}}),
+      declare(app, "render", "one frame of a scene (default: the built-in scene)", renderMain,
+              {{"scene", Kind::kText, "scene FILE (default: the built-in scene)"},
+               {"slide", Kind::kNumber, "slide position at the exposure's start, mm (default 100)"},
+               {"slide-end", Kind::kNumber, "... at its end (default: --slide)"},
+               {"exposure-us", Kind::kInteger, "exposure, us (default: the scene's)"},
+               {"laser", Kind::kNumber, "laser on-fraction of the exposure, 0..1 (default 1)"},
+               {"roi", Kind::kList, "x,y,w,h: render this region only"},
+               {"frame", Kind::kInteger, "frame index (noise seed; default 0)"},
+               {"out", Kind::kText, "PNG (required)"}}),
+  };
+  subs[0].app->get_option("--set")->required()->check(CLI::IsMember({"lle", "loc"}));
+  subs[0].app->get_option("--out")->required();
+  subs[0].app->get_option("--occluded")->check(CLI::IsMember({"0", "1", "both", "mix"}));
+  subs[1].app->get_option("--out")->required();
+  subs[2].app->add_option("DIR", subs[2].positional, "scan directories")->required();
+  subs[3].app->get_option("--out")->required();
+  subs[4].app->get_option("--out")->required();
+  if (const int rc = alacs::tools::parseCommandLine(app, argc, argv); rc >= 0) return rc;
+  for (const Subcommand& sub : subs)
+    if (sub.app->parsed()) return sub.run(sub.args());
+  return alacs::tools::kUsageExit;  // require_subcommand(1): not reached
 }

@@ -7,7 +7,6 @@
 #include <chrono>
 #include <cmath>
 #include <cstdio>
-#include <sstream>
 
 #include "replay/replay_source.h"
 #include "twin.h"
@@ -16,30 +15,23 @@ namespace alacs::twin {
 
 namespace {
 
-std::string jsonSafe(std::string s) {
-  for (char& c : s)
-    if (c == '"' || c == '\\' || static_cast<unsigned char>(c) < 0x20) c = '\'';
-  return s;
-}
-
-std::string estimateJson(const Result<localize::AppleEstimate>& e) {
-  if (!e) return "{\"ok\": false, \"error\": \"" + std::string(errorName(e.status().code())) + "\"}";
-  std::ostringstream o;
-  o << "{\"ok\": true, \"center_mm\": " << jsonVec(e->centerMm) << ", \"approach_mm\": " << jsonVec(e->approachMm)
-    << ", \"diameter_mm\": " << jsonNum(e->diameterMm) << ", \"sigma_mm\": " << jsonNum(e->sigmaMm)
-    << ", \"confidence_pct\": " << jsonNum(e->confidencePct) << ", \"occlusion_pct\": " << jsonNum(e->occlusionPct)
-    << ", \"lines_used\": " << e->linesUsed << ", \"points_used\": " << e->pointsUsed
-    << ", \"sphere_fit\": " << (e->sphereFit ? "true" : "false") << "}";
-  return o.str();
+tools::Json estimateJson(const Result<localize::AppleEstimate>& e) {
+  if (!e) return {{"ok", false}, {"error", errorName(e.status().code())}};
+  return {{"ok", true},
+          {"center_mm", jsonVec(e->centerMm)},
+          {"approach_mm", jsonVec(e->approachMm)},
+          {"diameter_mm", tools::jsonNumber(e->diameterMm)},
+          {"sigma_mm", tools::jsonNumber(e->sigmaMm)},
+          {"confidence_pct", tools::jsonNumber(e->confidencePct)},
+          {"occlusion_pct", tools::jsonNumber(e->occlusionPct)},
+          {"lines_used", e->linesUsed},
+          {"points_used", e->pointsUsed},
+          {"sphere_fit", e->sphereFit}};
 }
 
 }  // namespace
 
 int processMain(const Args& args) {
-  if (Status s = args.allow({"calibration", "brce-step", "brce-threshold", "rows", "jobs"}); !s) {
-    std::fprintf(stderr, "alacs-twin process: %s\n", s.reason().c_str());
-    return 2;
-  }
   const std::vector<std::string>& dirs = args.positional();
   if (dirs.empty()) {
     std::fprintf(stderr, "alacs-twin process: give scan directories\n");
@@ -74,11 +66,11 @@ int processMain(const Args& args) {
         double slide = 0.0;
         Result<std::unique_ptr<replay::ReplaySource>> src =
             replay::ReplaySource::open(dir, clock, [] { return true; }, [&] { return slide; });
-        std::ostringstream o;
-        o << "{\"scan\": \"" << dir << "\"";
+        tools::Json o;
+        o["scan"] = dir;
         if (!src) {
-          o << ", \"error\": \"" << jsonSafe(src.status().reason()) << "\"}";
-          lines[static_cast<size_t>(i)] = o.str();
+          o["error"] = src.status().reason();
+          lines[static_cast<size_t>(i)] = tools::jsonText(o);
           return Status::ok();
         }
         const replay::ScanManifest& m = (*src)->manifest();
@@ -91,69 +83,68 @@ int processMain(const Args& args) {
           cal = *c;
         }
         const localize::Localizer loc(cal, lle, localize::ScanParams{});
-        o << ", \"kind\": \"" << m.scan.kind << "\"";
+        o["kind"] = m.scan.kind;
         if (!m.scan.roughMm) {
-          o << ", \"error\": \"no rough position\"}";
-          lines[static_cast<size_t>(i)] = o.str();
+          o["error"] = "no rough position";
+          lines[static_cast<size_t>(i)] = tools::jsonText(o);
           return Status::ok();
         }
         Result<localize::ScanPlan> plan = loc.plan(*m.scan.roughMm, 200.0);
         if (!plan) {
-          o << ", \"error\": \"plan: " << jsonSafe(plan.status().reason()) << "\"}";
-          lines[static_cast<size_t>(i)] = o.str();
+          o["error"] = "plan: " + plan.status().reason();
+          lines[static_cast<size_t>(i)] = tools::jsonText(o);
           return Status::ok();
         }
         // The recorded stops (the LLE set has one; the benchmark's scans the paper's five),
         // not the plan's, which with today's defaults may be denser than the recording.
         const std::vector<double> stops = m.scan.stopsMm.empty() ? plan->stopsMm : m.scan.stopsMm;
         const double centreStop = cal.laser.slideForPoint(*m.scan.roughMm);
-        o << ", \"roi\": [" << plan->roi.x << ", " << plan->roi.y << ", " << plan->roi.width << ", "
-          << plan->roi.height << "], \"frames\": [";
+        o["roi"] = {plan->roi.x, plan->roi.y, plan->roi.width, plan->roi.height};
         image::LleWorkspace ws;
         std::vector<localize::LineObservation> obs;
         double observeMs = 0.0;
         // One frame through the camera port and the localizer, as the scan worker does.
-        std::vector<std::string> frameJson;
+        tools::Json frameJson = tools::Json::array();
         auto run = [&](double at) -> Result<localize::LineObservation> {
           slide = at;
           Result<ports::CapturedFrame> f = (*src)->capture({}, {});
           if (!f) {
-            frameJson.push_back("{\"slide_mm\": " + jsonNum(at) + ", \"valid\": false, \"error\": \"" + jsonSafe(f.status().reason()) + "\"}");
+            frameJson.push_back({{"slide_mm", tools::jsonNumber(at)}, {"valid", false}, {"error", f.status().reason()}});
             return f.status();
           }
-          std::ostringstream fo;
+          tools::Json fo;
           const double recorded = (*src)->lastSlideMm();
           const auto t0 = std::chrono::steady_clock::now();
           Result<localize::LineObservation> ob = loc.observe(f->view, *plan, recorded, ws);
           observeMs += std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
-          fo << "{\"slide_mm\": " << jsonNum(recorded) << ", \"frame\": " << (*src)->lastFrame()
-            << ", \"tag\": \"" << m.frames[static_cast<size_t>((*src)->lastFrame())].tag << "\"";
+          fo["slide_mm"] = tools::jsonNumber(recorded);
+          fo["frame"] = (*src)->lastFrame();
+          fo["tag"] = m.frames[static_cast<size_t>((*src)->lastFrame())].tag;
           if (!ob) {
-            fo << ", \"valid\": false, \"error\": \"" << jsonSafe(ob.status().reason()) << "\"}";
-            frameJson.push_back(fo.str());
+            fo["valid"] = false;
+            fo["error"] = ob.status().reason();
+            frameJson.push_back(std::move(fo));
             return ob;
           }
           const image::LaserLine& line = ob->line;
-          fo << ", \"valid\": " << (line.valid ? "true" : "false") << ", \"points\": " << ob->pointsMm.size();
+          fo["valid"] = line.valid;
+          fo["points"] = ob->pointsMm.size();
           if (wantRows) {
-            fo << ", \"rows\": [";
-            for (size_t r = 0; r < line.rows.size(); ++r)
-              fo << (r ? ", " : "") << "[" << line.rows[r].row << ", " << jsonNum(line.rows[r].column) << ", "
-                << (line.rows[r].inlier ? 1 : 0) << "]";
-            fo << "]";
+            tools::Json rows = tools::Json::array();
+            for (const auto& r : line.rows) rows.push_back({r.row, tools::jsonNumber(r.column), r.inlier ? 1 : 0});
+            fo["rows"] = std::move(rows);
             // What the localizer keeps of the frame: the samples gated in 3D around the target.
-            fo << ", \"kept\": [";
-            for (size_t k = 0; k < ob->pixels.size(); ++k)
-              fo << (k ? ", " : "") << "[" << jsonNum(ob->pixels[k].rowPx) << ", " << jsonNum(ob->pixels[k].columnPx) << "]";
-            fo << "]";
+            tools::Json kept = tools::Json::array();
+            for (const auto& px : ob->pixels) kept.push_back({tools::jsonNumber(px.rowPx), tools::jsonNumber(px.columnPx)});
+            fo["kept"] = std::move(kept);
             if (line.valid) {
-              fo << ", \"curve_first_row\": " << plan->roi.y << ", \"curve\": [";
-              for (int r = 0; r < plan->roi.height; ++r) fo << (r ? ", " : "") << jsonNum(line.columnAt(plan->roi.y + r));
-              fo << "]";
+              fo["curve_first_row"] = plan->roi.y;
+              tools::Json curve = tools::Json::array();
+              for (int r = 0; r < plan->roi.height; ++r) curve.push_back(tools::jsonNumber(line.columnAt(plan->roi.y + r)));
+              fo["curve"] = std::move(curve);
             }
           }
-          fo << "}";
-          frameJson.push_back(fo.str());
+          frameJson.push_back(std::move(fo));
           return ob;
         };
         int aimed = -1;
@@ -175,22 +166,21 @@ int processMain(const Args& args) {
           for (const auto& l : obs)
             if (!single || std::abs(l.slideMm - centreStop) < std::abs(single->slideMm - centreStop)) single = l;
         }
-        for (size_t k = 0; k < frameJson.size(); ++k) o << (k ? ", " : "") << frameJson[k];
-        o << "], \"observe_ms\": " << jsonNum(observeMs);
+        o["frames"] = std::move(frameJson);
+        o["observe_ms"] = tools::jsonNumber(observeMs);
         if (m.scan.kind != "lle") {
-          o << ", \"multi\": " << estimateJson(loc.estimate(*plan, obs));
-          o << ", \"single_source\": \"" << singleSource << "\"";
+          o["multi"] = estimateJson(loc.estimate(*plan, obs));
+          o["single_source"] = singleSource;
           if (single) {
-            o << ", \"single_slide_mm\": " << jsonNum(single->slideMm);
-            o << ", \"single\": " << estimateJson(loc.estimate(*plan, {*single}));
+            o["single_slide_mm"] = tools::jsonNumber(single->slideMm);
+            o["single"] = estimateJson(loc.estimate(*plan, {*single}));
           }
         }
-        o << "}";
-        lines[static_cast<size_t>(i)] = o.str();
+        lines[static_cast<size_t>(i)] = tools::jsonText(o);
         return Status::ok();
       },
       [&](int i) {
-        std::printf("%s\n", lines[static_cast<size_t>(i)].c_str());
+        std::printf("%s", lines[static_cast<size_t>(i)].c_str());
         std::fflush(stdout);
       });
   if (!st) {

@@ -16,21 +16,24 @@
 #include "common/result.h"
 #include "localize/localizer.h"
 #include "sim/renderer.h"
+#include "tool_common/json.h"
 
 namespace alacs::twin {
 
-// --key value options after the subcommand; flags without a value are "1".
+// A subcommand's options as given (main.cpp declares them to CLI11, which checks that
+// numbers are numbers, integers integral and lists numbers separated by commas); flags
+// are "1". The subcommand reads them with its own defaults, which may depend on other
+// options (generate's --set).
 class Args {
  public:
-  Args(int argc, char** argv, int first);
+  void set(const std::string& k, const std::string& v);
+  void addPositional(const std::string& v);
   bool has(const std::string& k) const { return values_.count(k) != 0; }
   std::string str(const std::string& k, const std::string& fallback = "") const;
   double num(const std::string& k, double fallback) const;
   int64_t integer(const std::string& k, int64_t fallback) const;
   std::vector<double> list(const std::string& k, const std::vector<double>& fallback) const;
   const std::vector<std::string>& positional() const { return positional_; }
-  // Refuses options outside `known` (a typo is an error, not a silent default).
-  Status allow(const std::vector<std::string>& known) const;
 
  private:
   std::map<std::string, std::string> values_;
@@ -52,8 +55,8 @@ struct RenderPlan {
 };
 Result<RenderPlan> renderPlan(const geometry::Calibration& cal, const Eigen::Vector3d& roughMm, int stops = 5);
 
-std::string jsonVec(const Eigen::Vector3d& v);
-std::string jsonNum(double v);
+// A vector as a JSON array of three numbers ("%.6f" as printed before; null when not finite).
+tools::Json jsonVec(const Eigen::Vector3d& v);
 
 int generateMain(const Args& args);
 int calibrationMain(const Args& args);
