@@ -2,6 +2,8 @@
 find_package(PkgConfig REQUIRED)
 find_package(Threads REQUIRED)
 find_package(Eigen3 3.3 REQUIRED NO_MODULE)
+# JSON: header-only nlohmann-json (nlohmann-json3-dev; in Yocto, meta-oe's nlohmann-json).
+find_package(nlohmann_json 3.10 REQUIRED)
 
 # OpenCV: the umbrella package ships OpenCVConfig.cmake; a cross build with only the
 # per-module arm64 packages has none, so fall back to finding the modules by hand.
