@@ -1,11 +1,8 @@
 #include "app/config.h"
 
-#include <opencv2/core.hpp>
+#include <string>
 
 #include "common/json_file.h"
-#include <cmath>
-#include <fstream>
-#include <sstream>
 
 namespace alacs::app {
 namespace {
@@ -13,65 +10,6 @@ namespace {
 Status bad(const std::string& key, const std::string& what) {
   return {Error::kBadInput, "config key '" + key + "' " + what};
 }
-
-struct Reader {
-  cv::FileNode root;
-  Status status;
-
-  cv::FileNode node(const std::string& dotted) const {
-    cv::FileNode n = root;
-    size_t start = 0;
-    while (true) {
-      const size_t dot = dotted.find('.', start);
-      n = n[dotted.substr(start, dot - start)];
-      if (dot == std::string::npos || n.empty()) return n;
-      start = dot + 1;
-    }
-  }
-  void number(const std::string& key, double* out, double lo, double hi) {
-    if (!status) return;
-    const cv::FileNode n = node(key);
-    if (n.empty() || n.isNone()) return;
-    if (!n.isReal() && !n.isInt()) { status = bad(key, "must be a number"); return; }
-    const double v = n.real();
-    if (!(v >= lo && v <= hi)) {
-      std::ostringstream s;
-      s << "must be in " << lo << ".." << hi << " (got " << v << ")";
-      status = bad(key, s.str());
-      return;
-    }
-    *out = v;
-  }
-  void integer(const std::string& key, int* out, int lo, int hi) {
-    double v = *out;
-    number(key, &v, lo, hi);
-    if (!status) return;
-    if (v != std::floor(v)) { status = bad(key, "must be an integer"); return; }
-    *out = static_cast<int>(v);
-  }
-  void integer64(const std::string& key, int64_t* out, int64_t lo, int64_t hi) {
-    double v = static_cast<double>(*out);
-    number(key, &v, static_cast<double>(lo), static_cast<double>(hi));
-    if (status) *out = static_cast<int64_t>(v);
-  }
-  void text(const std::string& key, std::string* out) {
-    if (!status) return;
-    const cv::FileNode n = node(key);
-    if (n.empty() || n.isNone()) return;
-    if (!n.isString()) { status = bad(key, "must be a string"); return; }
-    *out = static_cast<std::string>(n);
-  }
-  void boolean(const std::string& key, bool* out) {
-    if (!status) return;
-    const cv::FileNode n = node(key);
-    if (n.empty() || n.isNone()) return;
-    if (!n.isInt() || (static_cast<int>(n) != 0 && static_cast<int>(n) != 1)) {
-      status = bad(key, "must be true or false");
-      return;
-    }
-    *out = static_cast<int>(n) != 0;
-  }
-};
 
 }  // namespace
 
@@ -81,56 +19,133 @@ Status validateConfig(const DaemonConfig& c) {
   if (Status s = c.lle.validate(); !s) return s;
   if (c.exposureUs * 2 > c.laserMaxOnMs * 1000)
     return bad("camera.exposure_us", "must be at most half of laser.max_on_ms");
+  // The frame timeout must fire while the laser guard still has time left: otherwise a
+  // camera that never delivers shows up as a laser fault, not as the camera's.
+  if (int64_t{c.frameTimeoutMs} * 1000 + c.exposureUs >= int64_t{c.laserMaxOnMs} * 1000)
+    return bad("camera.frame_timeout_ms", "(" + std::to_string(c.frameTimeoutMs) + ") + camera.exposure_us (" +
+                                              std::to_string(c.exposureUs) + " us) must stay below laser.max_on_ms (" +
+                                              std::to_string(c.laserMaxOnMs) + ")");
   if (c.scan.stops > 1 && (c.scan.stops - 1) * c.scan.stopSpacingMm > c.motion.strokeMm)
     return bad("scan.stops", "× scan.stop_spacing_mm exceeds the stroke");
   return Status::ok();
 }
 
+Status configFromJson(const Json& json, DaemonConfig& c) {
+  JsonErrors errors("config");
+  JsonObjectReader root(errors, &json, "");
+  if (auto can = root.object("can")) {
+    can->integer("node_id", c.nodeId, Need::kOptional, 1, 127);
+    can->text("interface", c.canInterface);
+    can->integer("heartbeat_ms", c.heartbeatMs, Need::kOptional, 0, 65535);
+    can->integer("status_period_ms", c.statusPeriodMs, Need::kOptional, 10, 10000);
+    can->boolean("auto_start", c.nmtAutoStart);
+    can->finish();
+  }
+  if (auto gpio = root.object("gpio")) {
+    gpio->text("chip", c.gpioChip);
+    gpio->text("step", c.lines.step);
+    gpio->text("dir", c.lines.dir);
+    gpio->text("enable", c.lines.enable);
+    gpio->text("laser", c.lines.laser);
+    gpio->text("home", c.lines.home);
+    gpio->text("end", c.lines.end);
+    gpio->boolean("home_active_low", c.lines.homeActiveLow);
+    gpio->boolean("end_active_low", c.lines.endActiveLow);
+    gpio->finish();
+  }
+  if (auto m = root.object("motion")) {
+    m->number("steps_per_mm", c.motion.stepsPerMm, Need::kOptional, 0.1, 10000);
+    m->number("max_speed_mm_s", c.motion.maxSpeedMmPerS, Need::kOptional, 1, 2000);
+    m->number("accel_mm_s2", c.motion.accelMmPerS2, Need::kOptional, 1, 50000);
+    m->number("stroke_mm", c.motion.strokeMm, Need::kOptional, 1, 2000);
+    m->number("homing_speed_mm_s", c.motion.homingSpeedMmPerS, Need::kOptional, 1, 2000);
+    m->integer("homing_timeout_ms", c.motion.homingTimeoutMs, Need::kOptional, 100, 600000);
+    m->integer("step_pulse_ns", c.motion.stepPulseNs, Need::kOptional, 1000, 1000000);
+    m->integer("realtime_priority", c.realtimePriority, Need::kOptional, 0, 99);
+    m->finish();
+  }
+  if (auto s = root.object("scan")) {
+    s->integer("stops", c.scan.stops, Need::kOptional, 1, 15);
+    s->number("stop_spacing_mm", c.scan.stopSpacingMm, Need::kOptional, 0.5, 50);
+    s->number("roi_margin_mm", c.scan.roiMarginMm, Need::kOptional, 0, 300);
+    s->number("gate_mm", c.scan.gateMm, Need::kOptional, 10, 500);
+    s->integer("follow_up_min_lines", c.scan.followUpMinLines, Need::kOptional, 1, 15);
+    s->number("follow_up_diameter_sigma_mm", c.scan.followUpDiameterSigmaMm, Need::kOptional, 0, 100);
+    s->integer("follow_up_max_stops", c.scan.followUpMaxStops, Need::kOptional, 0, 16);
+    s->finish();
+  }
+  if (auto l = root.object("lle")) {
+    l->integer("brce_step", c.lle.brceStep, Need::kOptional, 1, 64);
+    l->integer("brce_threshold", c.lle.brceThreshold, Need::kOptional, 0, 254);
+    l->integer("noise_theta", c.lle.noiseTheta, Need::kOptional, 0, 100000);
+    l->integer("noise_gamma", c.lle.noiseGamma, Need::kOptional, 1, 1000);
+    l->finish();
+  }
+  if (auto cam = root.object("camera")) {
+    cam->integer("exposure_us", c.exposureUs, Need::kOptional, 10, 500000);
+    cam->integer("frame_timeout_ms", c.frameTimeoutMs, Need::kOptional, 10, 60000);
+    cam->integer("retries", c.frameRetries, Need::kOptional, 0, 10);
+    cam->text("id", c.cameraId);
+    cam->finish();
+  }
+  if (auto laser = root.object("laser")) {
+    laser->integer("max_on_ms", c.laserMaxOnMs, Need::kOptional, 1, 5000);
+    laser->finish();
+  }
+  root.text("calibration", c.calibrationPath);
+  root.finish();
+  return errors.status();
+}
+
+OrderedJson configToJson(const DaemonConfig& c) {
+  OrderedJson j;
+  j["can"] = {{"node_id", c.nodeId},
+              {"interface", c.canInterface},
+              {"heartbeat_ms", c.heartbeatMs},
+              {"status_period_ms", c.statusPeriodMs},
+              {"auto_start", c.nmtAutoStart}};
+  j["gpio"] = {{"chip", c.gpioChip},
+               {"step", c.lines.step},
+               {"dir", c.lines.dir},
+               {"enable", c.lines.enable},
+               {"laser", c.lines.laser},
+               {"home", c.lines.home},
+               {"end", c.lines.end},
+               {"home_active_low", c.lines.homeActiveLow},
+               {"end_active_low", c.lines.endActiveLow}};
+  j["motion"] = {{"steps_per_mm", c.motion.stepsPerMm},
+                 {"max_speed_mm_s", c.motion.maxSpeedMmPerS},
+                 {"accel_mm_s2", c.motion.accelMmPerS2},
+                 {"stroke_mm", c.motion.strokeMm},
+                 {"homing_speed_mm_s", c.motion.homingSpeedMmPerS},
+                 {"homing_timeout_ms", c.motion.homingTimeoutMs},
+                 {"step_pulse_ns", c.motion.stepPulseNs},
+                 {"realtime_priority", c.realtimePriority}};
+  j["scan"] = {{"stops", c.scan.stops},
+               {"stop_spacing_mm", c.scan.stopSpacingMm},
+               {"roi_margin_mm", c.scan.roiMarginMm},
+               {"gate_mm", c.scan.gateMm},
+               {"follow_up_min_lines", c.scan.followUpMinLines},
+               {"follow_up_diameter_sigma_mm", c.scan.followUpDiameterSigmaMm},
+               {"follow_up_max_stops", c.scan.followUpMaxStops}};
+  j["lle"] = {{"brce_step", c.lle.brceStep},
+              {"brce_threshold", c.lle.brceThreshold},
+              {"noise_theta", c.lle.noiseTheta},
+              {"noise_gamma", c.lle.noiseGamma}};
+  j["camera"] = {{"exposure_us", c.exposureUs},
+                 {"frame_timeout_ms", c.frameTimeoutMs},
+                 {"retries", c.frameRetries},
+                 {"id", c.cameraId}};
+  j["laser"] = {{"max_on_ms", c.laserMaxOnMs}};
+  j["calibration"] = c.calibrationPath;
+  return j;
+}
+
 Result<DaemonConfig> loadConfig(const std::string& path) {
-  Result<cv::FileStorage> file = openJsonFile(path, "config file");
+  Result<Json> file = readJsonFile(path, "config file", kConfigMaxBytes);
   if (!file) return file.status();
-  cv::FileStorage& fs = *file;
   DaemonConfig c;
-  Reader r{fs.root(), Status::ok()};
-  r.integer("can.node_id", &c.nodeId, 1, 127);
-  r.text("can.interface", &c.canInterface);
-  r.integer("can.heartbeat_ms", &c.heartbeatMs, 0, 65535);
-  r.integer("can.status_period_ms", &c.statusPeriodMs, 10, 10000);
-  r.text("gpio.chip", &c.gpioChip);
-  r.text("gpio.step", &c.lines.step);
-  r.text("gpio.dir", &c.lines.dir);
-  r.text("gpio.enable", &c.lines.enable);
-  r.text("gpio.laser", &c.lines.laser);
-  r.text("gpio.home", &c.lines.home);
-  r.text("gpio.end", &c.lines.end);
-  r.boolean("gpio.home_active_low", &c.lines.homeActiveLow);
-  r.boolean("gpio.end_active_low", &c.lines.endActiveLow);
-  r.number("motion.steps_per_mm", &c.motion.stepsPerMm, 0.1, 10000);
-  r.number("motion.max_speed_mm_s", &c.motion.maxSpeedMmPerS, 1, 2000);
-  r.number("motion.accel_mm_s2", &c.motion.accelMmPerS2, 1, 50000);
-  r.number("motion.stroke_mm", &c.motion.strokeMm, 1, 2000);
-  r.number("motion.homing_speed_mm_s", &c.motion.homingSpeedMmPerS, 1, 2000);
-  r.integer64("motion.homing_timeout_ms", &c.motion.homingTimeoutMs, 100, 600000);
-  r.integer64("motion.step_pulse_ns", &c.motion.stepPulseNs, 1000, 1000000);
-  r.integer("motion.realtime_priority", &c.realtimePriority, 0, 99);
-  r.integer("scan.stops", &c.scan.stops, 1, 15);
-  r.number("scan.stop_spacing_mm", &c.scan.stopSpacingMm, 0.5, 50);
-  r.number("scan.roi_margin_mm", &c.scan.roiMarginMm, 0, 300);
-  r.number("scan.gate_mm", &c.scan.gateMm, 10, 500);
-  r.integer("scan.follow_up_min_lines", &c.scan.followUpMinLines, 1, 15);
-  r.number("scan.follow_up_diameter_sigma_mm", &c.scan.followUpDiameterSigmaMm, 0, 100);
-  r.integer("scan.follow_up_max_stops", &c.scan.followUpMaxStops, 0, 16);
-  r.integer("lle.brce_step", &c.lle.brceStep, 1, 64);
-  r.integer("lle.brce_threshold", &c.lle.brceThreshold, 0, 254);
-  r.integer("lle.noise_theta", &c.lle.noiseTheta, 0, 100000);
-  r.integer("lle.noise_gamma", &c.lle.noiseGamma, 1, 1000);
-  r.integer("camera.exposure_us", &c.exposureUs, 10, 500000);
-  r.integer("camera.frame_timeout_ms", &c.frameTimeoutMs, 10, 60000);
-  r.integer("camera.retries", &c.frameRetries, 0, 10);
-  r.text("camera.id", &c.cameraId);
-  r.integer("laser.max_on_ms", &c.laserMaxOnMs, 1, 5000);
-  r.text("calibration", &c.calibrationPath);
-  if (!r.status) return r.status;
+  if (Status s = configFromJson(*file, c); !s) return Status(s.code(), "config file '" + path + "': " + s.reason());
   if (Status s = validateConfig(c); !s) return s;
   return c;
 }

@@ -1,11 +1,12 @@
 // alacsd's configuration file (JSON, /etc/alacs/alacsd.json on the box; see
-// firmware/config/alacsd.json and docs/configuration.md). Every key is optional and
-// falls back to the default below; a present key with a bad type or range is an error
-// that names it.
+// firmware/config/alacsd.json and docs/daemon.md). Every key is optional and falls back
+// to the default below; a present key with a bad type or range, an unknown key and a
+// section that is not an object are errors that name the key by its full path.
 #pragma once
 
 #include <string>
 
+#include "common/json_file.h"
 #include "common/result.h"
 #include "drivers/gpiod/gpiod_lines.h"
 #include "image/lle.h"
@@ -19,6 +20,7 @@ struct DaemonConfig {
   std::string canInterface = "can0";
   int heartbeatMs = 1000;
   int statusPeriodMs = 100;
+  bool nmtAutoStart = true;             // can.auto_start: OPERATIONAL after boot-up; false: wait for NMT START
   std::string gpioChip;                 // empty: no GPIO (only valid with --sim)
   drivers::GpioLineNames lines;
   motion::SlideLimits motion;
@@ -27,13 +29,23 @@ struct DaemonConfig {
   int realtimePriority = 0;             // SCHED_FIFO priority of the step-timing thread; 0: none
   int exposureUs = 3000;
   int laserMaxOnMs = 250;               // the laser is forced off (and a fault raised) beyond this
-  int frameTimeoutMs = 1000;
+  int frameTimeoutMs = 150;             // plus the exposure, must stay below laserMaxOnMs
   int frameRetries = 2;
   std::string calibrationPath = "/var/lib/alacs/calibration.json";
   std::string cameraId;
 };
 
+inline constexpr size_t kConfigMaxBytes = 1 << 20;
+
+// Reads the file at `path` (a regular file of at most kConfigMaxBytes), then checks the
+// result with validateConfig. Errors: kNotFound, kBadInput naming the key.
 Result<DaemonConfig> loadConfig(const std::string& path);
+// Overrides the fields of `config` present in `json` (ranges checked, cross-field rules
+// not). Errors: kBadInput naming the key by its full path.
+Status configFromJson(const Json& json, DaemonConfig& config);
+// Every field, in the layout of firmware/config/alacsd.json.
+OrderedJson configToJson(const DaemonConfig& config);
+// Ranges of the parts and the rules between fields. Errors: kBadInput naming the keys.
 Status validateConfig(const DaemonConfig& c);
 
 }  // namespace alacs::app

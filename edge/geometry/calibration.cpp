@@ -1,16 +1,13 @@
 #include "geometry/calibration.h"
 
-#include <opencv2/core.hpp>
+#include <unistd.h>
 
-#include "common/json_file.h"
+#include <algorithm>
 #include <cmath>
 #include <cstdio>
-#include <fstream>
 #include <limits>
-#include <sstream>
-#include <unistd.h>
-#include <locale>
 #include <utility>
+#include <vector>
 
 namespace alacs::geometry {
 
@@ -26,32 +23,6 @@ Status fieldError(const std::string& field, const std::string& what) {
   return {Error::kBadInput, "calibration field '" + field + "' " + what};
 }
 
-Result<double> readNumber(const cv::FileNode& parent, const std::string& parentName,
-                          const char* key) {
-  const cv::FileNode n = parent[key];
-  const std::string field = parentName + "." + key;
-  if (n.empty() || n.isNone()) return fieldError(field, "is missing");
-  if (!n.isReal() && !n.isInt()) return fieldError(field, "is not a number");
-  const double v = n.real();
-  if (!std::isfinite(v)) return fieldError(field, "is not finite");
-  return v;
-}
-
-Status readVector3(const cv::FileNode& parent, const std::string& parentName, const char* key,
-                   Eigen::Vector3d* out) {
-  const cv::FileNode n = parent[key];
-  const std::string field = parentName + "." + key;
-  if (n.empty() || n.isNone()) return fieldError(field, "is missing");
-  if (!n.isSeq() || n.size() != 3) return fieldError(field, "must be an array of 3 numbers");
-  for (int i = 0; i < 3; ++i) {
-    const cv::FileNode e = n[i];
-    if (!e.isReal() && !e.isInt()) return fieldError(field, "must be an array of 3 numbers");
-    (*out)(i) = e.real();
-    if (!std::isfinite((*out)(i))) return fieldError(field, "holds a non-finite value");
-  }
-  return Status::ok();
-}
-
 const char* gateName(CalibrationQuality::Gate g) {
   switch (g) {
     case CalibrationQuality::Gate::kPassed: return "passed";
@@ -59,6 +30,86 @@ const char* gateName(CalibrationQuality::Gate g) {
     case CalibrationQuality::Gate::kNotRun: return "not_run";
   }
   return "not_run";
+}
+
+// The Brown–Conrady map (OpenCV's order k1 k2 p1 p2 k3) from undistorted to distorted
+// normalized coordinates, and its Jacobian.
+struct Distorted {
+  double x, y;
+  double dxdx, dxdy, dydx, dydy;
+};
+
+Distorted distort(const std::array<double, 5>& k, double x, double y) {
+  const double r2 = x * x + y * y;
+  const double radial = 1.0 + r2 * (k[0] + r2 * (k[1] + r2 * k[4]));
+  const double dRadialDr2 = k[0] + r2 * (2.0 * k[1] + 3.0 * r2 * k[4]);
+  Distorted d{};
+  d.x = x * radial + 2.0 * k[2] * x * y + k[3] * (r2 + 2.0 * x * x);
+  d.y = y * radial + k[2] * (r2 + 2.0 * y * y) + 2.0 * k[3] * x * y;
+  d.dxdx = radial + 2.0 * x * x * dRadialDr2 + 2.0 * k[2] * y + 6.0 * k[3] * x;
+  d.dxdy = 2.0 * x * y * dRadialDr2 + 2.0 * k[2] * x + 2.0 * k[3] * y;
+  d.dydx = 2.0 * x * y * dRadialDr2 + 2.0 * k[2] * x + 2.0 * k[3] * y;
+  d.dydy = radial + 2.0 * y * y * dRadialDr2 + 6.0 * k[2] * y + 2.0 * k[3] * x;
+  return d;
+}
+
+// Undistortion must have exactly one answer for every pixel of the frame: the distortion
+// map must not fold (Jacobian determinant positive, x increasing along rows and y down
+// columns), radial and tangential terms together. Checked on a 65 × 49 grid over the
+// frame's extent in normalized coordinates with a 30 % margin (the border included), and
+// at every pair of neighbours, so that a fold narrower than the grid's spacing between
+// two points that both look fine is still seen as a reversal. The distortion must also
+// stay within the model's range for this sensor: no point of the frame moved by more
+// than half its distance from the principal point.
+Status checkDistortion(const CameraIntrinsics& c) {
+  constexpr int kCols = 65;
+  constexpr int kRows = 49;
+  constexpr double kMargin = 1.3;
+  constexpr double kMinSlope = 0.05;
+  constexpr double kMaxRadialChange = 0.5;
+  const double x0 = -kMargin * c.cxPx / c.fxPx;
+  const double x1 = kMargin * (c.widthPx - c.cxPx) / c.fxPx;
+  const double y0 = -kMargin * c.cyPx / c.fyPx;
+  const double y1 = kMargin * (c.heightPx - c.cyPx) / c.fyPx;
+  std::vector<Distorted> grid(static_cast<size_t>(kCols * kRows));
+  int folded = 0;        // grid points inside the frame
+  int foldedMargin = 0;  // grid points in the margin
+  int inFrame = 0;
+  double worstChange = 0.0;
+  for (int j = 0; j < kRows; ++j) {
+    for (int i = 0; i < kCols; ++i) {
+      const double x = x0 + (x1 - x0) * i / (kCols - 1);
+      const double y = y0 + (y1 - y0) * j / (kRows - 1);
+      const Distorted d = distort(c.distortion, x, y);
+      grid[static_cast<size_t>(j * kCols + i)] = d;
+      const double det = d.dxdx * d.dydy - d.dxdy * d.dydx;
+      bool fold = !(det > kMinSlope * kMinSlope && d.dxdx > kMinSlope && d.dydy > kMinSlope);
+      if (i > 0 && !(d.x > grid[static_cast<size_t>(j * kCols + i - 1)].x)) fold = true;
+      if (j > 0 && !(d.y > grid[static_cast<size_t>((j - 1) * kCols + i)].y)) fold = true;
+      // The frame itself: pixels whose undistorted position lies inside it.
+      const double u = c.fxPx * x + c.cxPx;
+      const double v = c.fyPx * y + c.cyPx;
+      const bool inside = u >= 0.0 && u <= c.widthPx && v >= 0.0 && v <= c.heightPx;
+      if (inside) {
+        ++inFrame;
+        if (fold) ++folded;
+        const double r = std::hypot(x, y);
+        if (r > 1e-9) worstChange = std::max(worstChange, std::abs(std::hypot(d.x, d.y) / r - 1.0));
+      }
+      if (fold && !inside) ++foldedMargin;
+    }
+  }
+  if (folded > 0) {
+    const int share = static_cast<int>(std::lround(100.0 * folded / std::max(inFrame, 1)));
+    return fieldError("camera.distortion", "folds " + std::to_string(std::max(share, 1)) +
+                                               " % of the frame: undistortion would have two answers there");
+  }
+  if (foldedMargin > 0)
+    return fieldError("camera.distortion", "folds the image just outside the frame: undistortion near its edges would be ambiguous");
+  if (!(worstChange <= kMaxRadialChange))
+    return fieldError("camera.distortion", "moves points of the frame by " + std::to_string(std::lround(100.0 * worstChange)) +
+                                               " % of their radius, more than 50 %: not a lens this model describes");
+  return Status::ok();
 }
 
 }  // namespace
@@ -77,17 +128,7 @@ Status validateCalibration(const Calibration& cal) {
     if (!(std::abs(c.distortion[i]) < 10.0))
       return fieldError("camera.distortion[" + std::to_string(i) + "]", "must be in -10..10");
   }
-  // Inconsistent distortion: the radial model must map radius to radius one-to-one over
-  // the whole frame (and a margin), or undistortion has two answers.
-  const double rMax = 1.3 * std::hypot(std::max(c.cxPx, c.widthPx - c.cxPx) / c.fxPx,
-                                       std::max(c.cyPx, c.heightPx - c.cyPx) / c.fyPx);
-  for (int i = 1; i <= 200; ++i) {
-    const double r2 = std::pow(rMax * i / 200.0, 2);
-    const double slope = 1.0 + 3.0 * c.distortion[0] * r2 + 5.0 * c.distortion[1] * r2 * r2 +
-                         7.0 * c.distortion[4] * r2 * r2 * r2;
-    if (!(slope > 0.05))
-      return fieldError("camera.distortion", "folds the image: radial distortion is not monotonic within the frame");
-  }
+  if (Status st = checkDistortion(c); !st) return st;
   const auto& l = cal.laser;
   if (std::abs(l.planeNormal.norm() - 1.0) > 1e-3)
     return fieldError("laser.plane_normal", "must be a unit vector (norm " +
@@ -125,148 +166,136 @@ Status validateCalibration(const Calibration& cal) {
   return Status::ok();
 }
 
-Result<Calibration> loadCalibration(const std::string& path) {
-  Result<cv::FileStorage> file = openJsonFile(path, "calibration file");
-  if (!file) return file.status();
-  cv::FileStorage& fs = *file;
-  Calibration cal;
-  const cv::FileNode cam = fs["camera"];
-  if (cam.empty() || !cam.isMap()) return fieldError("camera", "is missing");
-  const cv::FileNode las = fs["laser"];
-  if (las.empty() || !las.isMap()) return fieldError("laser", "is missing");
+namespace {
 
-  struct NumField { const cv::FileNode* node; const char* parent; const char* key; double* out; };
-  double width = 0;
-  double height = 0;
-  const NumField nums[] = {
-      {&cam, "camera", "width_px", &width},          {&cam, "camera", "height_px", &height},
-      {&cam, "camera", "fx_px", &cal.camera.fxPx},    {&cam, "camera", "fy_px", &cal.camera.fyPx},
-      {&cam, "camera", "cx_px", &cal.camera.cxPx},    {&cam, "camera", "cy_px", &cal.camera.cyPx},
-      {&las, "laser", "plane_offset_mm", &cal.laser.planeOffsetMm},
-      {&las, "laser", "slide_scale", &cal.laser.slideScale},
-  };
-  for (const auto& f : nums) {
-    Result<double> v = readNumber(*f.node, f.parent, f.key);
-    if (!v) return v.status();
-    *f.out = *v;
-  }
-  if (width != std::floor(width) || height != std::floor(height))
-    return fieldError("camera.width_px", "must be an integer");
-  cal.camera.widthPx = static_cast<int>(width);
-  cal.camera.heightPx = static_cast<int>(height);
-  const cv::FileNode dist = cam["distortion"];
-  if (dist.empty()) return fieldError("camera.distortion", "is missing");
-  if (!dist.isSeq() || dist.size() != 5) return fieldError("camera.distortion", "must be an array of 5 numbers (k1 k2 p1 p2 k3)");
-  for (int i = 0; i < 5; ++i) {
-    if (!dist[i].isReal() && !dist[i].isInt()) return fieldError("camera.distortion", "must hold numbers");
-    cal.camera.distortion[static_cast<size_t>(i)] = dist[i].real();
-  }
-  if (Status s = readVector3(las, "laser", "plane_normal", &cal.laser.planeNormal); !s) return s;
-  if (Status s = readVector3(las, "laser", "slide_axis", &cal.laser.slideAxis); !s) return s;
-  if (const cv::FileNode fmt = fs["format"]; !fmt.empty()) {
-    if (!fmt.isString() || static_cast<std::string>(fmt) != kCalibrationFormat)
-      return fieldError("format", std::string("must be \"") + kCalibrationFormat + "\"");
-  }
-  // Quality figures: optional, but when present they must be numbers.
-  const cv::FileNode q = fs["quality"];
-  if (!q.empty() && !q.isNone()) {
-    if (!q.isMap()) return fieldError("quality", "must be an object");
-    auto& cq = cal.quality;
-    struct OptNum { const char* key; double* out; };
-    const OptNum optional[] = {
-        {"reprojection_rms_px", &cq.reprojectionRmsPx}, {"fx_sigma_px", &cq.fxSigmaPx},
-        {"fy_sigma_px", &cq.fySigmaPx},                 {"cx_sigma_px", &cq.cxSigmaPx},
-        {"cy_sigma_px", &cq.cySigmaPx},                 {"plane_rms_mm", &cq.planeRmsMm},
-        {"laser_rms_px", &cq.laserRmsPx},               {"inlier_share", &cq.inlierShare},
-        {"normal_sigma_mrad", &cq.normalSigmaMrad},     {"offset_sigma_mm", &cq.offsetSigmaMm},
-        {"scale_sigma", &cq.scaleSigma},                {"depth_sigma_mm_at_1000", &cq.depthSigmaMmAt1000},
-        {"depth_sigma_mm_at_1600", &cq.depthSigmaMmAt1600},
-        {"depth_sigma_total_mm_at_1000", &cq.depthSigmaTotalMmAt1000},
-        {"depth_sigma_total_mm_at_1200", &cq.depthSigmaTotalMmAt1200},
-        {"depth_sigma_total_mm_at_1400", &cq.depthSigmaTotalMmAt1400},
-        {"depth_sigma_total_mm_at_1600", &cq.depthSigmaTotalMmAt1600},
-        {"sigma_3d_total_mm_at_1000", &cq.sigma3dTotalMmAt1000},
-        {"sigma_3d_total_mm_at_1200", &cq.sigma3dTotalMmAt1200},
-        {"sigma_3d_total_mm_at_1400", &cq.sigma3dTotalMmAt1400},
-        {"sigma_3d_total_mm_at_1600", &cq.sigma3dTotalMmAt1600},
-    };
-    for (const auto& f : optional) {
-      if (q[f.key].empty()) continue;
-      Result<double> v = readNumber(q, "quality", f.key);
-      if (!v) return v.status();
-      *f.out = *v;
-    }
-    struct OptInt { const char* key; int* out; };
-    const OptInt counts[] = {{"camera_views", &cq.cameraViews},
-                             {"target_placements", &cq.targetPlacements},
-                             {"slide_positions", &cq.slidePositions}};
-    for (const auto& f : counts) {
-      if (q[f.key].empty()) continue;
-      Result<double> v = readNumber(q, "quality", f.key);
-      if (!v) return v.status();
-      if (*v != std::floor(*v) || std::abs(*v) > 1e6) return fieldError(std::string("quality.") + f.key, "must be an integer");
-      *f.out = static_cast<int>(*v);
-    }
-    if (const cv::FileNode b = q["from_truth"]; !b.empty()) {
-      if (!b.isInt() || (static_cast<int>(b) != 0 && static_cast<int>(b) != 1))
-        return fieldError("quality.from_truth", "must be true or false");
-      cq.fromTruth = static_cast<int>(b) != 0;
-    }
-    if (const cv::FileNode g = q["gate"]; !g.empty()) {
-      const std::string gate = g.isString() ? static_cast<std::string>(g) : std::string();
-      if (gate == "passed") {
-        cq.gate = CalibrationQuality::Gate::kPassed;
-      } else if (gate == "refused") {
-        // Kept for diagnosis; it must never drive the sensor.
-        return fieldError("quality.gate", "is \"refused\": the quality gate rejected this calibration");
-      } else if (gate != "not_run") {
-        return fieldError("quality.gate", "must be \"passed\", \"refused\" or \"not_run\"");
-      }
+struct QualityNumber {
+  const char* key;
+  double CalibrationQuality::*field;
+};
+constexpr QualityNumber kQualityNumbers[] = {
+    {"reprojection_rms_px", &CalibrationQuality::reprojectionRmsPx},
+    {"fx_sigma_px", &CalibrationQuality::fxSigmaPx},
+    {"fy_sigma_px", &CalibrationQuality::fySigmaPx},
+    {"cx_sigma_px", &CalibrationQuality::cxSigmaPx},
+    {"cy_sigma_px", &CalibrationQuality::cySigmaPx},
+    {"plane_rms_mm", &CalibrationQuality::planeRmsMm},
+    {"laser_rms_px", &CalibrationQuality::laserRmsPx},
+    {"inlier_share", &CalibrationQuality::inlierShare},
+    {"normal_sigma_mrad", &CalibrationQuality::normalSigmaMrad},
+    {"offset_sigma_mm", &CalibrationQuality::offsetSigmaMm},
+    {"scale_sigma", &CalibrationQuality::scaleSigma},
+    {"depth_sigma_mm_at_1000", &CalibrationQuality::depthSigmaMmAt1000},
+    {"depth_sigma_mm_at_1600", &CalibrationQuality::depthSigmaMmAt1600},
+    {"depth_sigma_total_mm_at_1000", &CalibrationQuality::depthSigmaTotalMmAt1000},
+    {"depth_sigma_total_mm_at_1200", &CalibrationQuality::depthSigmaTotalMmAt1200},
+    {"depth_sigma_total_mm_at_1400", &CalibrationQuality::depthSigmaTotalMmAt1400},
+    {"depth_sigma_total_mm_at_1600", &CalibrationQuality::depthSigmaTotalMmAt1600},
+    {"sigma_3d_total_mm_at_1000", &CalibrationQuality::sigma3dTotalMmAt1000},
+    {"sigma_3d_total_mm_at_1200", &CalibrationQuality::sigma3dTotalMmAt1200},
+    {"sigma_3d_total_mm_at_1400", &CalibrationQuality::sigma3dTotalMmAt1400},
+    {"sigma_3d_total_mm_at_1600", &CalibrationQuality::sigma3dTotalMmAt1600},
+};
+struct QualityCount {
+  const char* key;
+  int CalibrationQuality::*field;
+};
+constexpr QualityCount kQualityCounts[] = {
+    {"camera_views", &CalibrationQuality::cameraViews},
+    {"target_placements", &CalibrationQuality::targetPlacements},
+    {"slide_positions", &CalibrationQuality::slidePositions},
+};
+
+void readQuality(JsonObjectReader& q, CalibrationQuality& cq) {
+  for (const auto& f : kQualityNumbers) q.number(f.key, cq.*f.field);
+  for (const auto& f : kQualityCounts) q.integer(f.key, cq.*f.field, Need::kOptional, -1000000, 1000000);
+  q.boolean("from_truth", cq.fromTruth);
+  std::string gate;
+  if (q.text("gate", gate)) {
+    if (gate == "passed") {
+      cq.gate = CalibrationQuality::Gate::kPassed;
+    } else if (gate == "not_run") {
+      cq.gate = CalibrationQuality::Gate::kNotRun;
+    } else if (gate == "refused") {
+      cq.gate = CalibrationQuality::Gate::kRefused;
+    } else {
+      q.fail("gate", "must be \"passed\", \"refused\" or \"not_run\"");
     }
   }
-  if (Status s = validateCalibration(cal); !s) return s;
-  return cal;
+  q.finish();
 }
 
-std::string calibrationJson(const Calibration& cal) {
-  const auto& c = cal.camera;
-  const auto& l = cal.laser;
-  const auto& q = cal.quality;
-  std::ostringstream o;
-  o.imbue(std::locale::classic());
-  o.precision(12);
-  auto vec = [&o](const Eigen::Vector3d& v) { o << "[" << v.x() << ", " << v.y() << ", " << v.z() << "]"; };
-  o << "{\n  \"format\": \"" << kCalibrationFormat << "\",\n";
-  o << "  \"camera\": {\"width_px\": " << c.widthPx << ", \"height_px\": " << c.heightPx << ", \"fx_px\": " << c.fxPx
-    << ", \"fy_px\": " << c.fyPx << ",\n             \"cx_px\": " << c.cxPx << ", \"cy_px\": " << c.cyPx
-    << ",\n             \"distortion\": [" << c.distortion[0] << ", " << c.distortion[1] << ", " << c.distortion[2]
-    << ", " << c.distortion[3] << ", " << c.distortion[4] << "]},\n";
-  o << "  \"laser\": {\"plane_normal\": ";
-  vec(l.planeNormal);
-  o << ", \"plane_offset_mm\": " << l.planeOffsetMm << ",\n            \"slide_axis\": ";
-  vec(l.slideAxis);
-  o << ", \"slide_scale\": " << l.slideScale << "},\n";
-  o.precision(6);
-  o << "  \"quality\": {\"reprojection_rms_px\": " << q.reprojectionRmsPx << ", \"camera_views\": " << q.cameraViews
-    << ",\n              \"fx_sigma_px\": " << q.fxSigmaPx << ", \"fy_sigma_px\": " << q.fySigmaPx
-    << ", \"cx_sigma_px\": " << q.cxSigmaPx << ", \"cy_sigma_px\": " << q.cySigmaPx
-    << ",\n              \"plane_rms_mm\": " << q.planeRmsMm << ", \"laser_rms_px\": " << q.laserRmsPx
-    << ", \"inlier_share\": " << q.inlierShare << ",\n              \"target_placements\": " << q.targetPlacements
-    << ", \"slide_positions\": " << q.slidePositions << ",\n              \"normal_sigma_mrad\": " << q.normalSigmaMrad
-    << ", \"offset_sigma_mm\": " << q.offsetSigmaMm << ", \"scale_sigma\": " << q.scaleSigma
-    << ",\n              \"depth_sigma_mm_at_1000\": " << q.depthSigmaMmAt1000
-    << ", \"depth_sigma_mm_at_1600\": " << q.depthSigmaMmAt1600
-    << ",\n              \"depth_sigma_total_mm_at_1000\": " << q.depthSigmaTotalMmAt1000
-    << ", \"depth_sigma_total_mm_at_1200\": " << q.depthSigmaTotalMmAt1200
-    << ", \"depth_sigma_total_mm_at_1400\": " << q.depthSigmaTotalMmAt1400
-    << ", \"depth_sigma_total_mm_at_1600\": " << q.depthSigmaTotalMmAt1600
-    << ",\n              \"sigma_3d_total_mm_at_1000\": " << q.sigma3dTotalMmAt1000
-    << ", \"sigma_3d_total_mm_at_1200\": " << q.sigma3dTotalMmAt1200
-    << ", \"sigma_3d_total_mm_at_1400\": " << q.sigma3dTotalMmAt1400
-    << ", \"sigma_3d_total_mm_at_1600\": " << q.sigma3dTotalMmAt1600
-    << ",\n              \"gate\": \"" << gateName(q.gate) << "\""
-    << ", \"from_truth\": " << (q.fromTruth ? "true" : "false") << "}\n}\n";
-  return o.str();
+}  // namespace
+
+void cameraFromJson(JsonObjectReader& cam, CameraIntrinsics& c) {
+  cam.integer("width_px", c.widthPx, Need::kRequired, 16, 16384);
+  cam.integer("height_px", c.heightPx, Need::kRequired, 16, 16384);
+  cam.number("fx_px", c.fxPx, Need::kRequired);
+  cam.number("fy_px", c.fyPx, Need::kRequired);
+  cam.number("cx_px", c.cxPx, Need::kRequired);
+  cam.number("cy_px", c.cyPx, Need::kRequired);
+  cam.numbers("distortion", c.distortion, Need::kRequired);
+  cam.finish();
+}
+
+void laserFromJson(JsonObjectReader& las, LaserGeometry& l) {
+  std::array<double, 3> v{};
+  if (las.numbers("plane_normal", v, Need::kRequired)) l.planeNormal = {v[0], v[1], v[2]};
+  las.number("plane_offset_mm", l.planeOffsetMm, Need::kRequired);
+  if (las.numbers("slide_axis", v, Need::kRequired)) l.slideAxis = {v[0], v[1], v[2]};
+  las.number("slide_scale", l.slideScale, Need::kRequired);
+  las.finish();
+}
+
+Status calibrationFromJson(const Json& json, Calibration& cal) {
+  JsonErrors errors("calibration");
+  JsonObjectReader root(errors, &json, "");
+  std::string format = kCalibrationFormat;
+  if (root.text("format", format) && format != kCalibrationFormat)
+    errors.field("format", std::string("must be \"") + kCalibrationFormat + "\"");
+  if (auto cam = root.object("camera", Need::kRequired)) cameraFromJson(*cam, cal.camera);
+  if (auto las = root.object("laser", Need::kRequired)) laserFromJson(*las, cal.laser);
+  if (auto q = root.object("quality")) readQuality(*q, cal.quality);
+  root.finish();
+  return errors.status();
+}
+
+OrderedJson cameraToJson(const CameraIntrinsics& c) {
+  return {{"width_px", c.widthPx}, {"height_px", c.heightPx}, {"fx_px", c.fxPx},   {"fy_px", c.fyPx},
+          {"cx_px", c.cxPx},       {"cy_px", c.cyPx},         {"distortion", c.distortion}};
+}
+
+OrderedJson laserToJson(const LaserGeometry& l) {
+  return {{"plane_normal", {l.planeNormal.x(), l.planeNormal.y(), l.planeNormal.z()}},
+          {"plane_offset_mm", l.planeOffsetMm},
+          {"slide_axis", {l.slideAxis.x(), l.slideAxis.y(), l.slideAxis.z()}},
+          {"slide_scale", l.slideScale}};
+}
+
+OrderedJson calibrationToJson(const Calibration& cal) {
+  OrderedJson q;
+  const CalibrationQuality& cq = cal.quality;
+  q["reprojection_rms_px"] = cq.reprojectionRmsPx;
+  for (const auto& f : kQualityCounts) q[f.key] = cq.*f.field;
+  for (const auto& f : kQualityNumbers) q[f.key] = cq.*f.field;
+  q["gate"] = gateName(cq.gate);
+  q["from_truth"] = cq.fromTruth;
+  return {{"format", kCalibrationFormat},
+          {"camera", cameraToJson(cal.camera)},
+          {"laser", laserToJson(cal.laser)},
+          {"quality", std::move(q)}};
+}
+
+std::string calibrationJson(const Calibration& cal) { return jsonText(calibrationToJson(cal)); }
+
+Result<Calibration> loadCalibration(const std::string& path) {
+  Result<Json> file = readJsonFile(path, "calibration file", kCalibrationMaxBytes);
+  if (!file) return file.status();
+  Calibration cal;
+  if (Status s = calibrationFromJson(*file, cal); !s) return s;
+  if (cal.quality.gate == CalibrationQuality::Gate::kRefused)
+    return fieldError("quality.gate", "is \"refused\": the quality gate rejected this calibration");
+  if (Status s = validateCalibration(cal); !s) return s;
+  return cal;
 }
 
 Status writeFileAtomically(const std::string& path, const std::string& text) {

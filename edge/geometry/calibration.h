@@ -13,6 +13,7 @@
 #include <cstdint>
 #include <string>
 
+#include "common/json_file.h"
 #include "common/result.h"
 
 namespace alacs::geometry {
@@ -88,8 +89,22 @@ struct Calibration {
 };
 
 inline constexpr const char* kCalibrationFormat = "alacs-calibration/1";
+inline constexpr size_t kCalibrationMaxBytes = 1 << 20;
 
-// Reads and validates calibration.json. Every error names the offending field.
+// The calibration schema (docs/calibration.md), shared by calibration.json and the
+// simulator's scene. The readers record errors in the reader's JsonErrors and check
+// types and presence (every field required), not ranges: validateCalibration does that.
+void cameraFromJson(JsonObjectReader& camera, CameraIntrinsics& out);
+void laserFromJson(JsonObjectReader& laser, LaserGeometry& out);
+// The whole file: "format", "camera", "laser" and the optional "quality". A "refused"
+// gate is read as such; loadCalibration refuses it. Errors: kBadInput naming the field.
+Status calibrationFromJson(const Json& json, Calibration& out);
+OrderedJson cameraToJson(const CameraIntrinsics& camera);
+OrderedJson laserToJson(const LaserGeometry& laser);
+OrderedJson calibrationToJson(const Calibration& cal);
+
+// Reads (a regular file of at most kCalibrationMaxBytes) and validates calibration.json.
+// Every error names the offending field.
 Result<Calibration> loadCalibration(const std::string& path);
 // Writes calibration.json atomically (temp file in the same directory, fsync, rename):
 // a reader sees the old file or the whole new one. Refuses an invalid calibration.

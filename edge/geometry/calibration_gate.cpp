@@ -1,8 +1,7 @@
 #include "geometry/calibration_gate.h"
 
-#include <opencv2/core.hpp>
-
 #include <cmath>
+#include <locale>
 #include <sstream>
 
 #include "common/json_file.h"
@@ -57,11 +56,9 @@ GateVerdict checkCalibrationQuality(const CalibrationQuality& q, const Calibrati
   return v;
 }
 
-Result<CalibrationLimits> CalibrationLimits::load(const std::string& path) {
-  Result<cv::FileStorage> file = openJsonFile(path, "calibration limits file");
-  if (!file) return file.status();
-  const cv::FileNode root = file->root();
-  CalibrationLimits l;
+Status CalibrationLimits::fromJson(const Json& json, CalibrationLimits& l) {
+  JsonErrors errors("limits");
+  JsonObjectReader root(errors, &json, "");
   struct Num { const char* key; double* out; };
   const Num nums[] = {
       {"max_reprojection_rms_px", &l.maxReprojectionRmsPx}, {"max_focal_sigma_px", &l.maxFocalSigmaPx},
@@ -73,24 +70,40 @@ Result<CalibrationLimits> CalibrationLimits::load(const std::string& path) {
       {"max_depth_sigma_total_mm_at_1000", &l.maxDepthSigmaTotalMmAt1000},
       {"max_depth_sigma_total_mm_at_1600", &l.maxDepthSigmaTotalMmAt1600},
   };
-  for (const auto& f : nums) {
-    const cv::FileNode n = root[f.key];
-    if (n.empty()) continue;
-    if ((!n.isReal() && !n.isInt()) || !std::isfinite(n.real()) || n.real() < 0.0)
-      return Status(Error::kBadInput, std::string("limits key '") + f.key + "' must be a non-negative number");
-    *f.out = n.real();
-  }
+  for (const auto& f : nums) root.number(f.key, *f.out, Need::kOptional, 0.0, 1e9);
   struct Int { const char* key; int* out; };
   const Int ints[] = {{"min_camera_views", &l.minCameraViews},
                       {"min_target_placements", &l.minTargetPlacements},
                       {"min_slide_positions", &l.minSlidePositions}};
-  for (const auto& f : ints) {
-    const cv::FileNode n = root[f.key];
-    if (n.empty()) continue;
-    if (!n.isInt() || static_cast<int>(n) < 0)
-      return Status(Error::kBadInput, std::string("limits key '") + f.key + "' must be a non-negative integer");
-    *f.out = static_cast<int>(n);
-  }
+  for (const auto& f : ints) root.integer(f.key, *f.out, Need::kOptional, 0, 1000000);
+  root.finish();
+  return errors.status();
+}
+
+OrderedJson CalibrationLimits::toJson() const {
+  return {{"max_reprojection_rms_px", maxReprojectionRmsPx},
+          {"min_camera_views", minCameraViews},
+          {"max_focal_sigma_px", maxFocalSigmaPx},
+          {"max_principal_sigma_px", maxPrincipalSigmaPx},
+          {"max_laser_rms_px", maxLaserRmsPx},
+          {"max_plane_rms_mm", maxPlaneRmsMm},
+          {"min_inlier_share", minInlierShare},
+          {"min_target_placements", minTargetPlacements},
+          {"min_slide_positions", minSlidePositions},
+          {"max_normal_sigma_mrad", maxNormalSigmaMrad},
+          {"max_offset_sigma_mm", maxOffsetSigmaMm},
+          {"max_scale_sigma", maxScaleSigma},
+          {"max_depth_sigma_mm_at_1000", maxDepthSigmaMmAt1000},
+          {"max_depth_sigma_mm_at_1600", maxDepthSigmaMmAt1600},
+          {"max_depth_sigma_total_mm_at_1000", maxDepthSigmaTotalMmAt1000},
+          {"max_depth_sigma_total_mm_at_1600", maxDepthSigmaTotalMmAt1600}};
+}
+
+Result<CalibrationLimits> CalibrationLimits::load(const std::string& path) {
+  Result<Json> file = readJsonFile(path, "calibration limits file", kCalibrationMaxBytes);
+  if (!file) return file.status();
+  CalibrationLimits l;
+  if (Status s = fromJson(*file, l); !s) return s;
   return l;
 }
 

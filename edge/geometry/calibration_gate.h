@@ -33,9 +33,12 @@ struct CalibrationLimits {
   double maxDepthSigmaTotalMmAt1000 = 1.0;
   double maxDepthSigmaTotalMmAt1600 = 1.6;
 
-  // Reads limits from a JSON object; keys as in docs/calibration.md, missing keys keep
-  // the defaults. Errors name the key.
+  // Reads limits from a JSON object file; keys as in docs/calibration.md, missing keys
+  // keep the defaults. Errors name the key.
   static Result<CalibrationLimits> load(const std::string& path);
+  // Overrides the limits present in `json`; unknown keys are refused. Errors: kBadInput.
+  static Status fromJson(const Json& json, CalibrationLimits& limits);
+  OrderedJson toJson() const;
 };
 
 struct GateVerdict {

@@ -6,7 +6,7 @@
 #include <cmath>
 #include <cstdio>
 #include <cstring>
-#include <fstream>
+#include <limits>
 #include <opencv2/imgproc.hpp>
 #include <sstream>
 
@@ -17,52 +17,47 @@ namespace alacs::replay {
 
 namespace {
 
-Status fieldError(const std::string& dir, const std::string& field, const std::string& what) {
-  return {Error::kBadInput, "scan '" + dir + "': manifest field '" + field + "' " + what};
-}
+constexpr size_t kMaxFrames = 100000;
+constexpr size_t kMaxStops = 1000;
 
-bool isNumber(const cv::FileNode& n) { return n.isReal() || n.isInt(); }
-
-Result<std::optional<image::Roi>> readRoi(const std::string& dir, const cv::FileNode& n, const std::string& field) {
-  if (n.empty() || n.isNone()) return std::optional<image::Roi>{};
-  if (!n.isSeq() || n.size() != 4) return fieldError(dir, field, "must be [x, y, width, height]");
-  int v[4];
-  for (int i = 0; i < 4; ++i) {
-    if (!n[i].isInt()) return fieldError(dir, field, "must hold integers");
-    v[i] = static_cast<int>(n[i]);
+// A rectangle [x, y, width, height] of non-negative integers with a non-empty area.
+std::optional<image::Roi> readRoi(JsonObjectReader& r, std::string_view key) {
+  std::array<int64_t, 4> v{};
+  if (!r.integers(key, v, 0, std::numeric_limits<int>::max())) return std::nullopt;
+  if (v[2] <= 0 || v[3] <= 0) {
+    r.fail(key, "must be a non-empty rectangle [x, y, width, height]");
+    return std::nullopt;
   }
-  if (v[2] <= 0 || v[3] <= 0 || v[0] < 0 || v[1] < 0) return fieldError(dir, field, "must be a non-empty rectangle");
-  return std::optional<image::Roi>(image::Roi{v[0], v[1], v[2], v[3]});
+  return image::Roi{static_cast<int>(v[0]), static_cast<int>(v[1]), static_cast<int>(v[2]), static_cast<int>(v[3])};
 }
 
-std::string jsonString(const std::string& s) {
-  std::string o = "\"";
-  for (char c : s) {
-    if (c == '"' || c == '\\') {
-      o += '\\';
-      o += c;
-    } else if (c == '\n') {
-      o += "\\n";
-    } else if (static_cast<unsigned char>(c) < 0x20) {
-      o += ' ';
-    } else {
-      o += c;
-    }
+// Whether `roi` lies inside a width × height frame, in 64-bit so that x + width cannot
+// overflow.
+bool insideFrame(const image::Roi& roi, int widthPx, int heightPx) {
+  return int64_t{roi.x} + roi.width <= widthPx && int64_t{roi.y} + roi.height <= heightPx;
+}
+
+OrderedJson roiJson(const image::Roi& r) { return OrderedJson::array({r.x, r.y, r.width, r.height}); }
+
+void readFrame(JsonObjectReader& f, const ScanInfo& s, size_t i, FrameRecord& r) {
+  r.index = static_cast<int>(i);
+  f.integer("index", r.index, Need::kOptional, 0, std::numeric_limits<int>::max());
+  if (f.text("file", r.file, Need::kRequired, 1024) &&
+      (r.file.empty() || r.file[0] == '/' || r.file.find("..") != std::string::npos))
+    f.fail("file", "must be a path inside the scan directory");
+  f.number("slide_mm", r.slideMm, Need::kRequired);
+  f.number("slide_start_mm", r.slideStartMm);
+  f.number("slide_end_mm", r.slideEndMm);
+  f.number("timestamp_s", r.timestampS, Need::kRequired);
+  f.integer("exposure_us", r.exposureUs, Need::kRequired, 1, 100000000);
+  f.flag("laser_on", r.laserOn, Need::kRequired);
+  if (f.has("crop_px")) {
+    r.cropPx = readRoi(f, "crop_px");
+    if (r.cropPx && !insideFrame(*r.cropPx, s.widthPx, s.heightPx)) f.fail("crop_px", "leaves the frame");
   }
-  return o + "\"";
-}
-
-std::string roiJson(const image::Roi& r) {
-  // snprintf, not string concatenation: GCC 12 at -O3 warns (-Wrestrict) on the latter.
-  char buf[64];
-  std::snprintf(buf, sizeof buf, "[%d, %d, %d, %d]", r.x, r.y, r.width, r.height);
-  return buf;
-}
-
-std::string num(double v, const char* fmt = "%.10g") {
-  char buf[64];
-  std::snprintf(buf, sizeof buf, fmt, v);
-  return buf;
+  f.text("truth", r.truthFile, Need::kOptional, 1024);
+  f.text("tag", r.tag, Need::kOptional, 256);
+  f.finish();
 }
 
 }  // namespace
@@ -82,125 +77,91 @@ Status makeDirectories(const std::string& path) {
   return Status::ok();
 }
 
-Result<ScanManifest> readManifest(const std::string& dir) {
-  Result<cv::FileStorage> file = openJsonFile(dir + "/manifest.json", "scan manifest");
-  if (!file) return file.status();
-  const cv::FileNode root = file->root();
-  const cv::FileNode fmt = root["format"];
-  if (!fmt.isString() || static_cast<std::string>(fmt) != kScanFormat)
-    return fieldError(dir, "format", std::string("must be \"") + kScanFormat + "\"");
-  ScanManifest m;
-  const cv::FileNode scan = root["scan"];
-  if (!scan.isMap()) return fieldError(dir, "scan", "is missing");
+Status manifestFromJson(const Json& json, ScanManifest& m) {
+  JsonErrors errors("manifest");
+  JsonObjectReader root(errors, &json, "");
+  std::string format;
+  if (root.text("format", format, Need::kRequired) && format != kScanFormat)
+    root.fail("format", std::string("must be \"") + kScanFormat + "\"");
   ScanInfo& s = m.scan;
-  if (scan["kind"].isString()) s.kind = static_cast<std::string>(scan["kind"]);
-  if (scan["source"].isString()) s.source = static_cast<std::string>(scan["source"]);
-  if (!scan["width_px"].isInt() || !scan["height_px"].isInt()) return fieldError(dir, "scan.width_px", "and height_px must be integers");
-  s.widthPx = static_cast<int>(scan["width_px"]);
-  s.heightPx = static_cast<int>(scan["height_px"]);
-  if (s.widthPx < 16 || s.heightPx < 16 || s.widthPx > 16384 || s.heightPx > 16384)
-    return fieldError(dir, "scan.width_px", "must be in 16..16384");
-  if (scan["pixel_format"].isString()) s.pixelFormat = static_cast<std::string>(scan["pixel_format"]);
-  if (s.pixelFormat != "bgr8") return fieldError(dir, "scan.pixel_format", "must be \"bgr8\"");
-  if (scan["target_id"].isInt()) s.targetId = static_cast<int>(scan["target_id"]);
-  const cv::FileNode rough = scan["rough_mm"];
-  if (!rough.empty() && !rough.isNone()) {
-    if (!rough.isSeq() || rough.size() != 3 || !isNumber(rough[0]) || !isNumber(rough[1]) || !isNumber(rough[2]))
-      return fieldError(dir, "scan.rough_mm", "must be an array of 3 numbers");
-    s.roughMm = Eigen::Vector3d(rough[0].real(), rough[1].real(), rough[2].real());
+  if (auto scan = root.object("scan", Need::kRequired)) {
+    scan->text("kind", s.kind, Need::kOptional, 64);
+    scan->text("source", s.source, Need::kOptional, 256);
+    scan->integer("width_px", s.widthPx, Need::kRequired, 16, 16384);
+    scan->integer("height_px", s.heightPx, Need::kRequired, 16, 16384);
+    if (scan->text("pixel_format", s.pixelFormat, Need::kOptional, 64) && s.pixelFormat != "bgr8")
+      scan->fail("pixel_format", "must be \"bgr8\"");
+    scan->integer("target_id", s.targetId);
+    if (scan->has("rough_mm")) {
+      std::array<double, 3> v{};
+      if (scan->numbers("rough_mm", v)) s.roughMm = Eigen::Vector3d(v[0], v[1], v[2]);
+    }
+    scan->numberList("stops_mm", s.stopsMm, kMaxStops);
+    if (scan->has("roi_px")) s.roiPx = readRoi(*scan, "roi_px");
+    scan->text("calibration", s.calibrationFile, Need::kOptional, 1024);
+    scan->text("truth", s.truthFile, Need::kOptional, 1024);
+    scan->text("note", s.note, Need::kOptional, 65536);
+    scan->finish();
   }
-  const cv::FileNode stops = scan["stops_mm"];
-  if (stops.isSeq())
-    for (int i = 0; i < static_cast<int>(stops.size()); ++i) s.stopsMm.push_back(stops[i].real());
-  Result<std::optional<image::Roi>> roi = readRoi(dir, scan["roi_px"], "scan.roi_px");
-  if (!roi) return roi.status();
-  s.roiPx = *roi;
-  if (scan["calibration"].isString()) s.calibrationFile = static_cast<std::string>(scan["calibration"]);
-  if (scan["truth"].isString()) s.truthFile = static_cast<std::string>(scan["truth"]);
-  if (scan["note"].isString()) s.note = static_cast<std::string>(scan["note"]);
+  if (const Json* frames = root.array("frames", kMaxFrames, Need::kRequired); frames != nullptr && errors.ok()) {
+    m.frames.reserve(frames->size());
+    for (size_t i = 0; i < frames->size() && errors.ok(); ++i) {
+      JsonObjectReader f = root.element("frames", *frames, i);
+      FrameRecord r;
+      if (f.ok()) readFrame(f, s, i, r);
+      m.frames.push_back(std::move(r));
+    }
+  }
+  root.finish();
+  return errors.status();
+}
 
-  const cv::FileNode frames = root["frames"];
-  if (!frames.isSeq()) return fieldError(dir, "frames", "must be an array");
-  for (int i = 0; i < static_cast<int>(frames.size()); ++i) {
-    const cv::FileNode f = frames[i];
-    const std::string w = "frames[" + std::to_string(i) + "]";
-    FrameRecord r;
-    r.index = f["index"].isInt() ? static_cast<int>(f["index"]) : i;
-    if (!f["file"].isString()) return fieldError(dir, w + ".file", "is missing");
-    r.file = static_cast<std::string>(f["file"]);
-    if (r.file.empty() || r.file[0] == '/' || r.file.find("..") != std::string::npos)
-      return fieldError(dir, w + ".file", "must be a path inside the scan directory");
-    if (!isNumber(f["slide_mm"])) return fieldError(dir, w + ".slide_mm", "must be a number");
-    r.slideMm = f["slide_mm"].real();
-    if (!std::isfinite(r.slideMm)) return fieldError(dir, w + ".slide_mm", "must be finite");
-    if (isNumber(f["slide_start_mm"])) r.slideStartMm = f["slide_start_mm"].real();
-    if (isNumber(f["slide_end_mm"])) r.slideEndMm = f["slide_end_mm"].real();
-    if (!isNumber(f["timestamp_s"])) return fieldError(dir, w + ".timestamp_s", "must be a number");
-    r.timestampS = f["timestamp_s"].real();
-    if (!f["exposure_us"].isInt() || static_cast<int>(f["exposure_us"]) <= 0)
-      return fieldError(dir, w + ".exposure_us", "must be a positive integer");
-    r.exposureUs = static_cast<int>(f["exposure_us"]);
-    if (!f["laser_on"].isInt()) return fieldError(dir, w + ".laser_on", "must be true or false");
-    r.laserOn = static_cast<int>(f["laser_on"]) != 0;
-    Result<std::optional<image::Roi>> crop = readRoi(dir, f["crop_px"], w + ".crop_px");
-    if (!crop) return crop.status();
-    r.cropPx = *crop;
-    if (r.cropPx && (r.cropPx->x + r.cropPx->width > s.widthPx || r.cropPx->y + r.cropPx->height > s.heightPx))
-      return fieldError(dir, w + ".crop_px", "leaves the frame");
-    if (f["truth"].isString()) r.truthFile = static_cast<std::string>(f["truth"]);
-    if (f["tag"].isString()) r.tag = static_cast<std::string>(f["tag"]);
-    m.frames.push_back(r);
-  }
+Result<ScanManifest> readManifest(const std::string& dir) {
+  Result<Json> file = readJsonFile(dir + "/manifest.json", "scan manifest", kManifestMaxBytes);
+  if (!file) return file.status();
+  ScanManifest m;
+  if (Status s = manifestFromJson(*file, m); !s) return Status(s.code(), "scan '" + dir + "': " + s.reason());
   return m;
 }
 
-std::string manifestJson(const ScanManifest& m) {
+OrderedJson manifestToJson(const ScanManifest& m) {
   const ScanInfo& s = m.scan;
-  std::ostringstream o;
-  o << "{\n  \"format\": \"" << kScanFormat << "\",\n  \"scan\": {\n";
-  o << "    \"kind\": " << jsonString(s.kind) << ",\n    \"source\": " << jsonString(s.source) << ",\n";
-  o << "    \"width_px\": " << s.widthPx << ", \"height_px\": " << s.heightPx
-    << ", \"pixel_format\": " << jsonString(s.pixelFormat) << ",\n";
-  o << "    \"target_id\": " << s.targetId << ",\n";
-  if (s.roughMm)
-    o << "    \"rough_mm\": [" << num(s.roughMm->x()) << ", " << num(s.roughMm->y()) << ", " << num(s.roughMm->z())
-      << "],\n";
-  o << "    \"stops_mm\": [";
-  for (size_t i = 0; i < s.stopsMm.size(); ++i) o << (i ? ", " : "") << num(s.stopsMm[i]);
-  o << "],\n";
-  if (s.roiPx) o << "    \"roi_px\": " << roiJson(*s.roiPx) << ",\n";
-  if (!s.truthFile.empty()) o << "    \"truth\": " << jsonString(s.truthFile) << ",\n";
-  if (!s.note.empty()) o << "    \"note\": " << jsonString(s.note) << ",\n";
-  o << "    \"calibration\": " << jsonString(s.calibrationFile) << "\n  },\n  \"frames\": [";
-  for (size_t i = 0; i < m.frames.size(); ++i) {
-    const FrameRecord& f = m.frames[i];
-    o << (i ? ",\n" : "\n") << "    {\"index\": " << f.index << ", \"file\": " << jsonString(f.file)
-      << ", \"slide_mm\": " << num(f.slideMm, "%.6f");
-    if (std::isfinite(f.slideStartMm)) o << ", \"slide_start_mm\": " << num(f.slideStartMm, "%.6f");
-    if (std::isfinite(f.slideEndMm)) o << ", \"slide_end_mm\": " << num(f.slideEndMm, "%.6f");
-    o << ", \"timestamp_s\": " << num(f.timestampS, "%.9f") << ", \"exposure_us\": " << f.exposureUs
-      << ", \"laser_on\": " << (f.laserOn ? "true" : "false");
-    if (f.cropPx) o << ", \"crop_px\": " << roiJson(*f.cropPx);
-    if (!f.truthFile.empty()) o << ", \"truth\": " << jsonString(f.truthFile);
-    if (!f.tag.empty()) o << ", \"tag\": " << jsonString(f.tag);
-    o << "}";
+  OrderedJson scan;
+  scan["kind"] = s.kind;
+  scan["source"] = s.source;
+  scan["width_px"] = s.widthPx;
+  scan["height_px"] = s.heightPx;
+  scan["pixel_format"] = s.pixelFormat;
+  scan["target_id"] = s.targetId;
+  if (s.roughMm) scan["rough_mm"] = {s.roughMm->x(), s.roughMm->y(), s.roughMm->z()};
+  scan["stops_mm"] = s.stopsMm;
+  if (s.roiPx) scan["roi_px"] = roiJson(*s.roiPx);
+  if (!s.truthFile.empty()) scan["truth"] = s.truthFile;
+  if (!s.note.empty()) scan["note"] = s.note;
+  scan["calibration"] = s.calibrationFile;
+  OrderedJson frames = OrderedJson::array();
+  for (const FrameRecord& f : m.frames) {
+    OrderedJson o;
+    o["index"] = f.index;
+    o["file"] = f.file;
+    o["slide_mm"] = f.slideMm;
+    if (std::isfinite(f.slideStartMm)) o["slide_start_mm"] = f.slideStartMm;
+    if (std::isfinite(f.slideEndMm)) o["slide_end_mm"] = f.slideEndMm;
+    o["timestamp_s"] = f.timestampS;
+    o["exposure_us"] = f.exposureUs;
+    o["laser_on"] = f.laserOn;
+    if (f.cropPx) o["crop_px"] = roiJson(*f.cropPx);
+    if (!f.truthFile.empty()) o["truth"] = f.truthFile;
+    if (!f.tag.empty()) o["tag"] = f.tag;
+    frames.push_back(std::move(o));
   }
-  o << (m.frames.empty() ? "]\n}\n" : "\n  ]\n}\n");
-  return o.str();
+  return {{"format", kScanFormat}, {"scan", std::move(scan)}, {"frames", std::move(frames)}};
 }
 
+std::string manifestJson(const ScanManifest& m) { return jsonText(manifestToJson(m)); }
+
 Status writeManifest(const std::string& dir, const ScanManifest& m) {
-  const std::string path = dir + "/manifest.json";
-  const std::string tmp = path + ".tmp";
-  {
-    std::ofstream out(tmp, std::ios::trunc);
-    if (!out) return {Error::kIo, "cannot write '" + tmp + "'"};
-    out << manifestJson(m);
-    out.flush();
-    if (!out) return {Error::kIo, "cannot write '" + tmp + "'"};
-  }
-  if (std::rename(tmp.c_str(), path.c_str()) != 0) return {Error::kIo, "cannot rename to '" + path + "'"};
-  return Status::ok();
+  return geometry::writeFileAtomically(dir + "/manifest.json", manifestJson(m));
 }
 
 Status loadFrameInto(const std::string& dir, const ScanManifest& m, const FrameRecord& f, cv::Mat& out) {
@@ -212,7 +173,8 @@ Status loadFrameInto(const std::string& dir, const ScanManifest& m, const FrameR
   cv::Mat dst = out;
   if (f.cropPx) {
     const cv::Rect crop(f.cropPx->x, f.cropPx->y, f.cropPx->width, f.cropPx->height);
-    if ((crop & cv::Rect(0, 0, m.scan.widthPx, m.scan.heightPx)) != crop)
+    if (crop.x < 0 || crop.y < 0 || crop.width <= 0 || crop.height <= 0 ||
+        !insideFrame(*f.cropPx, m.scan.widthPx, m.scan.heightPx))
       return {Error::kBadInput, "frame '" + path + "': crop_px leaves the frame"};
     out.setTo(cv::Scalar::all(0));
     dst = out(crop);

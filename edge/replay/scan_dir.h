@@ -54,8 +54,13 @@ struct ScanManifest {
   std::vector<FrameRecord> frames;
 };
 
-// Reads and checks DIR/manifest.json. Errors: kNotFound, kBadInput naming the field.
+inline constexpr size_t kManifestMaxBytes = size_t{64} << 20;
+// Reads and checks DIR/manifest.json (a regular file of at most kManifestMaxBytes).
+// Errors: kNotFound, kBadInput naming the field.
 Result<ScanManifest> readManifest(const std::string& dir);
+// Reads the manifest's fields; unknown keys are refused. Errors: kBadInput naming the field.
+Status manifestFromJson(const Json& json, ScanManifest& manifest);
+OrderedJson manifestToJson(const ScanManifest& manifest);
 std::string manifestJson(const ScanManifest& manifest);
 // Writes DIR/manifest.json atomically.
 Status writeManifest(const std::string& dir, const ScanManifest& manifest);

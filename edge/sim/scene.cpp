@@ -1,13 +1,11 @@
 #include "sim/scene.h"
 
-#include <opencv2/core.hpp>
-
 #include <Eigen/Geometry>
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <cstdio>
 #include <fstream>
-#include <sstream>
 
 #include "common/json_file.h"
 
@@ -190,291 +188,302 @@ Eigen::Vector2d projectPx(const geometry::CameraIntrinsics& cam, const Eigen::Ve
 
 namespace {
 
-struct Reader {
-  std::string error;
-  double num(const cv::FileNode& n, const char* key, double fallback, const std::string& where) {
-    const cv::FileNode v = n[key];
-    if (v.empty() || v.isNone()) return fallback;
-    if (!v.isReal() && !v.isInt()) {
-      if (error.empty()) error = where + "." + key + " is not a number";
-      return fallback;
-    }
-    return v.real();
-  }
-  Eigen::Vector3d vec3(const cv::FileNode& n, const char* key, const Eigen::Vector3d& fallback, const std::string& where) {
-    const cv::FileNode v = n[key];
-    if (v.empty() || v.isNone()) return fallback;
-    if (!v.isSeq() || v.size() != 3 || !(v[0].isReal() || v[0].isInt()) || !(v[1].isReal() || v[1].isInt()) ||
-        !(v[2].isReal() || v[2].isInt())) {
-      if (error.empty()) error = where + "." + key + " must be an array of 3 numbers";
-      return fallback;
-    }
-    return {v[0].real(), v[1].real(), v[2].real()};
-  }
-  std::string str(const cv::FileNode& n, const char* key, const std::string& fallback) {
-    const cv::FileNode v = n[key];
-    return v.isString() ? static_cast<std::string>(v) : fallback;
-  }
-};
+constexpr size_t kMaxApples = 1000;
+constexpr size_t kMaxLeaves = 100000;
+constexpr size_t kMaxBranches = 10000;
 
-void readCalibration(Reader& r, const cv::FileNode& root, geometry::Calibration& cal) {
-  const cv::FileNode cam = root["camera"];
-  if (cam.isMap()) {
-    auto& c = cal.camera;
-    c.widthPx = static_cast<int>(r.num(cam, "width_px", c.widthPx, "camera"));
-    c.heightPx = static_cast<int>(r.num(cam, "height_px", c.heightPx, "camera"));
-    c.fxPx = r.num(cam, "fx_px", c.fxPx, "camera");
-    c.fyPx = r.num(cam, "fy_px", c.fyPx, "camera");
-    c.cxPx = r.num(cam, "cx_px", c.cxPx, "camera");
-    c.cyPx = r.num(cam, "cy_px", c.cyPx, "camera");
-    const cv::FileNode d = cam["distortion"];
-    if (d.isSeq() && d.size() == 5)
-      for (int i = 0; i < 5; ++i) c.distortion[static_cast<size_t>(i)] = d[i].real();
+void vec3(JsonObjectReader& r, std::string_view key, Eigen::Vector3d& out) {
+  std::array<double, 3> v{};
+  if (r.numbers(key, v)) out = {v[0], v[1], v[2]};
+}
+
+// A direction: normalized, refused when zero (or its normalization is not finite).
+void direction(JsonObjectReader& r, std::string_view key, Eigen::Vector3d& out) {
+  Eigen::Vector3d v = out;
+  vec3(r, key, v);
+  if (!(v.norm() > 1e-9) || !v.normalized().allFinite()) {
+    r.fail(key, "must be a non-zero vector");
+    return;
   }
-  const cv::FileNode las = root["laser_plane"];
-  if (las.isMap()) {
-    auto& l = cal.laser;
-    l.planeNormal = r.vec3(las, "plane_normal", l.planeNormal, "laser_plane");
-    l.planeOffsetMm = r.num(las, "plane_offset_mm", l.planeOffsetMm, "laser_plane");
-    l.slideAxis = r.vec3(las, "slide_axis", l.slideAxis, "laser_plane");
-    l.slideScale = r.num(las, "slide_scale", l.slideScale, "laser_plane");
+  out = v.normalized();
+}
+
+OrderedJson vec3Json(const Eigen::Vector3d& v) { return OrderedJson::array({v.x(), v.y(), v.z()}); }
+
+void readLaser(JsonObjectReader& r, SimLaser& l) {
+  vec3(r, "origin_at_home_mm", l.originAtHomeMm);
+  r.number("power_mw", l.powerMw);
+  r.number("fan_deg", l.fanDeg);
+  r.number("sheet_sigma_mrad", l.sheetSigmaMrad);
+  vec3(r, "channel_response", l.channelResponse);
+  r.number("halo_share", l.haloShare);
+  r.number("halo_length_mm", l.haloLengthMm);
+  r.number("speckle_contrast", l.speckleContrast);
+  r.number("speckle_cell_px", l.speckleCellPx);
+  r.finish();
+}
+
+void readSensor(JsonObjectReader& r, SimSensor& x) {
+  r.number("f_number", x.fNumber);
+  r.number("lens_transmission", x.lensTransmission);
+  r.number("electrons_per_lux_s", x.electronsPerLuxS);
+  r.number("electrons_per_watt_s", x.electronsPerWattS);
+  r.number("full_well_e", x.fullWellE);
+  r.number("read_noise_e", x.readNoiseE);
+  r.number("gain_db", x.gainDb);
+  r.number("prnu", x.prnu);
+  r.number("psf_sigma_px", x.psfSigmaPx);
+  r.flag("bayer", x.bayer);
+  r.flag("vignetting", x.vignetting);
+  r.integer("exposure_us", x.exposureUs, Need::kOptional, 1, 1000000);
+  r.number("bandpass_fwhm_nm", x.bandpassFwhmNm);
+  r.number("bandpass_peak", x.bandpassPeak);
+  r.number("bandpass_cwl_nm", x.bandpassCwlNm);
+  r.number("bandpass_neff", x.bandpassNeff);
+  r.finish();
+}
+
+void readLighting(JsonObjectReader& r, SimLighting& l) {
+  r.text("name", l.name, Need::kOptional, 256);
+  r.number("diffuse_lux", l.diffuseLux);
+  r.number("direct_lux", l.directLux);
+  direction(r, "direct_dir", l.directDir);
+  vec3(r, "sky_rgb", l.skyRgb);
+  r.number("sky_luminance_factor", l.skyLuminanceFactor);
+  r.finish();
+}
+
+void readBackground(JsonObjectReader& r, SimBackground& b) {
+  std::string kind;
+  if (r.text("kind", kind)) {
+    if (kind == "foliage") {
+      b.kind = SimBackground::Kind::kFoliage;
+    } else if (kind == "backdrop") {
+      b.kind = SimBackground::Kind::kBackdrop;
+    } else {
+      r.fail("kind", "must be \"foliage\" or \"backdrop\"");
+    }
   }
+  r.number("depth_mm", b.depthMm);
+  r.number("sky_share", b.skyShare);
+  vec3(r, "albedo_rgb", b.albedoRgb);
+  r.number("texture_cell_mm", b.textureCellMm);
+  r.finish();
+}
+
+void readApple(JsonObjectReader& r, SimApple& a) {
+  r.integer("id", a.id);
+  vec3(r, "center_mm", a.centerMm);
+  r.number("radius_mm", a.radiusMm);
+  r.number("aspect", a.aspect);
+  direction(r, "stem_axis", a.stemAxis);
+  r.allow("approach_mm");  // written for people and the evaluation; derived, never read back
+  vec3(r, "skin_rgb", a.skinRgb);
+  vec3(r, "ground_rgb", a.groundRgb);
+  r.number("blush", a.blush);
+  vec3(r, "blush_axis", a.blushAxis);
+  r.number("specular", a.specular);
+  r.number("shininess", a.shininess);
+  r.finish();
+}
+
+void readLeaf(JsonObjectReader& r, SimLeaf& l) {
+  vec3(r, "center_mm", l.centerMm);
+  direction(r, "normal", l.normal);
+  vec3(r, "axis", l.axis);
+  const Eigen::Vector3d along = l.axis - l.axis.dot(l.normal) * l.normal;
+  if (r.ok() && !(along.norm() > 1e-9 * std::max(1.0, l.axis.norm())))
+    r.fail("axis", "must not be parallel to the normal");
+  else
+    l.axis = along.normalized();
+  r.number("length_mm", l.lengthMm);
+  r.number("width_mm", l.widthMm);
+  vec3(r, "albedo_rgb", l.albedoRgb);
+  r.finish();
+}
+
+void readBranch(JsonObjectReader& r, SimBranch& b) {
+  vec3(r, "a_mm", b.aMm);
+  vec3(r, "b_mm", b.bMm);
+  r.number("radius_mm", b.radiusMm);
+  vec3(r, "albedo_rgb", b.albedoRgb);
+  r.finish();
+}
+
+void readBoard(JsonObjectReader& r, SimBoard& b) {
+  std::array<double, 9> rot{};
+  if (r.numbers("rotation", rot))
+    for (size_t i = 0; i < 9; ++i) b.rotation(static_cast<Eigen::Index>(i / 3), static_cast<Eigen::Index>(i % 3)) = rot[i];
+  vec3(r, "origin_mm", b.originMm);
+  r.integer("squares_x", b.squaresX, Need::kOptional, 2, 1000);
+  r.integer("squares_y", b.squaresY, Need::kOptional, 2, 1000);
+  r.number("square_mm", b.squareMm);
+  r.number("margin_mm", b.marginMm);
+  r.flag("checkerboard", b.checkerboard);
+  r.number("white_albedo", b.whiteAlbedo);
+  r.number("black_albedo", b.blackAlbedo);
+  r.finish();
+}
+
+// An array of objects at `key`, each read by `read` into a default T.
+template <typename T, typename Read>
+void readList(JsonObjectReader& root, const char* key, size_t maxCount, std::vector<T>& out, Read read) {
+  const Json* list = root.array(key, maxCount);
+  if (list == nullptr) return;
+  std::vector<T> items;
+  items.reserve(list->size());
+  for (size_t i = 0; i < list->size(); ++i) {
+    JsonObjectReader e = root.element(key, *list, i);
+    T item;
+    if (e.ok()) read(e, item, i);
+    items.push_back(item);
+  }
+  out = std::move(items);
 }
 
 }  // namespace
 
-Result<SimScene> loadScene(const std::string& path) {
-  Result<cv::FileStorage> file = openJsonFile(path, "scene file");
-  if (!file) return file.status();
-  cv::FileStorage& fs = *file;
-  SimScene s = defaultScene();
-  const cv::FileNode root = fs.root();
-  Reader r;
-  s.seed = static_cast<uint64_t>(r.num(root, "seed", static_cast<double>(s.seed), "scene"));
-  const bool hadPlane = root["laser_plane"].isMap();
-  readCalibration(r, root, s.truth);
-  const cv::FileNode las = root["laser"];
-  if (las.isMap()) {
-    auto& l = s.laser;
-    l.originAtHomeMm = r.vec3(las, "origin_at_home_mm", l.originAtHomeMm, "laser");
-    l.powerMw = r.num(las, "power_mw", l.powerMw, "laser");
-    l.fanDeg = r.num(las, "fan_deg", l.fanDeg, "laser");
-    l.sheetSigmaMrad = r.num(las, "sheet_sigma_mrad", l.sheetSigmaMrad, "laser");
-    l.channelResponse = r.vec3(las, "channel_response", l.channelResponse, "laser");
-    l.haloShare = r.num(las, "halo_share", l.haloShare, "laser");
-    l.haloLengthMm = r.num(las, "halo_length_mm", l.haloLengthMm, "laser");
-    l.speckleContrast = r.num(las, "speckle_contrast", l.speckleContrast, "laser");
-    l.speckleCellPx = r.num(las, "speckle_cell_px", l.speckleCellPx, "laser");
-  }
+Status sceneFromJson(const Json& json, SimScene& s) {
+  JsonErrors errors("scene");
+  JsonObjectReader root(errors, &json, "");
+  std::string format = "alacs-scene/1";
+  if (root.text("format", format) && format != "alacs-scene/1") root.fail("format", "must be \"alacs-scene/1\"");
+  root.unsignedInteger("seed", s.seed);
+  // The camera and the laser plane follow the calibration's schema (geometry's reader):
+  // when present, every field is required.
+  if (auto cam = root.object("camera")) geometry::cameraFromJson(*cam, s.truth.camera);
+  const bool hadPlane = root.has("laser_plane");
+  if (auto plane = root.object("laser_plane")) geometry::laserFromJson(*plane, s.truth.laser);
+  if (auto las = root.object("laser")) readLaser(*las, s.laser);
   if (!hadPlane) s.truth.laser.planeOffsetMm = s.truth.laser.planeNormal.dot(s.laser.originAtHomeMm);
-  const cv::FileNode sen = root["sensor"];
-  if (sen.isMap()) {
-    auto& x = s.sensor;
-    x.fNumber = r.num(sen, "f_number", x.fNumber, "sensor");
-    x.lensTransmission = r.num(sen, "lens_transmission", x.lensTransmission, "sensor");
-    x.electronsPerLuxS = r.num(sen, "electrons_per_lux_s", x.electronsPerLuxS, "sensor");
-    x.electronsPerWattS = r.num(sen, "electrons_per_watt_s", x.electronsPerWattS, "sensor");
-    x.fullWellE = r.num(sen, "full_well_e", x.fullWellE, "sensor");
-    x.readNoiseE = r.num(sen, "read_noise_e", x.readNoiseE, "sensor");
-    x.gainDb = r.num(sen, "gain_db", x.gainDb, "sensor");
-    x.prnu = r.num(sen, "prnu", x.prnu, "sensor");
-    x.psfSigmaPx = r.num(sen, "psf_sigma_px", x.psfSigmaPx, "sensor");
-    x.bayer = r.num(sen, "bayer", x.bayer ? 1 : 0, "sensor") != 0.0;
-    x.vignetting = r.num(sen, "vignetting", x.vignetting ? 1 : 0, "sensor") != 0.0;
-    x.exposureUs = static_cast<int64_t>(r.num(sen, "exposure_us", static_cast<double>(x.exposureUs), "sensor"));
-    x.bandpassFwhmNm = r.num(sen, "bandpass_fwhm_nm", x.bandpassFwhmNm, "sensor");
-    x.bandpassPeak = r.num(sen, "bandpass_peak", x.bandpassPeak, "sensor");
-    x.bandpassCwlNm = r.num(sen, "bandpass_cwl_nm", x.bandpassCwlNm, "sensor");
-    x.bandpassNeff = r.num(sen, "bandpass_neff", x.bandpassNeff, "sensor");
-  }
-  const cv::FileNode li = root["lighting"];
-  if (li.isMap()) {
-    auto& l = s.lighting;
-    l.name = r.str(li, "name", l.name);
-    l.diffuseLux = r.num(li, "diffuse_lux", l.diffuseLux, "lighting");
-    l.directLux = r.num(li, "direct_lux", l.directLux, "lighting");
-    l.directDir = r.vec3(li, "direct_dir", l.directDir, "lighting").normalized();
-    l.skyRgb = r.vec3(li, "sky_rgb", l.skyRgb, "lighting");
-    l.skyLuminanceFactor = r.num(li, "sky_luminance_factor", l.skyLuminanceFactor, "lighting");
-  }
-  const cv::FileNode bg = root["background"];
-  if (bg.isMap()) {
-    auto& b = s.background;
-    const std::string kind = r.str(bg, "kind", b.kind == SimBackground::Kind::kFoliage ? "foliage" : "backdrop");
-    if (kind != "foliage" && kind != "backdrop") return fieldError("background.kind", "must be \"foliage\" or \"backdrop\"");
-    b.kind = kind == "foliage" ? SimBackground::Kind::kFoliage : SimBackground::Kind::kBackdrop;
-    b.depthMm = r.num(bg, "depth_mm", b.depthMm, "background");
-    b.skyShare = r.num(bg, "sky_share", b.skyShare, "background");
-    b.albedoRgb = r.vec3(bg, "albedo_rgb", b.albedoRgb, "background");
-    b.textureCellMm = r.num(bg, "texture_cell_mm", b.textureCellMm, "background");
-  }
+  if (auto sen = root.object("sensor")) readSensor(*sen, s.sensor);
+  if (auto li = root.object("lighting")) readLighting(*li, s.lighting);
+  if (auto bg = root.object("background")) readBackground(*bg, s.background);
   // The first scene format had the wall's depth at the top level.
-  s.background.depthMm = r.num(root, "background_depth_mm", s.background.depthMm, "scene");
-  const cv::FileNode apples = root["apples"];
-  if (apples.isSeq()) {
-    s.apples.clear();
-    int id = 1;
-    for (auto it = apples.begin(); it != apples.end(); ++it, ++id) {
-      SimApple a;
-      const std::string w = "apples[" + std::to_string(id - 1) + "]";
-      a.id = static_cast<int>(r.num(*it, "id", id, w));
-      a.centerMm = r.vec3(*it, "center_mm", a.centerMm, w);
-      a.radiusMm = r.num(*it, "radius_mm", a.radiusMm, w);
-      a.aspect = r.num(*it, "aspect", a.aspect, w);
-      a.stemAxis = r.vec3(*it, "stem_axis", a.stemAxis, w).normalized();
-      a.skinRgb = r.vec3(*it, "skin_rgb", a.skinRgb, w);
-      a.groundRgb = r.vec3(*it, "ground_rgb", a.groundRgb, w);
-      a.blush = r.num(*it, "blush", a.blush, w);
-      a.blushAxis = r.vec3(*it, "blush_axis", a.blushAxis, w);
-      a.specular = r.num(*it, "specular", a.specular, w);
-      a.shininess = r.num(*it, "shininess", a.shininess, w);
-      s.apples.push_back(a);
-    }
-  }
-  const cv::FileNode leaves = root["leaves"];
-  if (leaves.isSeq()) {
-    int i = 0;
-    for (auto it = leaves.begin(); it != leaves.end(); ++it, ++i) {
-      SimLeaf l;
-      const std::string w = "leaves[" + std::to_string(i) + "]";
-      l.centerMm = r.vec3(*it, "center_mm", l.centerMm, w);
-      l.normal = r.vec3(*it, "normal", l.normal, w).normalized();
-      l.axis = r.vec3(*it, "axis", l.axis, w);
-      l.axis = (l.axis - l.axis.dot(l.normal) * l.normal).normalized();
-      l.lengthMm = r.num(*it, "length_mm", l.lengthMm, w);
-      l.widthMm = r.num(*it, "width_mm", l.widthMm, w);
-      l.albedoRgb = r.vec3(*it, "albedo_rgb", l.albedoRgb, w);
-      s.leaves.push_back(l);
-    }
-  }
-  const cv::FileNode branches = root["branches"];
-  if (branches.isSeq()) {
-    int i = 0;
-    for (auto it = branches.begin(); it != branches.end(); ++it, ++i) {
-      SimBranch b;
-      const std::string w = "branches[" + std::to_string(i) + "]";
-      b.aMm = r.vec3(*it, "a_mm", b.aMm, w);
-      b.bMm = r.vec3(*it, "b_mm", b.bMm, w);
-      b.radiusMm = r.num(*it, "radius_mm", b.radiusMm, w);
-      b.albedoRgb = r.vec3(*it, "albedo_rgb", b.albedoRgb, w);
-      s.branches.push_back(b);
-    }
-  }
-  const cv::FileNode board = root["board"];
-  if (board.isMap()) {
+  root.number("background_depth_mm", s.background.depthMm);
+  readList(root, "apples", kMaxApples, s.apples, [](JsonObjectReader& r, SimApple& a, size_t i) {
+    a.id = static_cast<int>(i) + 1;
+    readApple(r, a);
+  });
+  readList(root, "leaves", kMaxLeaves, s.leaves, [](JsonObjectReader& r, SimLeaf& l, size_t) { readLeaf(r, l); });
+  readList(root, "branches", kMaxBranches, s.branches,
+           [](JsonObjectReader& r, SimBranch& b, size_t) { readBranch(r, b); });
+  if (auto board = root.object("board")) {
     SimBoard b;
-    const cv::FileNode rot = board["rotation"];
-    if (rot.isSeq() && rot.size() == 9)
-      for (int i = 0; i < 9; ++i) b.rotation(i / 3, i % 3) = rot[i].real();
-    b.originMm = r.vec3(board, "origin_mm", b.originMm, "board");
-    b.squaresX = static_cast<int>(r.num(board, "squares_x", b.squaresX, "board"));
-    b.squaresY = static_cast<int>(r.num(board, "squares_y", b.squaresY, "board"));
-    b.squareMm = r.num(board, "square_mm", b.squareMm, "board");
-    b.marginMm = r.num(board, "margin_mm", b.marginMm, "board");
-    b.checkerboard = r.num(board, "checkerboard", b.checkerboard ? 1 : 0, "board") != 0.0;
-    b.whiteAlbedo = r.num(board, "white_albedo", b.whiteAlbedo, "board");
-    b.blackAlbedo = r.num(board, "black_albedo", b.blackAlbedo, "board");
+    readBoard(*board, b);
     s.board = b;
   }
-  if (!r.error.empty()) return Status(Error::kBadInput, "scene file '" + path + "': " + r.error);
+  root.finish();
+  return errors.status();
+}
+
+Result<SimScene> loadScene(const std::string& path) {
+  Result<Json> file = readJsonFile(path, "scene file", kSceneMaxBytes);
+  if (!file) return file.status();
+  SimScene s = defaultScene();
+  if (Status st = sceneFromJson(*file, s); !st) return Status(st.code(), "scene file '" + path + "': " + st.reason());
   if (Status st = s.validate(); !st) return st;
   return s;
 }
 
-namespace {
-std::string v3(const Eigen::Vector3d& v) {
-  char buf[128];
-  std::snprintf(buf, sizeof buf, "[%.10g, %.10g, %.10g]", v.x(), v.y(), v.z());
-  return buf;
-}
-}  // namespace
-
-std::string sceneJson(const SimScene& s) {
-  std::ostringstream o;
-  o.precision(10);
-  const auto& c = s.truth.camera;
-  const auto& l = s.truth.laser;
-  o << "{\n  \"format\": \"alacs-scene/1\",\n  \"seed\": " << s.seed << ",\n";
-  o << "  \"camera\": {\"width_px\": " << c.widthPx << ", \"height_px\": " << c.heightPx << ", \"fx_px\": " << c.fxPx
-    << ", \"fy_px\": " << c.fyPx << ", \"cx_px\": " << c.cxPx << ", \"cy_px\": " << c.cyPx << ", \"distortion\": ["
-    << c.distortion[0] << ", " << c.distortion[1] << ", " << c.distortion[2] << ", " << c.distortion[3] << ", "
-    << c.distortion[4] << "]},\n";
-  o.precision(14);
-  o << "  \"laser_plane\": {\"plane_normal\": " << v3(l.planeNormal) << ", \"plane_offset_mm\": " << l.planeOffsetMm
-    << ", \"slide_axis\": " << v3(l.slideAxis) << ", \"slide_scale\": " << l.slideScale << "},\n";
-  o.precision(10);
+OrderedJson sceneToJson(const SimScene& s) {
+  OrderedJson j;
+  j["format"] = "alacs-scene/1";
+  j["seed"] = s.seed;
+  j["camera"] = geometry::cameraToJson(s.truth.camera);
+  j["laser_plane"] = geometry::laserToJson(s.truth.laser);
   const auto& las = s.laser;
-  o << "  \"laser\": {\"origin_at_home_mm\": " << v3(las.originAtHomeMm) << ", \"power_mw\": " << las.powerMw
-    << ", \"fan_deg\": " << las.fanDeg << ", \"sheet_sigma_mrad\": " << las.sheetSigmaMrad
-    << ", \"channel_response\": " << v3(las.channelResponse) << ", \"halo_share\": " << las.haloShare
-    << ", \"halo_length_mm\": " << las.haloLengthMm << ", \"speckle_contrast\": " << las.speckleContrast
-    << ", \"speckle_cell_px\": " << las.speckleCellPx << "},\n";
+  j["laser"] = {{"origin_at_home_mm", vec3Json(las.originAtHomeMm)},
+                {"power_mw", las.powerMw},
+                {"fan_deg", las.fanDeg},
+                {"sheet_sigma_mrad", las.sheetSigmaMrad},
+                {"channel_response", vec3Json(las.channelResponse)},
+                {"halo_share", las.haloShare},
+                {"halo_length_mm", las.haloLengthMm},
+                {"speckle_contrast", las.speckleContrast},
+                {"speckle_cell_px", las.speckleCellPx}};
   const auto& x = s.sensor;
-  o << "  \"sensor\": {\"f_number\": " << x.fNumber << ", \"lens_transmission\": " << x.lensTransmission
-    << ", \"electrons_per_lux_s\": " << x.electronsPerLuxS << ", \"electrons_per_watt_s\": " << x.electronsPerWattS
-    << ", \"full_well_e\": " << x.fullWellE << ", \"read_noise_e\": " << x.readNoiseE << ", \"gain_db\": " << x.gainDb
-    << ", \"prnu\": " << x.prnu << ", \"psf_sigma_px\": " << x.psfSigmaPx << ", \"bayer\": " << (x.bayer ? 1 : 0)
-    << ", \"vignetting\": " << (x.vignetting ? 1 : 0) << ", \"exposure_us\": " << x.exposureUs
-    << ", \"bandpass_fwhm_nm\": " << x.bandpassFwhmNm << ", \"bandpass_peak\": " << x.bandpassPeak
-    << ", \"bandpass_cwl_nm\": " << x.bandpassCwlNm << ", \"bandpass_neff\": " << x.bandpassNeff << "},\n";
+  j["sensor"] = {{"f_number", x.fNumber},
+                 {"lens_transmission", x.lensTransmission},
+                 {"electrons_per_lux_s", x.electronsPerLuxS},
+                 {"electrons_per_watt_s", x.electronsPerWattS},
+                 {"full_well_e", x.fullWellE},
+                 {"read_noise_e", x.readNoiseE},
+                 {"gain_db", x.gainDb},
+                 {"prnu", x.prnu},
+                 {"psf_sigma_px", x.psfSigmaPx},
+                 {"bayer", x.bayer ? 1 : 0},
+                 {"vignetting", x.vignetting ? 1 : 0},
+                 {"exposure_us", x.exposureUs},
+                 {"bandpass_fwhm_nm", x.bandpassFwhmNm},
+                 {"bandpass_peak", x.bandpassPeak},
+                 {"bandpass_cwl_nm", x.bandpassCwlNm},
+                 {"bandpass_neff", x.bandpassNeff}};
   const auto& li = s.lighting;
-  o << "  \"lighting\": {\"name\": \"" << li.name << "\", \"diffuse_lux\": " << li.diffuseLux
-    << ", \"direct_lux\": " << li.directLux << ", \"direct_dir\": " << v3(li.directDir) << ", \"sky_rgb\": "
-    << v3(li.skyRgb) << ", \"sky_luminance_factor\": " << li.skyLuminanceFactor << "},\n";
+  j["lighting"] = {{"name", li.name},
+                   {"diffuse_lux", li.diffuseLux},
+                   {"direct_lux", li.directLux},
+                   {"direct_dir", vec3Json(li.directDir)},
+                   {"sky_rgb", vec3Json(li.skyRgb)},
+                   {"sky_luminance_factor", li.skyLuminanceFactor}};
   const auto& b = s.background;
-  o << "  \"background\": {\"kind\": \"" << (b.kind == SimBackground::Kind::kFoliage ? "foliage" : "backdrop")
-    << "\", \"depth_mm\": " << b.depthMm << ", \"sky_share\": " << b.skyShare << ", \"albedo_rgb\": " << v3(b.albedoRgb)
-    << ", \"texture_cell_mm\": " << b.textureCellMm << "},\n";
-  o << "  \"apples\": [";
-  for (size_t i = 0; i < s.apples.size(); ++i) {
-    const auto& a = s.apples[i];
-    o << (i ? ",\n" : "\n") << "    {\"id\": " << a.id << ", \"center_mm\": " << v3(a.centerMm)
-      << ", \"radius_mm\": " << a.radiusMm << ", \"aspect\": " << a.aspect << ", \"stem_axis\": " << v3(a.stemAxis)
-      << ", \"approach_mm\": " << v3(approachPoint(a))
-      << ", \"skin_rgb\": " << v3(a.skinRgb) << ", \"ground_rgb\": " << v3(a.groundRgb) << ", \"blush\": " << a.blush
-      << ", \"blush_axis\": " << v3(a.blushAxis) << ", \"specular\": " << a.specular << ", \"shininess\": "
-      << a.shininess << "}";
-  }
-  o << (s.apples.empty() ? "],\n" : "\n  ],\n");
-  o << "  \"leaves\": [";
-  for (size_t i = 0; i < s.leaves.size(); ++i) {
-    const auto& l2 = s.leaves[i];
-    o << (i ? ",\n" : "\n") << "    {\"center_mm\": " << v3(l2.centerMm) << ", \"normal\": " << v3(l2.normal)
-      << ", \"axis\": " << v3(l2.axis) << ", \"length_mm\": " << l2.lengthMm << ", \"width_mm\": " << l2.widthMm
-      << ", \"albedo_rgb\": " << v3(l2.albedoRgb) << "}";
-  }
-  o << (s.leaves.empty() ? "],\n" : "\n  ],\n");
-  o << "  \"branches\": [";
-  for (size_t i = 0; i < s.branches.size(); ++i) {
-    const auto& br = s.branches[i];
-    o << (i ? ",\n" : "\n") << "    {\"a_mm\": " << v3(br.aMm) << ", \"b_mm\": " << v3(br.bMm)
-      << ", \"radius_mm\": " << br.radiusMm << ", \"albedo_rgb\": " << v3(br.albedoRgb) << "}";
-  }
-  o << (s.branches.empty() ? "]" : "\n  ]");
+  j["background"] = {{"kind", b.kind == SimBackground::Kind::kFoliage ? "foliage" : "backdrop"},
+                     {"depth_mm", b.depthMm},
+                     {"sky_share", b.skyShare},
+                     {"albedo_rgb", vec3Json(b.albedoRgb)},
+                     {"texture_cell_mm", b.textureCellMm}};
+  OrderedJson apples = OrderedJson::array();
+  for (const auto& a : s.apples)
+    apples.push_back({{"id", a.id},
+                      {"center_mm", vec3Json(a.centerMm)},
+                      {"radius_mm", a.radiusMm},
+                      {"aspect", a.aspect},
+                      {"stem_axis", vec3Json(a.stemAxis)},
+                      {"approach_mm", vec3Json(approachPoint(a))},
+                      {"skin_rgb", vec3Json(a.skinRgb)},
+                      {"ground_rgb", vec3Json(a.groundRgb)},
+                      {"blush", a.blush},
+                      {"blush_axis", vec3Json(a.blushAxis)},
+                      {"specular", a.specular},
+                      {"shininess", a.shininess}});
+  j["apples"] = std::move(apples);
+  OrderedJson leaves = OrderedJson::array();
+  for (const auto& l : s.leaves)
+    leaves.push_back({{"center_mm", vec3Json(l.centerMm)},
+                      {"normal", vec3Json(l.normal)},
+                      {"axis", vec3Json(l.axis)},
+                      {"length_mm", l.lengthMm},
+                      {"width_mm", l.widthMm},
+                      {"albedo_rgb", vec3Json(l.albedoRgb)}});
+  j["leaves"] = std::move(leaves);
+  OrderedJson branches = OrderedJson::array();
+  for (const auto& br : s.branches)
+    branches.push_back({{"a_mm", vec3Json(br.aMm)},
+                        {"b_mm", vec3Json(br.bMm)},
+                        {"radius_mm", br.radiusMm},
+                        {"albedo_rgb", vec3Json(br.albedoRgb)}});
+  j["branches"] = std::move(branches);
   if (s.board) {
     const auto& bd = *s.board;
-    o << ",\n  \"board\": {\"rotation\": [";
-    for (int i = 0; i < 9; ++i) o << (i ? ", " : "") << bd.rotation(i / 3, i % 3);
-    o << "], \"origin_mm\": " << v3(bd.originMm) << ", \"squares_x\": " << bd.squaresX << ", \"squares_y\": "
-      << bd.squaresY << ", \"square_mm\": " << bd.squareMm << ", \"margin_mm\": " << bd.marginMm
-      << ", \"checkerboard\": " << (bd.checkerboard ? 1 : 0) << ", \"white_albedo\": " << bd.whiteAlbedo
-      << ", \"black_albedo\": " << bd.blackAlbedo << "}";
+    OrderedJson rot = OrderedJson::array();
+    for (int i = 0; i < 9; ++i) rot.push_back(bd.rotation(i / 3, i % 3));
+    j["board"] = {{"rotation", std::move(rot)},
+                  {"origin_mm", vec3Json(bd.originMm)},
+                  {"squares_x", bd.squaresX},
+                  {"squares_y", bd.squaresY},
+                  {"square_mm", bd.squareMm},
+                  {"margin_mm", bd.marginMm},
+                  {"checkerboard", bd.checkerboard ? 1 : 0},
+                  {"white_albedo", bd.whiteAlbedo},
+                  {"black_albedo", bd.blackAlbedo}};
   }
-  o << "\n}\n";
-  return o.str();
+  return j;
 }
 
+std::string sceneJson(const SimScene& s) { return jsonText(sceneToJson(s)); }
+
 Status saveScene(const SimScene& scene, const std::string& path) {
-  const std::string tmp = path + ".tmp";
-  {
-    std::ofstream out(tmp, std::ios::trunc);
-    if (!out) return {Error::kIo, "cannot write '" + tmp + "'"};
-    out << sceneJson(scene);
-    out.flush();
-    if (!out) return {Error::kIo, "cannot write '" + tmp + "'"};
-  }
-  if (std::rename(tmp.c_str(), path.c_str()) != 0) return {Error::kIo, "cannot rename to '" + path + "'"};
-  return Status::ok();
+  return geometry::writeFileAtomically(path, sceneJson(scene));
 }
 
 Status saveSceneTruth(const SimScene& scene, const std::string& path) { return saveScene(scene, path); }

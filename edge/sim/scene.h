@@ -157,8 +157,14 @@ SimScene defaultScene();
 
 // Loads a scene JSON (the format saveScene writes; docs/simulation.md). Missing keys
 // keep the defaults of defaultScene(). Errors: kNotFound, kBadInput naming the key.
+// A regular file of at most kSceneMaxBytes; unknown keys are refused; "camera" and
+// "laser_plane", when present, follow the calibration's schema with every field required.
 Result<SimScene> loadScene(const std::string& path);
-// Writes the whole scene (truth included) as JSON, loadable by loadScene.
+inline constexpr size_t kSceneMaxBytes = size_t{16} << 20;
+// Overrides the parts of `scene` present in `json` (no validate()). Errors: kBadInput.
+Status sceneFromJson(const Json& json, SimScene& scene);
+OrderedJson sceneToJson(const SimScene& scene);
+// Writes the whole scene (truth included) as JSON, loadable by loadScene, atomically.
 Status saveScene(const SimScene& scene, const std::string& path);
 std::string sceneJson(const SimScene& scene);
 // Kept for alacsd --sim-truth-out: the same file as saveScene.
