@@ -19,6 +19,7 @@ protocol::NodeConfig nodeConfigFor(const DaemonConfig& cfg, bool heartbeatByPort
   nc.heartbeatPeriodNs = cfg.heartbeatMs * kNsPerMs;
   nc.statusPeriodNs = cfg.statusPeriodMs * kNsPerMs;
   nc.heartbeatByPort = heartbeatByPort;
+  nc.autoStart = cfg.nmtAutoStart;
   return nc;
 }
 

@@ -39,9 +39,10 @@ struct AckSeen {
 };
 
 struct Rig {
-  explicit Rig(bool calibrated = true, bool cyclic = true)
+  explicit Rig(bool calibrated = true, bool cyclic = true, bool autoStart = true)
       : can(clock, cyclic), laser(laserLine, clock, 250 * kNsPerMs) {
     cfg.nodeId = kNode;
+    cfg.nmtAutoStart = autoStart;
     Result<geometry::Calibration> cal =
         calibrated ? Result<geometry::Calibration>(sim::defaultScene().truth)
                    : Result<geometry::Calibration>(Status(Error::kBadInput, "calibration.json: laser.plane_normal: missing"));
@@ -752,4 +753,25 @@ TEST_CASE("Sensor: every result that is not a measurement says why", "[app][sens
     CHECK(r.results()[0].result_reason == static_cast<uint8_t>(ResultReason::kNone));
     CHECK(r.results()[0].object_count == 1);
   }
+}
+
+TEST_CASE("Sensor: can.auto_start false waits in PRE-OPERATIONAL for NMT START; SDO is served meanwhile", "[app][sensor]") {
+  Rig r(true, true, false);
+  r.bootIdle();
+  CHECK(r.sensor->node().nmtState() == protocol::NmtState::kPreOperational);
+  CHECK(r.can.cyclicFrame().data[0] == 127);
+  CHECK(r.answer(r.localize(0, 0, 1100)).reason == NackReason::kNmtNotOperational);
+  ports::CanFrame sdo;
+  sdo.id = 0x600U + kNode;
+  sdo.dlc = 8;
+  sdo.data = {0x40, 0x17, 0x10, 0x00, 0, 0, 0, 0};  // upload 0x1017
+  r.receive(sdo);
+  REQUIRE(r.sentWithId(0x580U + kNode).size() == 1);
+  ports::CanFrame start;
+  start.dlc = 2;
+  start.data[0] = 0x01;
+  start.data[1] = kNode;
+  r.receive(start);
+  CHECK(r.can.cyclicFrame().data[0] == 5);
+  CHECK(r.answer(r.localize(0, 0, 1100)).result == protocol::AckResult::kAck);
 }
