@@ -194,6 +194,21 @@ void JsonErrors::other(const std::string& message) {
   if (status_.isOk()) status_ = Status(Error::kBadInput, what_ + ": " + message);
 }
 
+namespace {
+// An array element that must be a finite number; else the error is recorded at `where`.
+bool finiteNumberAt(JsonErrors& errors, const std::string& where, const Json& e) {
+  if (!e.is_number()) {
+    errors.field(where, std::string("wrong type (expected number, got ") + jsonTypeName(e) + ")");
+    return false;
+  }
+  if (!std::isfinite(e.get<double>())) {
+    errors.field(where, "must be finite");
+    return false;
+  }
+  return true;
+}
+}  // namespace
+
 JsonObjectReader::JsonObjectReader(JsonErrors& errors, const Json* value, std::string path)
     : errors_(errors), object_(value), path_(std::move(path)) {
   if (object_ != nullptr && !object_->is_object()) {
@@ -389,16 +404,7 @@ bool JsonObjectReader::numbers(std::string_view key, std::span<double> out, Need
     return false;
   }
   for (size_t i = 0; i < out.size(); ++i) {
-    const Json& e = (*v)[i];
-    const std::string where = pathOf(key) + "[" + std::to_string(i) + "]";
-    if (!e.is_number()) {
-      errors_.field(where, std::string("wrong type (expected number, got ") + jsonTypeName(e) + ")");
-      return false;
-    }
-    if (!std::isfinite(e.get<double>())) {
-      errors_.field(where, "must be finite");
-      return false;
-    }
+    if (!finiteNumberAt(errors_, pathOf(key) + "[" + std::to_string(i) + "]", (*v)[i])) return false;
   }
   for (size_t i = 0; i < out.size(); ++i) out[i] = (*v)[i].get<double>();
   return true;
@@ -410,17 +416,8 @@ bool JsonObjectReader::numberList(std::string_view key, std::vector<double>& out
   std::vector<double> values;
   values.reserve(v->size());
   for (size_t i = 0; i < v->size(); ++i) {
-    const Json& e = (*v)[i];
-    const std::string where = pathOf(key) + "[" + std::to_string(i) + "]";
-    if (!e.is_number()) {
-      errors_.field(where, std::string("wrong type (expected number, got ") + jsonTypeName(e) + ")");
-      return false;
-    }
-    if (!std::isfinite(e.get<double>())) {
-      errors_.field(where, "must be finite");
-      return false;
-    }
-    values.push_back(e.get<double>());
+    if (!finiteNumberAt(errors_, pathOf(key) + "[" + std::to_string(i) + "]", (*v)[i])) return false;
+    values.push_back((*v)[i].get<double>());
   }
   out = std::move(values);
   return true;
@@ -489,8 +486,10 @@ bool JsonObjectReader::finish() {
         best = &k;
       }
     }
-    // A suggestion only when it is plausibly a typo, not any key at all.
-    if (best != nullptr && bestDistance <= std::max<size_t>(2, best->size() / 3))
+    // A suggestion only when it is plausibly a typo or a shortened key ('crop' for
+    // 'crop_px'), not any key at all.
+    const bool prefix = best != nullptr && key.size() >= 3 && best->compare(0, key.size(), key) == 0;
+    if (best != nullptr && (prefix || bestDistance <= std::max<size_t>(2, best->size() / 3)))
       message += " (did you mean '" + pathOf(*best) + "'?)";
     errors_.other(message);
     return false;

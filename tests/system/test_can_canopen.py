@@ -213,3 +213,34 @@ def test_emcy_per_fault_and_cleared(sensor: Alacsd, network: canopen.Network) ->
     cleared = _emcy(node, 0x0000)
     assert cleared.register == 0
     assert node.sdo["Error register"].raw == 0
+
+
+@pytest.mark.parametrize("auto_start", [True, False])
+def test_master_configures_the_node_right_after_its_bootup(alacsd: Path, tmp_path: Path, network: canopen.Network,
+                                                           auto_start: bool) -> None:
+    """A PLC's start-up: boot-up seen, then at once (the slide still homing) the node is
+    configured over SDO; with can.auto_start false it waits in PRE-OPERATIONAL for the
+    master's NMT START. No write is refused because the sensor is busy."""
+    config = tmp_path / "alacsd.json"
+    config.write_text('{"can": {"auto_start": %s}}' % ("true" if auto_start else "false"))
+    daemon = Alacsd(alacsd, 0x10, "--config", str(config))
+    node = network.add_node(daemon.node_id, str(EDS))
+    node.sdo.RESPONSE_TIMEOUT = 1.0
+    daemon.start()
+    try:
+        node.nmt.wait_for_bootup(timeout=20)
+        node.sdo["Producer heartbeat time"].raw = 250
+        acq = node.sdo["Acquisition settings"]
+        acq["Exposure time"].raw = 2000
+        assert node.sdo["Producer heartbeat time"].raw == 250
+        assert acq["Exposure time"].raw == 2000
+        node.nmt.wait_for_heartbeat(timeout=3)
+        assert node.nmt.state == ("OPERATIONAL" if auto_start else "PRE-OPERATIONAL")
+        if not auto_start:
+            node.nmt.state = "OPERATIONAL"
+            node.nmt.wait_for_heartbeat(timeout=3)
+            assert node.nmt.state == "OPERATIONAL"
+    finally:
+        rc = daemon.stop()
+        assert rc in (0, None), daemon.log
+    assert "set-config refused" not in daemon.log, daemon.log

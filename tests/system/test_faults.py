@@ -43,6 +43,8 @@ def test_limit_switch_mid_move_then_recovery(tmp_path, alacsd):
         assert _emcy(sensor, "LIMIT_HIT") is not None
         header = sensor.recv(lambda n, s: n == "ALACS_ResultHeader", 10)
         assert header is not None and str(header["ResultStatus"]) == "FAILED"
+        assert str(header["ResultReason"]) == "CAMERA_FAULT", header
+        assert not any(n == "EMCY" and str(s["EmcyReason"]) == "LASER_OVERTIME" for n, s in sensor.seen)
         st = sensor.status(lambda s: str(s["State"]) == "FAULT")
         assert st["FaultLimitHit"] == 1 and st["LaserOn"] == 0
         _safe_outputs()
@@ -86,14 +88,18 @@ def test_homing_timeout(tmp_path, alacsd):
 @pytest.mark.parametrize("fault,bit,reason", [("camera-timeout", "FaultCameraTimeout", "CAMERA_TIMEOUT"),
                                               ("camera-corrupt", "FaultCameraCorrupt", "CAMERA_CORRUPT")])
 def test_camera_fault_after_retries(tmp_path, alacsd, fault, bit, reason):
-    cfg = {"camera": {"frame_timeout_ms": 200, "retries": 2}}
-    sensor = Sensor(alacsd, tmp_path, "--sim-fault", fault, config=cfg)
+    # The default configuration as shipped: its frame timeout (plus the exposure) stays
+    # below laser.max_on_ms, so a camera that stops answering is CAMERA_TIMEOUT, never
+    # LASER_OVERTIME hiding it (config validation refuses a combination that would).
+    sensor = Sensor(alacsd, tmp_path, "--sim-fault", fault)
     try:
         assert sensor.status(_idle_and_homed, 30) is not None
         sensor.localize()
         assert str(sensor.ack("LOCALIZE")["AckResult"]) == "ACK"
         header = sensor.recv(lambda n, s: n == "ALACS_ResultHeader", 20)
         assert header is not None and str(header["ResultStatus"]) == "FAILED"
+        assert str(header["ResultReason"]) == "CAMERA_FAULT", header
+        assert not any(n == "EMCY" and str(s["EmcyReason"]) == "LASER_OVERTIME" for n, s in sensor.seen)
         assert _emcy(sensor, reason) is not None or any(
             n == "EMCY" and str(s["EmcyReason"]) == reason for n, s in sensor.seen)
         st = sensor.status(lambda s: str(s["State"]) == "FAULT")
@@ -103,6 +109,7 @@ def test_camera_fault_after_retries(tmp_path, alacsd, fault, bit, reason):
     finally:
         assert sensor.stop() == 0, sensor.log
     assert "attempt 3" in sensor.log
+    assert "stopped by" not in sensor.log  # no command stopped it
 
 
 def test_bad_configuration_is_refused_with_the_key(tmp_path, alacsd):

@@ -180,7 +180,7 @@ TEST_CASE("Config: the frame timeout cannot hide behind the laser's on-time limi
   CHECK(defaults->frameTimeoutMs == 150);
   const auto longTimeout = app::loadConfig(write(R"({"camera": {"frame_timeout_ms": 1000}})"));
   REQUIRE_FALSE(longTimeout.isOk());
-  CHECK(has(longTimeout.status(), "camera.frame_timeout_ms (1000)"));
+  CHECK(has(longTimeout.status(), "'camera.frame_timeout_ms' (1000)"));
   CHECK(has(longTimeout.status(), "laser.max_on_ms (250)"));
   // 240 ms + 3 ms of exposure fits in 250; 248 + 3 does not.
   CHECK(app::loadConfig(write(R"({"camera": {"frame_timeout_ms": 240}})")).isOk());
