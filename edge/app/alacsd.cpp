@@ -99,7 +99,7 @@ int runDaemon(const Options& o, const DaemonConfig& cfg) {
   const WorkerDeps deps = workerDepsFor(cfg, platform, clock, sleeper, laser,
                                         recording ? *recording : platform.camera(), o.simOpts.debugDir);
   worker = std::make_unique<ScanWorker>(deps, eventFd);
-  Sensor sensor(cfg, {&platform.can(), worker.get(), &laser, lines.home, &observer}, platform.calibration(), kVersion);
+  Sensor sensor(cfg, {&platform.can(), worker.get(), &laser, platform.statusHomeSwitch(), &observer}, platform.calibration(), kVersion);
   sensor.setWorkerSlack(platform.workerSlackNs());
 
   const int sfd = signalfd(-1, &mask, SFD_NONBLOCK | SFD_CLOEXEC);

@@ -30,6 +30,9 @@ class Platform {
   // STEP, DIR, ENABLE, LASER, HOME and (optional) END.
   virtual const ports::SensorLines& lines() const = 0;
   virtual ports::FrameSource& camera() = 0;
+  // The home switch the status frame shows: the physical line where there is one (on the
+  // bench, the real GPIO line beside the simulated slide's own switch).
+  virtual ports::DigitalIn* statusHomeSwitch() const { return lines().home; }
   // The calibration the platform measures with, or why there is none (the sensor then
   // NACKs NOT_CALIBRATED; a platform never substitutes another's data).
   const Result<geometry::Calibration>& calibration() const { return calibration_; }

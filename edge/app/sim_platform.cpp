@@ -54,6 +54,7 @@ class SimPlatform final : public Platform {
  public:
   const char* name() const override { return replay_ != nullptr ? "replay" : "sim"; }
   const ports::SensorLines& lines() const override { return lines_; }
+  ports::DigitalIn* statusHomeSwitch() const override { return benchHome_ != nullptr ? benchHome_ : lines_.home; }
   ports::FrameSource& camera() override { return faulty_ ? static_cast<ports::FrameSource&>(*faulty_) : *camera_; }
   std::function<double()> frameSlideMm() override {
     if (replay_ == nullptr) return {};
@@ -76,6 +77,7 @@ class SimPlatform final : public Platform {
       teeDir_ = std::make_unique<ports::TeeDigitalOut>(*lines_.dir, slide_->dirInput());
       teeEnable_ = std::make_unique<ports::TeeDigitalOut>(*lines_.enable, slide_->enableInput());
       teeLaser_ = std::make_unique<ports::TeeDigitalOut>(*lines_.laser, *laser_);
+      benchHome_ = lines_.home;
       lines_ = {teeStep_.get(), teeDir_.get(), teeEnable_.get(), teeLaser_.get(), lines_.home, lines_.end};
     } else {
       lines_ = {&slide_->stepInput(), &slide_->dirInput(), &slide_->enableInput(), laser_.get(), nullptr, nullptr};
@@ -145,6 +147,7 @@ class SimPlatform final : public Platform {
   std::unique_ptr<ports::DigitalOut> teeStep_, teeDir_, teeEnable_, teeLaser_;
   std::unique_ptr<ports::AnyOfDigitalIn> endSwitch_;
   ports::FakeDigitalIn stuckOpenHome_{false};
+  ports::DigitalIn* benchHome_ = nullptr;  // the bench's real HOME line (status frame only)
   std::unique_ptr<ports::FrameSource> camera_;
   replay::ReplaySource* replay_ = nullptr;  // the camera, when replaying (owned by camera_)
   std::unique_ptr<ports::FaultInjectingFrameSource> faulty_;
