@@ -391,18 +391,31 @@ bool JsonObjectReader::text(std::string_view key, std::string& out, Need need, s
   return true;
 }
 
-bool JsonObjectReader::numbers(std::string_view key, std::span<double> out, Need need) {
-  const Json* v = find(key, need);
-  if (v == nullptr) return false;
-  const std::string shape = "an array of " + std::to_string(out.size()) + " numbers";
+namespace {
+// `v` (may be null: absent) as an array of exactly `count` elements, else null with the
+// error recorded: wrong type through `wrongType`, a wrong length at `path`.
+template <typename WrongType>
+const Json* fixedArray(JsonErrors& errors, std::string_view /*key*/, const std::string& path, const Json* v,
+                       size_t count, const char* elements, WrongType&& wrongType) {
+  if (v == nullptr) return nullptr;
+  const std::string shape = "an array of " + std::to_string(count) + " " + elements;
   if (!v->is_array()) {
-    wrongType(key, shape.c_str(), *v);
-    return false;
+    wrongType(shape.c_str(), *v);
+    return nullptr;
   }
-  if (v->size() != out.size()) {
-    errors_.field(pathOf(key), "must be " + shape + " (got " + std::to_string(v->size()) + " elements)");
-    return false;
+  if (v->size() != count) {
+    errors.field(path, "must be " + shape + " (got " + std::to_string(v->size()) + " elements)");
+    return nullptr;
   }
+  return v;
+}
+}  // namespace
+
+bool JsonObjectReader::numbers(std::string_view key, std::span<double> out, Need need) {
+  const Json* v = fixedArray(errors_, key, pathOf(key), find(key, need), out.size(), "numbers", [&](const char* shape, const Json& got) {
+    wrongType(key, shape, got);
+  });
+  if (v == nullptr) return false;
   for (size_t i = 0; i < out.size(); ++i) {
     if (!finiteNumberAt(errors_, pathOf(key) + "[" + std::to_string(i) + "]", (*v)[i])) return false;
   }
@@ -424,17 +437,10 @@ bool JsonObjectReader::numberList(std::string_view key, std::vector<double>& out
 }
 
 bool JsonObjectReader::integers(std::string_view key, std::span<int64_t> out, int64_t lo, int64_t hi, Need need) {
-  const Json* v = find(key, need);
+  const Json* v = fixedArray(errors_, key, pathOf(key), find(key, need), out.size(), "integers", [&](const char* shape, const Json& got) {
+    wrongType(key, shape, got);
+  });
   if (v == nullptr) return false;
-  const std::string shape = "an array of " + std::to_string(out.size()) + " integers";
-  if (!v->is_array()) {
-    wrongType(key, shape.c_str(), *v);
-    return false;
-  }
-  if (v->size() != out.size()) {
-    errors_.field(pathOf(key), "must be " + shape + " (got " + std::to_string(v->size()) + " elements)");
-    return false;
-  }
   std::vector<int64_t> values(out.size());
   for (size_t i = 0; i < out.size(); ++i)
     if (!toInteger((*v)[i], pathOf(key) + "[" + std::to_string(i) + "]", lo, hi, values[i])) return false;
