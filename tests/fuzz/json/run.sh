@@ -29,7 +29,7 @@ warn=(-Wall -Wextra -Werror)
 sources=(common/json_file common/result common/log common/clock
          geometry/calibration geometry/calibration_gate geometry/triangulation geometry/sphere_fit
          geometry/spheroid_fit
-         image/lle image/lle_mask image/lle_fit image/lle_reference image/lle_simd
+         image/lle image/lle_focus image/lle_mask image/lle_fit image/lle_reference image/lle_simd
          motion/trapezoid localize/localizer sim/scene replay/scan_dir replay/png_io app/config)
 objs=()
 for src in "${sources[@]}"; do

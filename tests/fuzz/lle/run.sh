@@ -28,7 +28,7 @@ compile() {  # compile SRC OBJ [extra flags]
   "$CLANGXX" -std=c++20 -O1 -g "${san[@]}" "${inc[@]}" "${warn[@]}" "$@" -c "$src" -o "$obj"
   objs+=("$obj")
 }
-for src in lle lle_mask lle_fit lle_reference lle_simd; do
+for src in lle lle_focus lle_mask lle_fit lle_reference lle_simd; do
   compile "$root/edge/image/$src.cpp" "$out/obj/$src.o" $([[ $(uname -m) == x86_64 ]] && echo -DALACS_LLE_AVX2=1 -DALACS_LLE_AVX512=1)
 done
 if [[ $(uname -m) == x86_64 ]]; then
