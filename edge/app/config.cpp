@@ -69,6 +69,8 @@ Status configFromJson(const Json& json, DaemonConfig& c) {
     s->number("stop_spacing_mm", c.scan.stopSpacingMm, Need::kOptional, 0.5, 50);
     s->number("roi_margin_mm", c.scan.roiMarginMm, Need::kOptional, 0, 300);
     s->number("gate_mm", c.scan.gateMm, Need::kOptional, 10, 500);
+    s->number("search_mm", c.scan.searchMm, Need::kOptional, 0, 1000);
+    s->number("outside_gate_confidence_pct", c.scan.outsideGateConfidencePct, Need::kOptional, 0, 100);
     s->integer("follow_up_min_lines", c.scan.followUpMinLines, Need::kOptional, 1, 15);
     s->number("follow_up_diameter_sigma_mm", c.scan.followUpDiameterSigmaMm, Need::kOptional, 0, 100);
     s->integer("follow_up_max_stops", c.scan.followUpMaxStops, Need::kOptional, 0, 16);
@@ -125,6 +127,8 @@ OrderedJson configToJson(const DaemonConfig& c) {
                {"stop_spacing_mm", c.scan.stopSpacingMm},
                {"roi_margin_mm", c.scan.roiMarginMm},
                {"gate_mm", c.scan.gateMm},
+               {"search_mm", c.scan.searchMm},
+               {"outside_gate_confidence_pct", c.scan.outsideGateConfidencePct},
                {"follow_up_min_lines", c.scan.followUpMinLines},
                {"follow_up_diameter_sigma_mm", c.scan.followUpDiameterSigmaMm},
                {"follow_up_max_stops", c.scan.followUpMaxStops}};

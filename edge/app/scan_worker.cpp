@@ -41,9 +41,21 @@ bool ScanWorker::submit(const WorkerJob& job) {
     if (jobs_.size() >= kMaxWaitingJobs) return false;
     jobs_.push_back({job, cancelEpoch_.load()});
     busy_.store(true);
+    // The progress the sensor reports from now on is this job's (not the last one's, nor
+    // 0/0 until this thread picks the job up).
+    resetProgress(job);
   }
   cv_.notify_all();
   return true;
+}
+
+void ScanWorker::resetProgress(const WorkerJob& job) {
+  stopsDone_.store(0);
+  stopsTotal_.store(job.kind == WorkerJob::Kind::kScanAll ? static_cast<int>(job.surveyStopsMm.size())
+                                                         : static_cast<int>(job.plan.stopsMm.size()));
+  objectsFound_.store(0);
+  secondPass_.store(false);
+  phase_.store(protocol::ProgressPhase::kMoving);
 }
 
 void ScanWorker::cancel() {
@@ -106,12 +118,7 @@ void ScanWorker::run() {
       if (cancelEpoch_.load() != epoch) cancel_.store(true);
     }
     markProgress();
-    stopsDone_.store(0);
-    stopsTotal_.store(job.kind == WorkerJob::Kind::kScanAll ? static_cast<int>(job.surveyStopsMm.size())
-                                                           : static_cast<int>(job.plan.stopsMm.size()));
-    objectsFound_.store(0);
-    secondPass_.store(false);
-    phase_.store(protocol::ProgressPhase::kMoving);
+    resetProgress(job);
     WorkerEvent ev;
     switch (job.kind) {
       case WorkerJob::Kind::kHome: ev = doHome(job); break;
@@ -428,6 +435,7 @@ WorkerEvent ScanWorker::doLocalize(const WorkerJob& job) {
   // a measurement (docs/can-protocol.md, ROUGH_ONLY).
   ev.resultStatus = est->sphereFit ? protocol::ResultStatus::kMeasured : protocol::ResultStatus::kRoughOnly;
   if (!est->sphereFit) ev.resultReason = protocol::ResultReason::kTooFewLines;
+  if (est->sphereFit && est->outsideGate) ev.resultReason = protocol::ResultReason::kOutsideGate;
   ev.status = Status::ok();
   return ev;
 }

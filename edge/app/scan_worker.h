@@ -137,6 +137,7 @@ class ScanWorker final : public ScanJobs {
   std::atomic<protocol::ProgressPhase> phase_{protocol::ProgressPhase::kMoving};
   std::atomic<bool> secondPass_{false};
   void setPhase(protocol::ProgressPhase p);
+  void resetProgress(const WorkerJob& job);
   int overlays_ = 0;  // debug overlays written (worker thread only)
   image::LleWorkspace ws_;  // scan-all's full-frame LLE
   FramePipeline pipeline_;  // localize's per-frame image work, overlapped with motion

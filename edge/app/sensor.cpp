@@ -382,7 +382,8 @@ void Sensor::answerNow(protocol::ResultStatus status, TimeNs now) {
 
 protocol::ResultReason Sensor::resultReasonOf(const WorkerEvent& ev) const {
   using protocol::ResultReason;
-  if (ev.resultStatus == protocol::ResultStatus::kMeasured) return ResultReason::kNone;
+  if (ev.resultStatus == protocol::ResultStatus::kMeasured)
+    return ev.resultReason == ResultReason::kOutsideGate ? ev.resultReason : ResultReason::kNone;
   switch (cancelCause_) {
     case CancelCause::kStop: return ResultReason::kStopped;
     case CancelCause::kShutdown: return ResultReason::kShutdown;

@@ -32,6 +32,10 @@ Status ScanParams::validate() const {
   if (!(stopSpacingMm >= 0.5 && stopSpacingMm <= 50.0)) return {Error::kInvalidArgument, "scan.stop_spacing_mm must be in 0.5..50"};
   if (!(roiMarginMm >= 0.0 && roiMarginMm <= 300.0)) return {Error::kInvalidArgument, "scan.roi_margin_mm must be in 0..300"};
   if (!(gateMm > 10.0 && gateMm < 500.0)) return {Error::kInvalidArgument, "scan.gate_mm must be in 10..500"};
+  if (!(searchMm == 0.0 || (searchMm > gateMm && searchMm <= 1000.0)))
+    return {Error::kInvalidArgument, "scan.search_mm must be 0 (off) or above scan.gate_mm, up to 1000"};
+  if (!(outsideGateConfidencePct >= 0.0 && outsideGateConfidencePct <= 100.0))
+    return {Error::kInvalidArgument, "scan.outside_gate_confidence_pct must be in 0..100"};
   if (!(paperW1 >= 0.0 && paperW2 >= 0.0 && paperW1 + paperW2 > 0.0))
     return {Error::kInvalidArgument, "scan.paper_w1 and scan.paper_w2 must be non-negative, not both zero"};
   if (!(priorRadiusMm >= 20.0 && priorRadiusMm <= 80.0)) return {Error::kInvalidArgument, "scan.prior_radius_mm must be in 20..80"};
@@ -221,9 +225,13 @@ Result<LineObservation> Localizer::observe(const image::ImageView& frame, const 
   const std::vector<Eigen::Vector2d> xn = geometry::undistortPixels(cal_.camera, pixels);
   for (size_t i = 0; i < xn.size(); ++i) {
     const geometry::TriangulatedPoint p = geometry::triangulate(cal_.laser, slideMm, xn[i], range_);
-    if (p.valid && (p.pointMm - plan.roughMm).norm() <= scan_.gateMm) {
+    if (!p.valid) continue;
+    const double fromRoughMm = (p.pointMm - plan.roughMm).norm();
+    if (fromRoughMm <= scan_.gateMm) {
       obs.pointsMm.push_back(p.pointMm);
       obs.pixels.push_back(pixels[i]);
+    } else if (fromRoughMm <= scan_.searchMm) {
+      obs.outsidePointsMm.push_back(p.pointMm);
     }
   }
   return obs;
@@ -309,7 +317,13 @@ Result<AppleEstimate> Localizer::estimate(const ScanPlan& plan, const std::vecto
     if (std::none_of(lines.begin(), lines.end(),
                      [&](const LineObservation& l) { return std::abs(l.slideMm - o.slideMm) < kSameStopMm; }))
       lines.push_back(o);
-  Result<AppleEstimate> est = estimateFused(plan, lines);
+  Result<AppleEstimate> est = estimateFused(plan, lines, scan_.roughSigmaMm);
+  // Nothing within the gate, or one line only: the lines the scan saw, tested against the
+  // fruit model wherever they are (within searchMm).
+  if (scan_.searchMm > 0.0 && (!est || !est->sphereFit)) {
+    Result<AppleEstimate> wide = estimateWidened(plan, lines);
+    if (wide) return wide;
+  }
   // One line (or the paper's candidate) that puts the centre far beyond the rough
   // position's error is not the target (a leaf's edge, a neighbour's limb).
   if (est && !est->sphereFit && scan_.roughGateSigmas > 0.0 && scan_.roughSigmaMm > 0.0 &&
@@ -318,7 +332,31 @@ Result<AppleEstimate> Localizer::estimate(const ScanPlan& plan, const std::vecto
   return est;
 }
 
-Result<AppleEstimate> Localizer::estimateFused(const ScanPlan& plan, const std::vector<LineObservation>& lines) const {
+Result<AppleEstimate> Localizer::estimateWidened(const ScanPlan& plan, const std::vector<LineObservation>& lines) const {
+  std::vector<LineObservation> wide;
+  wide.reserve(lines.size());
+  size_t outside = 0;
+  for (const LineObservation& l : lines) {
+    LineObservation w;
+    w.slideMm = l.slideMm;
+    w.pointsMm = l.pointsMm;
+    w.pointsMm.insert(w.pointsMm.end(), l.outsidePointsMm.begin(), l.outsidePointsMm.end());
+    outside += l.outsidePointsMm.size();
+    wide.push_back(std::move(w));
+  }
+  if (outside == 0) return Status(Error::kNotFound, "no laser line within the widened search");
+  // The centre's prior is only that it lies within the search: the gate's rough position
+  // was wrong, or there would have been a fit inside it.
+  Result<AppleEstimate> est = estimateFused(plan, wide, scan_.searchMm);
+  if (!est) return est;
+  if (!est->sphereFit) return Status(Error::kNotFound, "the widened search fitted no fruit on two lines or more");
+  est->outsideGate = true;
+  est->confidencePct = std::min(est->confidencePct, scan_.outsideGateConfidencePct);
+  return est;
+}
+
+Result<AppleEstimate> Localizer::estimateFused(const ScanPlan& plan, const std::vector<LineObservation>& lines,
+                                               double priorCenterSigmaMm) const {
   std::vector<Eigen::Vector3d> all;
   std::vector<int> lineIds;
   std::vector<int> pieceIds;
@@ -341,7 +379,7 @@ Result<AppleEstimate> Localizer::estimateFused(const ScanPlan& plan, const std::
   sp.minRadiusMm = scan_.minRadiusMm;
   sp.maxRadiusMm = scan_.maxRadiusMm;
   sp.priorCenterMm = plan.roughMm;
-  sp.priorCenterSigmaMm = scan_.roughSigmaMm;
+  sp.priorCenterSigmaMm = priorCenterSigmaMm;
   sp.linePlaneNormal = cal_.laser.planeNormal;
   Result<geometry::SphereFit> fit = geometry::fitSphere(all, lineIds, pieceIds, sp);
   // Lines whose points reached the fit. One line alone leaves the sphere's offset from

@@ -30,6 +30,14 @@ struct ScanParams {
   double roiMarginMm = 35.0;     // added to the largest apple radius around the rough position
   double maxAppleRadiusMm = 50.0;
   double gateMm = 90.0;          // 3D points farther than this from the rough centre are not the target
+  // The widened search: when the lines within the gate fit no sphere (nothing there, or one
+  // line only), the points the scan saw up to searchMm from the rough position are fitted
+  // to the fruit model with a weak prior on where it is. A rough position 100 mm short in
+  // depth then still gives the fruit, flagged outsideGate and with its confidence capped
+  // at outsideGateConfidencePct (it may be a neighbour of the fruit the arm meant).
+  // 0: off (the gate alone). docs/geometry.md "The widened search".
+  double searchMm = 250.0;
+  double outsideGateConfidencePct = 50.0;
   // The paper's candidate score P = ω1·N − ω2·Δd (N: the line's pixels on the target,
   // Δd: px from the expected centre). Only ω2/ω1 matters; chosen by 5-fold
   // cross-validation on the twin (docs/geometry.md, tools/geometry_eval).
@@ -100,6 +108,7 @@ struct LineObservation {
   image::LaserLine line;
   std::vector<Eigen::Vector3d> pointsMm;       // gated 3D points of this line
   std::vector<geometry::PixelPoint> pixels;    // their pixels (same order)
+  std::vector<Eigen::Vector3d> outsidePointsMm;  // beyond the gate, within scan.searchMm (the widened search's)
 };
 
 struct AppleEstimate {
@@ -117,6 +126,7 @@ struct AppleEstimate {
   int linesUsed = 0;
   int pointsUsed = 0;
   bool sphereFit = false;        // false: the paper's single-line estimate
+  bool outsideGate = false;      // found by the widened search, away from the rough position
 };
 
 // The paper's candidates: one per line with points on the target.
@@ -168,8 +178,13 @@ class Localizer {
   image::Roi stopRoi(const ScanPlan& plan, double slideMm) const;
 
  private:
-  // estimate() before the rough-position gate.
-  Result<AppleEstimate> estimateFused(const ScanPlan& plan, const std::vector<LineObservation>& lines) const;
+  // estimate() before the rough-position gate; the fit's prior on the centre is the rough
+  // position with priorCenterSigmaMm.
+  Result<AppleEstimate> estimateFused(const ScanPlan& plan, const std::vector<LineObservation>& lines,
+                                      double priorCenterSigmaMm) const;
+  // The widened search: every point the lines saw within searchMm, a weak centre prior; a
+  // sphere on two lines or more, else kNotFound.
+  Result<AppleEstimate> estimateWidened(const ScanPlan& plan, const std::vector<LineObservation>& lines) const;
   // The estimate from the rough position alone: centre there, a prior radius, σ its error.
   AppleEstimate roughEstimate(const ScanPlan& plan) const;
 

@@ -109,10 +109,12 @@ enum class ResultStatus : uint8_t {
   kMeasured = 0, kNotFound = 1, kRoughOnly = 2, kFailed = 3, kAborted = 4, kAmbiguous = 5,
 };
 
-// ALACS_ResultHeader.ResultReason: why a result is not kMeasured (kNone when it is).
+// ALACS_ResultHeader.ResultReason: why a result is not kMeasured (kNone when it is;
+// kOutsideGate with kMeasured: found by the widened search, away from the rough position).
 enum class ResultReason : uint8_t {
   kNone = 0, kNoLinesInGate = 1, kTooFewLines = 2, kFitFailed = 3, kTwoSurfaces = 4, kFarFromRough = 5,
   kCameraFault = 6, kMotionFault = 7, kLaserFault = 8, kStopped = 9, kShutdown = 10, kInternal = 11,
+  kOutsideGate = 12,
 };
 
 struct ResultHeader {

@@ -753,6 +753,17 @@ TEST_CASE("Sensor: every result that is not a measurement says why", "[app][sens
     CHECK(r.results()[0].result_reason == static_cast<uint8_t>(ResultReason::kNone));
     CHECK(r.results()[0].object_count == 1);
   }
+  SECTION("a measurement of the widened search says it was found outside the gate") {
+    Rig r;
+    r.bootIdle();
+    r.receive(r.localize(0, 0, 1100));
+    app::WorkerEvent ev;
+    ev.estimates.emplace_back();
+    ev.resultReason = ResultReason::kOutsideGate;
+    r.finish(ev);
+    CHECK(r.results()[0].result_status == static_cast<uint8_t>(ResultStatus::kMeasured));
+    CHECK(r.results()[0].result_reason == static_cast<uint8_t>(ResultReason::kOutsideGate));
+  }
 }
 
 TEST_CASE("Sensor: can.auto_start false waits in PRE-OPERATIONAL for NMT START; SDO is served meanwhile", "[app][sensor]") {

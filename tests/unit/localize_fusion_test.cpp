@@ -350,3 +350,78 @@ TEST_CASE("Scan parameters are validated", "[localize]") {
   p.followUpMinLines = 0;
   CHECK(p.validate().reason().find("follow_up_min_lines") != std::string::npos);
 }
+
+namespace {
+// What observe() does with the gate: points beyond it (within the search) are kept apart.
+void applyGate(localize::LineObservation& l, const Eigen::Vector3d& roughMm, const localize::ScanParams& sp) {
+  localize::LineObservation g;
+  g.slideMm = l.slideMm;
+  for (size_t i = 0; i < l.pointsMm.size(); ++i) {
+    const double d = (l.pointsMm[i] - roughMm).norm();
+    if (d <= sp.gateMm) {
+      g.pointsMm.push_back(l.pointsMm[i]);
+      g.pixels.push_back(l.pixels[i]);
+    } else if (d <= sp.searchMm) {
+      g.outsidePointsMm.push_back(l.pointsMm[i]);
+    }
+  }
+  l = std::move(g);
+}
+}  // namespace
+
+TEST_CASE("Nothing within the gate: the widened search fits the lines the scan saw", "[localize][widened]") {
+  Case k;
+  std::mt19937 rng(31);
+  k.scan.gateMm = 40.0;  // narrow, so that a rough position 60 mm short leaves nothing in it
+  const Eigen::Vector3d rough = k.center + Eigen::Vector3d(0.0, 0.0, -k.radius - 60.0);
+  localize::Localizer loc(k.cal, image::LleParams{}, k.scan);
+  auto plan = loc.plan(rough, 200.0);
+  REQUIRE(plan.isOk());
+  std::vector<localize::LineObservation> lines;
+  size_t inGate = 0;
+  for (double s : plan->stopsMm) {
+    lines.push_back(lineOf(k.cal, k.center, k.radius, s, 0.4, {}, rng));
+    applyGate(lines.back(), rough, k.scan);
+    inGate += lines.back().pointsMm.size();
+  }
+  REQUIRE(inGate == 0);
+
+  localize::ScanParams gateOnly = k.scan;
+  gateOnly.searchMm = 0.0;
+  CHECK(localize::Localizer(k.cal, image::LleParams{}, gateOnly).estimate(*plan, lines).status().code() ==
+        Error::kNotFound);
+
+  auto est = loc.estimate(*plan, lines);
+  REQUIRE(est.isOk());
+  INFO("centre error " << (est->centerMm - k.center).norm() << " mm, d " << est->diameterMm << ", conf "
+                       << est->confidencePct);
+  CHECK(est->sphereFit);
+  CHECK(est->outsideGate);
+  CHECK((est->centerMm - k.center).norm() < 2.0);
+  CHECK(std::abs(est->diameterMm - 2 * k.radius) < 2.0);
+  CHECK(est->confidencePct <= k.scan.outsideGateConfidencePct);
+}
+
+TEST_CASE("The widened search takes no flat surface for a fruit", "[localize][widened]") {
+  Case k;
+  localize::Localizer loc(k.cal, image::LleParams{}, k.scan);
+  const Eigen::Vector3d rough = k.center;
+  auto plan = loc.plan(rough, 200.0);
+  REQUIRE(plan.isOk());
+  // A wall 150 mm behind the rough position: each stop's line on it, beyond the gate.
+  std::vector<localize::LineObservation> lines;
+  for (double s : plan->stopsMm) {
+    localize::LineObservation l;
+    l.slideMm = s;
+    const double z = rough.z() + 150.0;
+    const Eigen::Vector3d n = k.cal.laser.planeNormal;
+    for (double y = -60.0; y <= 60.0; y += 1.0) {
+      // The laser plane n·p = offset at depth z and height y: solve for x.
+      const double x = (k.cal.laser.planeOffsetAt(s) - n.y() * y - n.z() * z) / n.x();
+      l.outsidePointsMm.emplace_back(x, y, z);
+    }
+    lines.push_back(l);
+  }
+  auto est = loc.estimate(*plan, lines);
+  CHECK_FALSE((est.isOk() && est->sphereFit));
+}

@@ -173,7 +173,11 @@ class ResultStatus(IntEnum):
 
 
 class ResultReason(IntEnum):
-    """``ResultReason``: why a result is not MEASURED (NONE when it is)."""
+    """``ResultReason``: why a result is not MEASURED (NONE when it is).
+
+    OUTSIDE_GATE goes with MEASURED: the fruit was found by the widened search, away from
+    the rough position (the lines inside the gate fitted nothing).
+    """
 
     NONE = 0
     NO_LINES_IN_GATE = 1
@@ -187,6 +191,7 @@ class ResultReason(IntEnum):
     STOPPED = 9
     SHUTDOWN = 10
     INTERNAL = 11
+    OUTSIDE_GATE = 12
 
 
 class NackDetail(IntEnum):

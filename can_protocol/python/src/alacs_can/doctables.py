@@ -107,6 +107,8 @@ MEANINGS: dict[type[IntEnum], dict[str, str]] = {
         "STOPPED": "STOP command or NMT stop",
         "SHUTDOWN": "alacsd was shutting down or resetting",
         "INTERNAL": "internal error",
+        "OUTSIDE_GATE": "MEASURED, but found by the widened search outside the gate around the "
+                        "rough position: check it is the fruit you meant (confidence is capped)",
     },
     c.ResultMode: {
         "LOCALIZE": "the result of a LOCALIZE",

@@ -209,7 +209,8 @@ RESULT_HEADER = MessageSpec(
           "(saturating).", unit="ms"),
         S("ResultStatus", 48, 4, "Outcome: only MEASURED is a measurement.",
           maximum=max(c.ResultStatus), choices=c.ResultStatus),
-        S("ResultReason", 52, 4, "Why the result is not MEASURED (NONE if it is).",
+        S("ResultReason", 52, 4, "Why the result is not MEASURED (NONE if it is; OUTSIDE_GATE if "
+          "MEASURED by the widened search).",
           maximum=max(c.ResultReason), choices=c.ResultReason),
         S("CycleTime", 56, 8, "Time from the localize command to this result, 20 ms/bit "
           "(saturating).", scale=20, unit="ms"),

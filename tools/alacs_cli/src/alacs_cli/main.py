@@ -266,6 +266,10 @@ class Cli:
         else:
             print_result(result, self.out)
         if result.measured:
+            if _name(result.reason) == "OUTSIDE_GATE":
+                print(f"alacs {self.args.cmd}: measured, but found outside the gate around the "
+                      "rough position (the widened search): check it is the fruit you meant",
+                      file=sys.stderr)
             return EXIT_OK
         status, reason = _name(result.status), _name(result.reason)
         meaning = RESULT_MEANING.get(str(status), "not a measurement")
