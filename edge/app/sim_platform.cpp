@@ -122,6 +122,7 @@ class SimPlatform final : public Platform {
   }
 
   using Platform::setCalibration;
+  const replay::ScanManifest& replayManifest() const { return replay_->manifest(); }
 
  private:
   Status openBenchGpio(const DaemonConfig& cfg) {
@@ -184,9 +185,20 @@ Result<std::unique_ptr<Platform>> openReplayPlatform(const DaemonConfig& cfg, co
                                                      const SimOptions& opts, const Clock& clock, Sleeper& sleeper) {
   auto p = std::make_unique<SimPlatform>();
   if (Status s = p->openCommon(cfg, opts, clock); !s) return s;
-  p->setCalibration(
-      geometry::loadCalibration(opts.calibrationPath.empty() ? dir + "/calibration.json" : opts.calibrationPath));
+  // The manifest first (nothing of a frame is allocated yet), then the calibration it names,
+  // inside the scan directory (no symlink out of it), unless --calibration gives one.
   if (Status s = p->openReplayCamera(dir, clock); !s) return s;
+  const replay::ScanManifest& m = p->replayManifest();
+  p->setCalibration(opts.calibrationPath.empty() ? replay::loadScanCalibration(dir, m)
+                                                 : geometry::loadCalibration(opts.calibrationPath));
+  // Frames of another size than the calibration's camera could never be used: refused here,
+  // before the first frame buffer is allocated for them.
+  if (const auto& cal = p->calibration();
+      cal && (m.scan.widthPx != cal->camera.widthPx || m.scan.heightPx != cal->camera.heightPx))
+    return Status(Error::kBadInput, "scan '" + dir + "': frames are " + std::to_string(m.scan.widthPx) + "x" +
+                                        std::to_string(m.scan.heightPx) + " but the calibration is for " +
+                                        std::to_string(cal->camera.widthPx) + "x" +
+                                        std::to_string(cal->camera.heightPx));
   p->injectCameraFault(opts.fault, clock, sleeper);
   return std::unique_ptr<Platform>(std::move(p));
 }

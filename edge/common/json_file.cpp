@@ -11,6 +11,8 @@
 #include <locale>
 #include <sstream>
 
+#include "common/file_beneath.h"
+
 namespace alacs {
 
 namespace {
@@ -138,32 +140,22 @@ Result<Json> parseJson(std::string_view text, const std::string& what, int maxDe
 
 Result<Json> readJsonFile(const std::string& path, const std::string& what, size_t maxBytes) {
   const std::string name = what + " '" + path + "'";
-  // O_NONBLOCK: opening a FIFO must not wait for a writer; it is refused below.
-  const int fd = ::open(path.c_str(), O_RDONLY | O_CLOEXEC | O_NONBLOCK | O_NOCTTY);
-  if (fd < 0) return Status(Error::kNotFound, name + " cannot be opened: " + std::strerror(errno));
-  struct Closer {
-    int fd;
-    ~Closer() { ::close(fd); }
-  } closer{fd};
-  struct stat st {};
-  if (::fstat(fd, &st) != 0) return Status(Error::kIo, name + " cannot be read: " + std::strerror(errno));
-  if (!S_ISREG(st.st_mode)) return Status(Error::kBadInput, name + " is not a regular file");
-  if (st.st_size < 0 || static_cast<uint64_t>(st.st_size) > maxBytes)
-    return Status(Error::kBadInput, name + " is larger than " + std::to_string(maxBytes) + " bytes");
-  // Read at most one byte past the cap: the file may grow after the fstat.
-  std::string text(static_cast<size_t>(st.st_size) + 1, '\0');
-  size_t got = 0;
-  while (got < text.size()) {
-    const ssize_t n = ::read(fd, text.data() + got, text.size() - got);
-    if (n < 0 && errno == EINTR) continue;
-    if (n < 0) return Status(Error::kIo, name + " cannot be read: " + std::strerror(errno));
-    if (n == 0) break;
-    got += static_cast<size_t>(n);
-    if (got > maxBytes) return Status(Error::kBadInput, name + " is larger than " + std::to_string(maxBytes) + " bytes");
-    if (got == text.size()) text.resize(std::min(text.size() * 2, maxBytes + 1));
-  }
-  text.resize(got);
-  return parseJson(text, name);
+  // O_NONBLOCK: opening a FIFO must not wait for a writer; readAllBounded refuses it.
+  const UniqueFd fd(::open(path.c_str(), O_RDONLY | O_CLOEXEC | O_NONBLOCK | O_NOCTTY));
+  if (fd.get() < 0) return Status(Error::kNotFound, name + " cannot be opened: " + std::strerror(errno));
+  Result<std::string> text = readAllBounded(fd.get(), name, maxBytes);
+  if (!text) return text.status();
+  return parseJson(*text, name);
+}
+
+Result<Json> readJsonFileBeneath(const std::string& dir, const std::string& relPath, const std::string& what,
+                                 size_t maxBytes) {
+  Result<UniqueFd> fd = openBeneath(dir, relPath, what);
+  if (!fd) return fd.status();
+  const std::string name = what + " '" + dir + "/" + relPath + "'";
+  Result<std::string> text = readAllBounded(fd->get(), name, maxBytes);
+  if (!text) return text.status();
+  return parseJson(*text, name);
 }
 
 std::string jsonText(const OrderedJson& value) {

@@ -44,6 +44,10 @@ Result<Json> parseJson(std::string_view text, const std::string& what, int maxDe
 // ("config file"). Errors: kNotFound when it cannot be opened; kBadInput when it is not a
 // regular file, is larger than `maxBytes` or is not JSON; kIo when reading fails.
 Result<Json> readJsonFile(const std::string& path, const std::string& what, size_t maxBytes = kJsonMaxBytes);
+// The same for a file named by a manifest: `relPath` inside `dir`, never leaving it
+// (common/file_beneath.h: no "..", no symlink, a regular file only).
+Result<Json> readJsonFileBeneath(const std::string& dir, const std::string& relPath, const std::string& what,
+                                 size_t maxBytes = kJsonMaxBytes);
 
 // Pretty-printed text of `value` (two spaces, a final newline). Invalid UTF-8 in strings is
 // replaced, never thrown.

@@ -287,8 +287,8 @@ OrderedJson calibrationToJson(const Calibration& cal) {
 
 std::string calibrationJson(const Calibration& cal) { return jsonText(calibrationToJson(cal)); }
 
-Result<Calibration> loadCalibration(const std::string& path) {
-  Result<Json> file = readJsonFile(path, "calibration file", kCalibrationMaxBytes);
+namespace {
+Result<Calibration> calibrationOf(const Result<Json>& file) {
   if (!file) return file.status();
   Calibration cal;
   if (Status s = calibrationFromJson(*file, cal); !s) return s;
@@ -296,6 +296,15 @@ Result<Calibration> loadCalibration(const std::string& path) {
     return fieldError("quality.gate", "is \"refused\": the quality gate rejected this calibration");
   if (Status s = validateCalibration(cal); !s) return s;
   return cal;
+}
+}  // namespace
+
+Result<Calibration> loadCalibration(const std::string& path) {
+  return calibrationOf(readJsonFile(path, "calibration file", kCalibrationMaxBytes));
+}
+
+Result<Calibration> loadCalibrationBeneath(const std::string& dir, const std::string& relPath) {
+  return calibrationOf(readJsonFileBeneath(dir, relPath, "scan calibration", kCalibrationMaxBytes));
 }
 
 Status writeFileAtomically(const std::string& path, const std::string& text) {

@@ -106,6 +106,8 @@ OrderedJson calibrationToJson(const Calibration& cal);
 // Reads (a regular file of at most kCalibrationMaxBytes) and validates calibration.json.
 // Every error names the offending field.
 Result<Calibration> loadCalibration(const std::string& path);
+// The same for a scan directory's calibration: `relPath` inside `dir`, never leaving it.
+Result<Calibration> loadCalibrationBeneath(const std::string& dir, const std::string& relPath);
 // Writes calibration.json atomically (temp file in the same directory, fsync, rename):
 // a reader sees the old file or the whole new one. Refuses an invalid calibration.
 Status saveCalibration(const Calibration& cal, const std::string& path);

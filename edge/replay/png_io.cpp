@@ -1,6 +1,8 @@
 #include "replay/png_io.h"
 
+#include <fcntl.h>
 #include <png.h>
+#include <unistd.h>
 
 #include <cerrno>
 #include <cstdint>
@@ -80,12 +82,11 @@ Status checkHeader(const std::string& path, const png_byte* ihdr) {
   return Status::ok();
 }
 
-// Decodes into `out`: allocated (or reused) when `allocate`, else it must have the size.
-Status decode(const std::string& path, cv::Mat& out, bool allocate) {
+// Decodes `file` (owned from here on) into `out`: allocated (or reused) when `allocate`,
+// else it must have the size. `path` names it in errors.
+Status decode(FILE* file, const std::string& path, cv::Mat& out, bool allocate) {
   PngState s;
-  s.file = std::fopen(path.c_str(), "rb");
-  if (s.file == nullptr)
-    return {errno == ENOENT ? Error::kNotFound : Error::kIo, "cannot open '" + path + "': " + std::strerror(errno)};
+  s.file = file;
   png_byte head[8 + 25] = {};  // the signature, then the IHDR chunk: length, type, 13 bytes, CRC
   const size_t got = std::fread(head, 1, sizeof head, s.file);
   if (got < 8 || png_sig_cmp(head, 0, 8) != 0) return {Error::kBadInput, "'" + path + "' is not a PNG file"};
@@ -132,11 +133,29 @@ Status decode(const std::string& path, cv::Mat& out, bool allocate) {
   return Status::ok();
 }
 
+Status openAndDecode(const std::string& path, cv::Mat& out, bool allocate) {
+  FILE* file = std::fopen(path.c_str(), "rb");
+  if (file == nullptr)
+    return {errno == ENOENT ? Error::kNotFound : Error::kIo, "cannot open '" + path + "': " + std::strerror(errno)};
+  return decode(file, path, out, allocate);
+}
+
 }  // namespace
 
-Status readPng(const std::string& path, cv::Mat& out) { return decode(path, out, true); }
+Status readPng(const std::string& path, cv::Mat& out) { return openAndDecode(path, out, true); }
 
-Status readPngInto(const std::string& path, cv::Mat& dst) { return decode(path, dst, false); }
+Status readPngInto(const std::string& path, cv::Mat& dst) { return openAndDecode(path, dst, false); }
+
+Status readPngInto(int fd, const std::string& name, cv::Mat& dst) {
+  const int own = ::fcntl(fd, F_DUPFD_CLOEXEC, 0);
+  if (own < 0) return {Error::kIo, "cannot read '" + name + "': " + std::strerror(errno)};
+  FILE* file = ::fdopen(own, "rb");
+  if (file == nullptr) {
+    ::close(own);
+    return {Error::kIo, "cannot read '" + name + "': " + std::strerror(errno)};
+  }
+  return decode(file, name, dst, false);
+}
 
 Status writePng(const std::string& path, const cv::Mat& image, int level) {
   if (image.empty() || (image.type() != CV_8UC3 && image.type() != CV_8UC1))

@@ -32,6 +32,9 @@ Status readPng(const std::string& path, cv::Mat& out);
 // larger image receives a crop in place. Errors: those of readPng, kBadInput naming both
 // sizes when they differ.
 Status readPngInto(const std::string& path, cv::Mat& dst);
+// The same from an open file (common/file_beneath.h's openBeneath); `name` names it in
+// errors. `fd` stays open (the reader takes a duplicate).
+Status readPngInto(int fd, const std::string& name, cv::Mat& dst);
 // Writes an 8-bit BGR (CV_8UC3) or grey (CV_8UC1) image, zlib `level` 0..9 (1: a 5 MP
 // frame in tens of ms). Errors: kInvalidArgument, kIo.
 Status writePng(const std::string& path, const cv::Mat& image, int level = 1);

@@ -10,6 +10,7 @@
 #include <opencv2/imgproc.hpp>
 #include <sstream>
 
+#include "common/file_beneath.h"
 #include "common/json_file.h"
 #include "replay/png_io.h"
 
@@ -87,8 +88,12 @@ Status manifestFromJson(const Json& json, ScanManifest& m) {
   if (auto scan = root.object("scan", Need::kRequired)) {
     scan->text("kind", s.kind, Need::kOptional, 64);
     scan->text("source", s.source, Need::kOptional, 256);
-    scan->integer("width_px", s.widthPx, Need::kRequired, 16, 16384);
-    scan->integer("height_px", s.heightPx, Need::kRequired, 16, 16384);
+    // What one frame buffer may take (replay/png_io.h's limits), checked before it is made.
+    constexpr int kMaxSidePx = static_cast<int>(kMaxPngSidePx);
+    if (scan->integer("width_px", s.widthPx, Need::kRequired, 16, kMaxSidePx) &&
+        scan->integer("height_px", s.heightPx, Need::kRequired, 16, kMaxSidePx) &&
+        static_cast<size_t>(s.widthPx) * static_cast<size_t>(s.heightPx) * 3U > kMaxPngDecodedBytes)
+      scan->fail("height_px", "makes a frame larger than " + std::to_string(kMaxPngDecodedBytes >> 20) + " MB");
     if (scan->text("pixel_format", s.pixelFormat, Need::kOptional, 64) && s.pixelFormat != "bgr8")
       scan->fail("pixel_format", "must be \"bgr8\"");
     scan->integer("target_id", s.targetId);
@@ -117,7 +122,7 @@ Status manifestFromJson(const Json& json, ScanManifest& m) {
 }
 
 Result<ScanManifest> readManifest(const std::string& dir) {
-  Result<Json> file = readJsonFile(dir + "/manifest.json", "scan manifest", kManifestMaxBytes);
+  Result<Json> file = readJsonFileBeneath(dir, "manifest.json", "scan manifest", kManifestMaxBytes);
   if (!file) return file.status();
   ScanManifest m;
   if (Status s = manifestFromJson(*file, m); !s) return Status(s.code(), "scan '" + dir + "': " + s.reason());
@@ -166,8 +171,10 @@ Status writeManifest(const std::string& dir, const ScanManifest& m) {
 
 Status loadFrameInto(const std::string& dir, const ScanManifest& m, const FrameRecord& f, cv::Mat& out) {
   const std::string path = dir + "/" + f.file;
-  struct stat st {};
-  if (::stat(path.c_str(), &st) != 0) return {Error::kNotFound, "frame '" + path + "' does not exist"};
+  // Inside the scan directory only: no symlink, no FIFO, no device (a scan directory
+  // comes from a user, a field technician or the bus's --record).
+  Result<UniqueFd> fd = openBeneath(dir, f.file, "frame");
+  if (!fd) return fd.status();
   // One buffer of the frame's size, reused from frame to frame; a crop decodes in place.
   out.create(m.scan.heightPx, m.scan.widthPx, CV_8UC3);
   cv::Mat dst = out;
@@ -179,7 +186,7 @@ Status loadFrameInto(const std::string& dir, const ScanManifest& m, const FrameR
     out.setTo(cv::Scalar::all(0));
     dst = out(crop);
   }
-  if (Status s = readPngInto(path, dst); !s) return {s.code(), "frame " + s.reason()};
+  if (Status s = readPngInto(fd->get(), path, dst); !s) return {s.code(), "frame " + s.reason()};
   return Status::ok();
 }
 
@@ -190,7 +197,7 @@ Result<cv::Mat> loadFrame(const std::string& dir, const ScanManifest& m, const F
 }
 
 Result<geometry::Calibration> loadScanCalibration(const std::string& dir, const ScanManifest& m) {
-  return geometry::loadCalibration(dir + "/" + m.scan.calibrationFile);
+  return geometry::loadCalibrationBeneath(dir, m.scan.calibrationFile);
 }
 
 Result<ScanWriter> ScanWriter::create(const std::string& dir, const ScanInfo& info, const geometry::Calibration& cal) {

@@ -332,3 +332,71 @@ TEST_CASE("An exported twin scan replays into exactly the live estimate", "[repl
   CHECK((truth->apples[0].centerMm - scene.apples[0].centerMm).norm() < 1e-6);
   CHECK((est->centerMm - truth->apples[0].centerMm).norm() < 5.0);
 }
+
+// Issue 15, finding 4: frame symlinks were followed out of the directory (to FIFOs and
+// /etc/shadow), scan.calibration was not checked, 16384 x 16384 drove a 790 MB allocation.
+TEST_CASE("A scan directory is contained: no symlink, no FIFO, no escape, no oversized frame", "[replay]") {
+  const test::TempDir tmp("alacs_contained");
+  const std::string root = tmp.path();
+  replay::ScanRecorder rec(root, smallCalibration());
+  bool laser = true;
+  CountingSource inner;
+  replay::RecordingSource cam(inner, rec, [] { return 5.0; }, [&] { return laser; });
+  REQUIRE(rec.begin(1, Eigen::Vector3d(0, 0, 1000), {5.0}, image::Roi{0, 0, 64, 48}).isOk());
+  REQUIRE(cam.capture({}, {}).isOk());
+  Result<std::string> made = rec.end();
+  REQUIRE(made.isOk());
+  const std::string dir = *made;
+  Result<replay::ScanManifest> m = replay::readManifest(dir);
+  REQUIRE(m.isOk());
+  REQUIRE(replay::loadFrame(dir, *m, m->frames[0]).isOk());
+  const std::string outside = tmp.write("outside.png", "secret");
+  const std::string frame = dir + "/" + m->frames[0].file;
+
+  SECTION("a frame that is a symlink, even to a good PNG inside") {
+    REQUIRE(::rename(frame.c_str(), (dir + "/frames/real.png").c_str()) == 0);
+    REQUIRE(::symlink("real.png", frame.c_str()) == 0);
+    const Status s = replay::loadFrame(dir, *m, m->frames[0]).status();
+    CHECK(s.code() == Error::kBadInput);
+    CHECK(s.reason().find("symlink") != std::string::npos);
+  }
+  SECTION("a frame that links out of the directory") {
+    REQUIRE(::unlink(frame.c_str()) == 0);
+    REQUIRE(::symlink(outside.c_str(), frame.c_str()) == 0);
+    CHECK(replay::loadFrame(dir, *m, m->frames[0]).status().code() == Error::kBadInput);
+  }
+  SECTION("a directory on the way that is a symlink") {
+    REQUIRE(::rename((dir + "/frames").c_str(), (dir + "/real_frames").c_str()) == 0);
+    REQUIRE(::symlink("real_frames", (dir + "/frames").c_str()) == 0);
+    CHECK(replay::loadFrame(dir, *m, m->frames[0]).status().code() == Error::kBadInput);
+  }
+  SECTION("a frame that is a FIFO is refused at once, not waited on") {
+    REQUIRE(::unlink(frame.c_str()) == 0);
+    REQUIRE(::mkfifo(frame.c_str(), 0600) == 0);
+    const Status s = replay::loadFrame(dir, *m, m->frames[0]).status();
+    CHECK(s.code() == Error::kBadInput);
+    CHECK(s.reason().find("not a regular file") != std::string::npos);
+  }
+  SECTION("a calibration that links out, or a path that climbs out") {
+    const std::string cal = dir + "/" + m->scan.calibrationFile;
+    REQUIRE(::rename(cal.c_str(), (root + "/cal_outside.json").c_str()) == 0);
+    REQUIRE(::symlink((root + "/cal_outside.json").c_str(), cal.c_str()) == 0);
+    CHECK(replay::loadScanCalibration(dir, *m).status().code() == Error::kBadInput);
+    replay::ScanManifest climbing = *m;
+    climbing.scan.calibrationFile = "../cal_outside.json";
+    CHECK(replay::loadScanCalibration(dir, climbing).status().code() == Error::kBadInput);
+    climbing.scan.calibrationFile = root + "/cal_outside.json";
+    CHECK(replay::loadScanCalibration(dir, climbing).status().code() == Error::kBadInput);
+  }
+  SECTION("a manifest whose frames would not fit a frame buffer is refused before any") {
+    replay::ScanManifest big = *m;
+    big.scan.widthPx = 8192;
+    big.scan.heightPx = 8192;
+    replay::ScanManifest back;
+    const Status s = replay::manifestFromJson(Json::parse(replay::manifestJson(big)), back);
+    CHECK(s.code() == Error::kBadInput);
+    CHECK(s.reason().find("height_px") != std::string::npos);
+    big.scan.widthPx = 16384;
+    CHECK_FALSE(replay::manifestFromJson(Json::parse(replay::manifestJson(big)), back).isOk());
+  }
+}

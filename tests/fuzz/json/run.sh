@@ -26,7 +26,7 @@ warn=(-Wall -Wextra -Werror)
 # The readers and what their checks call (validateConfig reaches the LLE, motion and scan
 # parameters; the scene's validate the calibration's). An archive, so that each target
 # links only the objects it needs.
-sources=(common/json_file common/result common/log common/clock
+sources=(common/json_file common/file_beneath common/result common/log common/clock
          geometry/calibration geometry/calibration_gate geometry/triangulation geometry/sphere_fit
          geometry/spheroid_fit
          image/lle image/lle_focus image/lle_mask image/lle_fit image/lle_reference image/lle_simd
