@@ -38,6 +38,7 @@ constexpr SensorVersion kVersion{ALACS_VERSION_MAJOR, ALACS_VERSION_MINOR, ALACS
 struct Options {
   std::string configPath, canInterface, gpioChip, calibrationPath, replayDir, recordDir;
   int nodeId = 0;
+  replay::RecordQuota recordQuota;
   bool sim = false;
   SimOptions simOpts;
   std::string level = "info";
@@ -89,7 +90,8 @@ int runDaemon(const Options& o, const DaemonConfig& cfg) {
   std::unique_ptr<ScanWorker> worker;
   if (!o.recordDir.empty()) {
     const Result<geometry::Calibration>& cal = platform.calibration();  // none: LOCALIZE is refused, nothing recorded
-    recorder = std::make_unique<replay::ScanRecorder>(o.recordDir, cal ? *cal : geometry::Calibration{});
+    recorder = std::make_unique<replay::ScanRecorder>(o.recordDir, cal ? *cal : geometry::Calibration{}, "alacsd",
+                                                      o.recordQuota);
     recording = std::make_unique<replay::RecordingSource>(
         platform.camera(), *recorder, [&worker] { return worker ? worker->positionMm() : 0.0; },
         [&laser] { return laser.isOn(); });
@@ -206,6 +208,13 @@ int main(int argc, char** argv) {
   cli.add_option("--replay", o.replayDir, "replay a scan directory as the camera (docs/scan-format.md); slide and "
                                           "laser simulated; its calibration unless --calibration")->excludes(sim);
   cli.add_option("--record", o.recordDir, "write every scan as a scan directory DIR/scan_NNNN");
+  cli.add_option("--record-max-scans", o.recordQuota.maxScans, "keep at most N scans in DIR, the oldest dropped")
+      ->check(CLI::Range(1, 1000000))
+      ->capture_default_str();
+  uint64_t recordMaxMb = o.recordQuota.maxBytes >> 20;
+  cli.add_option("--record-max-mb", recordMaxMb, "keep at most MB megabytes in DIR, the oldest scans dropped")
+      ->check(CLI::Range(uint64_t{1}, uint64_t{1} << 30))
+      ->capture_default_str();
   cli.add_option("--debug-dir", o.simOpts.debugDir, "write an overlay PNG of the lines found per scan (overlay_NNNN.png)");
   bool laserOff = false;
   cli.add_flag("--laser-off", laserOff, "drive the configured LASER line off and exit (the unit's ExecStopPost)");
@@ -220,6 +229,7 @@ int main(int argc, char** argv) {
     std::fprintf(stderr, "alacsd: %s (see --help)\n", e.what());
     return 2;
   }
+  o.recordQuota.maxBytes = recordMaxMb << 20;
   log::Level level = log::Level::kInfo;
   (void)log::parseLevel(o.level.c_str(), &level);
   log::setLevel(level);

@@ -1,13 +1,89 @@
 #include "replay/scan_recorder.h"
 
+#include <algorithm>
 #include <cstdio>
+#include <cstdlib>
+#include <filesystem>
+#include <system_error>
 
 #include "common/log.h"
 
 namespace alacs::replay {
 
-ScanRecorder::ScanRecorder(std::string rootDir, geometry::Calibration calibration, std::string source)
-    : root_(std::move(rootDir)), calibration_(std::move(calibration)), source_(std::move(source)) {}
+namespace fs = std::filesystem;
+
+namespace {
+
+// The bytes of the regular files under `dir` (symlinks not followed).
+uint64_t bytesUnder(const std::string& dir) {
+  uint64_t n = 0;
+  std::error_code ec;
+  for (fs::recursive_directory_iterator it(dir, ec), end; !ec && it != end; it.increment(ec)) {
+    std::error_code sizeEc;
+    if (it->is_regular_file(sizeEc)) {
+      const auto size = it->file_size(sizeEc);
+      if (!sizeEc) n += size;
+    }
+  }
+  return n;
+}
+
+// The number of a "scan_NNNN" name, or 0.
+int scanNumber(const std::string& name) {
+  if (name.size() < 6 || name.compare(0, 5, "scan_") != 0) return 0;
+  if (!std::all_of(name.begin() + 5, name.end(), [](char c) { return c >= '0' && c <= '9'; }) || name.size() > 14)
+    return 0;
+  return std::atoi(name.c_str() + 5);
+}
+
+}  // namespace
+
+ScanRecorder::ScanRecorder(std::string rootDir, geometry::Calibration calibration, std::string source,
+                           RecordQuota quota)
+    : root_(std::move(rootDir)), calibration_(std::move(calibration)), source_(std::move(source)), quota_(quota) {
+  scanExisting();
+}
+
+void ScanRecorder::scanExisting() {
+  std::error_code ec;
+  for (const fs::directory_entry& e : fs::directory_iterator(root_, ec)) {
+    std::error_code typeEc;
+    if (!e.is_directory(typeEc) || e.is_symlink(typeEc)) continue;
+    const int n = scanNumber(e.path().filename().string());
+    if (n <= 0) continue;
+    kept_.push_back({n, e.path().string(), bytesUnder(e.path().string())});
+    bytes_ += kept_.back().bytes;
+    count_ = std::max(count_, n);
+  }
+  std::sort(kept_.begin(), kept_.end(), [](const Kept& a, const Kept& b) { return a.number < b.number; });
+}
+
+void ScanRecorder::makeRoom(uint64_t more, bool newScan) {
+  const size_t open = writer_ ? 1 : 0;
+  while (kept_.size() > open &&
+         ((newScan && kept_.size() >= static_cast<size_t>(std::max(1, quota_.maxScans))) ||
+          bytes_ + more > quota_.maxBytes)) {
+    const Kept oldest = kept_.front();
+    kept_.erase(kept_.begin());
+    bytes_ -= std::min(bytes_, oldest.bytes);
+    std::error_code ec;
+    fs::remove_all(oldest.dir, ec);
+    ALACS_LOG_INFO("record", "quota: removed %s (%llu bytes)%s", oldest.dir.c_str(),
+                   static_cast<unsigned long long>(oldest.bytes), ec ? " (not all of it)" : "");
+  }
+}
+
+std::vector<std::string> ScanRecorder::scansKept() const {
+  std::lock_guard<std::mutex> lock(mu_);
+  std::vector<std::string> out;
+  for (const Kept& k : kept_) out.push_back(k.dir);
+  return out;
+}
+
+uint64_t ScanRecorder::bytesKept() const {
+  std::lock_guard<std::mutex> lock(mu_);
+  return bytes_;
+}
 
 Status ScanRecorder::begin(int targetId, const Eigen::Vector3d& roughMm, const std::vector<double>& stopsMm,
                            const image::Roi& roi) {
@@ -16,6 +92,7 @@ Status ScanRecorder::begin(int targetId, const Eigen::Vector3d& roughMm, const s
     (void)writer_->finish();
     writer_.reset();
   }
+  makeRoom(0, true);
   ScanInfo info;
   info.kind = "localize";
   info.source = source_;
@@ -27,9 +104,13 @@ Status ScanRecorder::begin(int targetId, const Eigen::Vector3d& roughMm, const s
   info.roiPx = roi;
   char name[32];
   std::snprintf(name, sizeof name, "/scan_%04d", ++count_);
+  ++started_;
   Result<ScanWriter> w = ScanWriter::create(root_ + name, info, calibration_);
   if (!w) return w.status();
   writer_.emplace(std::move(*w));
+  kept_.push_back({count_, root_ + name, bytesUnder(root_ + name)});
+  bytes_ += kept_.back().bytes;
+  openScanOverQuota_ = false;
   return Status::ok();
 }
 
@@ -37,13 +118,24 @@ Status ScanRecorder::frame(const image::ImageView& view, double slideMm, TimeNs 
                            bool laserOn, const image::Roi& window) {
   std::lock_guard<std::mutex> lock(mu_);
   if (!writer_) return {Error::kInvalidArgument, "no scan is being recorded"};
+  // At most a full frame's PNG: room for it first, dropping old scans.
+  const uint64_t frameBytes = static_cast<uint64_t>(view.width) * static_cast<uint64_t>(view.height) * 3U;
+  makeRoom(frameBytes, false);
+  if (openScanOverQuota_ || bytes_ + frameBytes > quota_.maxBytes) {
+    openScanOverQuota_ = true;
+    return {Error::kIo, "record quota: this scan alone would pass " + std::to_string(quota_.maxBytes) + " bytes"};
+  }
   FrameRecord r;
   r.slideMm = slideMm;
   r.timestampS = static_cast<double>(exposureStartNs) / static_cast<double>(kNsPerS);
   r.exposureUs = exposureUs;
   r.laserOn = laserOn;
-  if (!window.empty()) return writer_->addFrame(view, r, window);
-  return writer_->addFrame(view, r);
+  const std::string dir = writer_->dir();
+  const uint64_t before = kept_.back().bytes;
+  const Status s = window.empty() ? writer_->addFrame(view, r) : writer_->addFrame(view, r, window);
+  kept_.back().bytes = bytesUnder(dir);
+  bytes_ = bytes_ - std::min(bytes_, before) + kept_.back().bytes;
+  return s;
 }
 
 Result<std::string> ScanRecorder::end() {
@@ -52,6 +144,9 @@ Result<std::string> ScanRecorder::end() {
   const Status s = writer_->finish();
   const std::string dir = writer_->dir();
   writer_.reset();
+  const uint64_t before = kept_.back().bytes;
+  kept_.back().bytes = bytesUnder(dir);
+  bytes_ = bytes_ - std::min(bytes_, before) + kept_.back().bytes;
   if (!s) return s;
   return dir;
 }
@@ -63,7 +158,7 @@ bool ScanRecorder::recording() const {
 
 int ScanRecorder::scansStarted() const {
   std::lock_guard<std::mutex> lock(mu_);
-  return count_;
+  return started_;
 }
 
 RecordingSource::RecordingSource(ports::FrameSource& inner, ScanRecorder& recorder,

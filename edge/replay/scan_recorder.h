@@ -5,6 +5,7 @@
 #pragma once
 
 #include <Eigen/Core>
+#include <cstdint>
 #include <functional>
 #include <memory>
 #include <mutex>
@@ -18,9 +19,20 @@
 
 namespace alacs::replay {
 
+// How much --record may keep on disk. Before each scan, and when a frame would pass the
+// byte limit, the oldest scan directories (lowest number) are removed; a scan that alone
+// exceeds the byte limit stops being recorded (its further frames are refused, kIo "record
+// quota", and logged; the scan itself goes on). Scans already in the directory count, and
+// numbering continues after the highest found.
+struct RecordQuota {
+  int maxScans = 500;
+  uint64_t maxBytes = uint64_t{2} << 30;  // 2 GiB
+};
+
 class ScanRecorder {
  public:
-  ScanRecorder(std::string rootDir, geometry::Calibration calibration, std::string source = "alacsd");
+  ScanRecorder(std::string rootDir, geometry::Calibration calibration, std::string source = "alacsd",
+               RecordQuota quota = {});
 
   // Opens the next scan directory; an unfinished one is finished first. Errors: kIo.
   Status begin(int targetId, const Eigen::Vector3d& roughMm, const std::vector<double>& stopsMm,
@@ -34,16 +46,33 @@ class ScanRecorder {
   // when no scan is open; kIo.
   Result<std::string> end();
   int scansStarted() const;
+  // The scan directories kept (oldest first) and their bytes, the open one included.
+  std::vector<std::string> scansKept() const;
+  uint64_t bytesKept() const;
   // Whether a scan is open (frames outside scans are not recorded).
   bool recording() const;
 
  private:
+  struct Kept {
+    int number = 0;
+    std::string dir;
+    uint64_t bytes = 0;
+  };
+  // Drops the oldest scans (never the open one) until `more` bytes and one more scan fit.
+  void makeRoom(uint64_t more, bool newScan);
+  void scanExisting();
+
   std::string root_;
   geometry::Calibration calibration_;
   std::string source_;
+  RecordQuota quota_;
   mutable std::mutex mu_;
   std::optional<ScanWriter> writer_;
+  std::vector<Kept> kept_;  // oldest first; the open scan is the last while writer_ is set
+  uint64_t bytes_ = 0;
+  bool openScanOverQuota_ = false;
   int count_ = 0;
+  int started_ = 0;
 };
 
 // A camera decorator: every frame captured through it is also written to the recorder.

@@ -400,3 +400,54 @@ TEST_CASE("A scan directory is contained: no symlink, no FIFO, no escape, no ove
     CHECK_FALSE(replay::manifestFromJson(Json::parse(replay::manifestJson(big)), back).isOk());
   }
 }
+
+// Issue 15, finding 5: with --record, LOCALIZE commands over CAN could fill the disk.
+TEST_CASE("--record keeps to its quota: the oldest scans go, numbering goes on", "[replay]") {
+  const test::TempDir tmp("alacs_quota");
+  const std::string root = tmp.path();
+  auto recordScans = [&](replay::ScanRecorder& rec, int scans, int frames) {
+    CountingSource inner;
+    replay::RecordingSource cam(inner, rec, [] { return 5.0; }, [] { return true; });
+    for (int s = 0; s < scans; ++s) {
+      REQUIRE(rec.begin(1, Eigen::Vector3d(0, 0, 1000), {5.0}, image::Roi{0, 0, 64, 48}).isOk());
+      for (int f = 0; f < frames; ++f) REQUIRE(cam.capture({}, {}).isOk());
+      REQUIRE(rec.end().isOk());
+    }
+  };
+  SECTION("at most maxScans directories") {
+    replay::RecordQuota q;
+    q.maxScans = 2;
+    {
+      replay::ScanRecorder rec(root, smallCalibration(), "alacsd", q);
+      recordScans(rec, 3, 1);
+      CHECK(rec.scansKept() == std::vector<std::string>{root + "/scan_0002", root + "/scan_0003"});
+    }
+    // A restarted daemon counts what is there and numbers on.
+    replay::ScanRecorder again(root, smallCalibration(), "alacsd", q);
+    recordScans(again, 1, 1);
+    CHECK(again.scansKept() == std::vector<std::string>{root + "/scan_0003", root + "/scan_0004"});
+    struct stat st {};
+    CHECK(::stat((root + "/scan_0002").c_str(), &st) != 0);
+  }
+  SECTION("at most maxBytes on disk") {
+    replay::RecordQuota q;
+    q.maxBytes = 20000;  // a few scans of two 64 x 48 frames (about 4 KB each, the calibration included)
+    replay::ScanRecorder rec(root, smallCalibration(), "alacsd", q);
+    recordScans(rec, 12, 2);
+    CHECK(rec.bytesKept() <= q.maxBytes);
+    CHECK(rec.scansKept().size() < 12);
+    CHECK(rec.scansKept().back() == root + "/scan_0012");
+  }
+  SECTION("a scan that alone passes the limit stops being recorded, the camera goes on") {
+    replay::RecordQuota q;
+    q.maxBytes = 5000;  // less than one raw frame
+    replay::ScanRecorder rec(root, smallCalibration(), "alacsd", q);
+    REQUIRE(rec.begin(1, Eigen::Vector3d(0, 0, 1000), {5.0}, image::Roi{0, 0, 64, 48}).isOk());
+    cv::Mat frame(48, 64, CV_8UC3, cv::Scalar::all(7));
+    const image::ImageView view{frame.data, frame.cols, frame.rows, frame.step[0], image::PixelFormat::kBgr888};
+    const Status s = rec.frame(view, 5.0, 0, 1000, true);
+    CHECK(s.code() == Error::kIo);
+    CHECK(s.reason().find("record quota") != std::string::npos);
+    CHECK(rec.end().isOk());
+  }
+}
