@@ -15,6 +15,7 @@
 #include <cstdlib>
 #include <memory>
 #include <string>
+#include <string_view>
 
 #include "app/config.h"
 #include "app/platform.h"
@@ -22,6 +23,9 @@
 #include "app/scan_worker.h"
 #include "app/sensor.h"
 #include "common/log.h"
+#ifdef ALACS_HAVE_GPIOD
+#include "drivers/gpiod/laser_guard.h"
+#endif
 #include "app/recording_observer.h"
 #ifdef ALACS_WITH_SIM
 #include "app/sim_platform.h"
@@ -189,6 +193,12 @@ int runDaemon(const Options& o, const DaemonConfig& cfg) {
 
 int main(int argc, char** argv) {
   using namespace alacs;
+#ifdef ALACS_HAVE_GPIOD
+  // The laser's guard process (drivers/gpiod/laser_guard.h): started by alacsd itself as
+  // `alacsd --laser-guard FD CHIP LINE MAX_ON_MS`; not an option for people.
+  if (argc == 6 && std::string_view(argv[1]) == "--laser-guard")
+    return drivers::runLaserGuard(std::atoi(argv[2]), argv[3], argv[4], std::atoi(argv[5]));
+#endif
   app::mapLargeBlocks();
   app::Options o;
   CLI::App cli{"alacsd: the ALACS sensor daemon (docs/daemon.md)", "alacsd"};

@@ -32,7 +32,8 @@ class HardwarePlatform final : public Platform {
   static Result<std::unique_ptr<Platform>> open(const DaemonConfig& cfg, const std::string& calibrationPath) {
     std::unique_ptr<HardwarePlatform> p(new HardwarePlatform);
     if (cfg.gpioChip.empty()) return Status(Error::kInvalidArgument, "no GPIO chip configured (gpio.chip) and not --sim");
-    Result<std::unique_ptr<drivers::GpiodLines>> g = drivers::GpiodLines::open(cfg.gpioChip, cfg.lines, "alacsd");
+    Result<std::unique_ptr<drivers::GpiodLines>> g =
+        drivers::GpiodLines::open(cfg.gpioChip, cfg.lines, "alacsd", laserGuardFor(cfg));
     if (!g) return g.status();
     p->gpio_ = std::move(*g);
     p->lines_ = p->gpio_->lines();
@@ -84,6 +85,12 @@ WorkerDeps workerDepsFor(const DaemonConfig& cfg, Platform& platform, const Cloc
   deps.frameSlideMm = platform.frameSlideMm();
   return deps;
 }
+
+#ifdef ALACS_HAVE_GPIOD
+drivers::LaserGuardOptions laserGuardFor(const DaemonConfig& cfg) {
+  return {"/proc/self/exe", cfg.laserMaxOnMs + kLaserGuardMarginMs};
+}
+#endif
 
 Status driveLaserOff(const DaemonConfig& cfg) {
 #ifdef ALACS_HAVE_GPIOD

@@ -14,6 +14,9 @@
 #include "app/scan_worker.h"
 #include "app/sensor.h"
 #include "drivers/socketcan/socketcan.h"
+#ifdef ALACS_HAVE_GPIOD
+#include "drivers/gpiod/gpiod_lines.h"
+#endif
 #include "geometry/calibration.h"
 #include "ports/digital_io.h"
 #include "ports/frame_source.h"
@@ -74,5 +77,14 @@ WorkerDeps workerDepsFor(const DaemonConfig& cfg, Platform& platform, const Cloc
 // releases it. Errors: no GPIO configured, the chip or line missing, a build without
 // libgpiod.
 Status driveLaserOff(const DaemonConfig& cfg);
+
+#ifdef ALACS_HAVE_GPIOD
+// The LASER line through its guard process (drivers/gpiod/laser_guard.h): this binary
+// (/proc/self/exe) serves it, and ends any pulse kLaserGuardMarginMs after
+// laser.max_on_ms, so that the daemon's own check (LASER_OVERTIME at max_on_ms) comes
+// first and the guard only acts when the daemon cannot.
+inline constexpr int kLaserGuardMarginMs = 25;
+drivers::LaserGuardOptions laserGuardFor(const DaemonConfig& cfg);
+#endif
 
 }  // namespace alacs::app

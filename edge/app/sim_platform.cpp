@@ -128,7 +128,8 @@ class SimPlatform final : public Platform {
   Status openBenchGpio(const DaemonConfig& cfg) {
     if (cfg.gpioChip.empty()) return Status::ok();
 #ifdef ALACS_HAVE_GPIOD
-    Result<std::unique_ptr<drivers::GpiodLines>> g = drivers::GpiodLines::open(cfg.gpioChip, cfg.lines, "alacsd");
+    Result<std::unique_ptr<drivers::GpiodLines>> g =
+        drivers::GpiodLines::open(cfg.gpioChip, cfg.lines, "alacsd", laserGuardFor(cfg));
     if (!g) return g.status();
     gpio_ = std::move(*g);
     lines_ = gpio_->lines();

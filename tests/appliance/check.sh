@@ -114,7 +114,13 @@ fi
 # Every key config.cpp reads is in firmware/config/alacsd.json, and nothing else is.
 if out=$("$py" - <<'PY'
 import json, re, sys
-keys = set(re.findall(r'r\.(?:integer64|integer|number|text|boolean)\("([a-z0-9_.]+)"', open("edge/app/config.cpp").read()))
+# config.cpp reads each section as `if (auto v = root.object("sec")) { v->kind("key", ...) }`
+# and top-level keys as `root.kind("key", ...)`.
+src = open("edge/app/config.cpp").read()
+keys = set()
+for var, sec, body in re.findall(r'if \(auto (\w+) = root\.object\("([a-z0-9_]+)"\)\) \{(.*?)\n  \}', src, re.S):
+    keys |= {sec + "." + k for k in re.findall(r'\b' + var + r'->(?:integer|number|text|boolean|flag)\("([a-z0-9_]+)"', body)}
+keys |= set(re.findall(r'\broot\.(?:integer|number|text|boolean|flag)\("([a-z0-9_]+)"', src))
 def flat(d, p=""):
     for k, v in d.items():
         yield from flat(v, p + k + ".") if isinstance(v, dict) else [p + k]

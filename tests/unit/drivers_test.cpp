@@ -4,7 +4,14 @@
 
 #include "drivers/socketcan/socketcan.h"
 #ifdef ALACS_HAVE_GPIOD
+#include <sys/socket.h>
+#include <unistd.h>
+
+#include <thread>
+
 #include "drivers/gpiod/gpiod_lines.h"
+#include "drivers/gpiod/laser_guard.h"
+#include "ports/digital_io_fake.h"
 #endif
 #ifdef ALACS_HAVE_LIBCAMERA
 #include "drivers/libcamera/libcamera_source.h"
@@ -41,5 +48,43 @@ TEST_CASE("libcamera: with no camera the adapter says so", "[drivers][camera]") 
     REQUIRE_FALSE(cam.isOk());
     CHECK(cam.status().code() == Error::kNotFound);
   }
+}
+#endif
+
+#ifdef ALACS_HAVE_GPIOD
+// The laser guard's loop (drivers/gpiod/laser_guard.h) on a recording line, over a real
+// socket pair: it follows the daemon, ends a pulse the daemon left on, and leaves the line
+// off when the daemon's end closes. Checked by order and count, not by duration.
+TEST_CASE("Laser guard: follows on/off, cuts a pulse left on, off when the daemon goes", "[drivers][gpio][guard]") {
+  int sv[2];
+  REQUIRE(::socketpair(AF_UNIX, SOCK_SEQPACKET, 0, sv) == 0);
+  MonotonicClock clock;
+  ports::FakeDigitalOut line(clock, true);  // whatever it was: the guard starts by turning it off
+  std::thread guard([&] { drivers::serveLaserGuard(sv[1], line, 30); });
+  auto exchange = [&](char c) {
+    REQUIRE(::send(sv[0], &c, 1, 0) == 1);
+    char r = 0;
+    REQUIRE(::recv(sv[0], &r, 1, 0) == 1);
+    return r;
+  };
+  CHECK(exchange('1') == '1');
+  CHECK(line.level());
+  CHECK(exchange('0') == '0');
+  CHECK_FALSE(line.level());
+  // On, and never turned off by the daemon: the guard ends the pulse and says so.
+  CHECK(exchange('1') == '1');
+  char note = 0;
+  REQUIRE(::recv(sv[0], &note, 1, 0) == 1);
+  CHECK(note == 'C');
+  CHECK_FALSE(line.level());
+  // On again, and the daemon's end closes (it died): off, and the guard returns.
+  CHECK(exchange('1') == '1');
+  ::close(sv[0]);
+  guard.join();
+  ::close(sv[1]);
+  CHECK_FALSE(line.level());
+  const auto edges = line.edges();
+  REQUIRE(edges.size() == 7);  // off at start, then on/off three times
+  for (size_t i = 0; i < edges.size(); ++i) CHECK(edges[i].level == (i % 2 == 1));
 }
 #endif

@@ -7,6 +7,8 @@
 #include <dirent.h>
 #include <vector>
 
+#include "drivers/gpiod/laser_guard.h"
+
 namespace alacs::drivers {
 namespace {
 
@@ -212,7 +214,7 @@ Result<ChipPtr> openChip(const std::string& chip) {
 class Lines final : public GpiodLines {
  public:
   static Result<std::unique_ptr<GpiodLines>> make(const std::string& chipSpec, const GpioLineNames& names,
-                                                  const std::string& consumer) {
+                                                  const std::string& consumer, const LaserGuardOptions& guard) {
     Result<ChipPtr> chip = openChip(chipSpec);
     if (!chip) return chip.status();
     auto self = std::unique_ptr<Lines>(new Lines(std::move(*chip)));
@@ -229,7 +231,14 @@ class Lines final : public GpiodLines {
       *dst = std::move(*r);
       return Status::ok();
     };
-    if (Status s = out(names.laser, &self->laser_); !s) return s;  // first: the laser is off from here on
+    // First: the laser is off from here on (held by its guard process when there is one).
+    if (!guard.exe.empty()) {
+      Result<std::unique_ptr<LaserGuardProcess>> g = LaserGuardProcess::spawn(guard.exe, chipSpec, names.laser, guard.maxOnMs);
+      if (!g) return g.status();
+      self->laser_ = std::move(*g);
+    } else if (Status s = out(names.laser, &self->laser_); !s) {
+      return s;
+    }
     if (Status s = out(names.enable, &self->enable_); !s) return s;
     if (Status s = out(names.step, &self->step_); !s) return s;
     if (Status s = out(names.dir, &self->dir_); !s) return s;
@@ -263,8 +272,30 @@ class Lines final : public GpiodLines {
 }  // namespace
 
 Result<std::unique_ptr<GpiodLines>> GpiodLines::open(const std::string& chip, const GpioLineNames& names,
-                                                     const std::string& consumer) {
-  return Lines::make(chip, names, consumer);
+                                                     const std::string& consumer, const LaserGuardOptions& guard) {
+  return Lines::make(chip, names, consumer, guard);
+}
+
+namespace {
+// One output line with the chip it belongs to (the line is released before the chip closes).
+class OwnedOut final : public ports::DigitalOut {
+ public:
+  OwnedOut(ChipPtr chip, std::unique_ptr<ports::DigitalOut> line) : chip_(std::move(chip)), line_(std::move(line)) {}
+
+ private:
+  Status doSet(bool asserted) override { return line_->set(asserted); }
+  ChipPtr chip_;
+  std::unique_ptr<ports::DigitalOut> line_;
+};
+}  // namespace
+
+Result<std::unique_ptr<ports::DigitalOut>> GpiodLines::openOutput(const std::string& chip, const std::string& name,
+                                                                  const std::string& consumer) {
+  Result<ChipPtr> c = openChip(chip);
+  if (!c) return c.status();
+  Result<std::unique_ptr<ports::DigitalOut>> line = requestOut(c->get(), name, chip, consumer);
+  if (!line) return line.status();
+  return std::unique_ptr<ports::DigitalOut>(std::make_unique<OwnedOut>(std::move(*c), std::move(*line)));
 }
 
 }  // namespace alacs::drivers

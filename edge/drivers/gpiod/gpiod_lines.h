@@ -22,12 +22,22 @@ struct GpioLineNames {
   bool endActiveLow = false;
 };
 
+// The LASER line through a guard process of its own (laser_guard.h): `exe` is the binary
+// that serves `--laser-guard` (alacsd itself); empty: the line is requested here.
+struct LaserGuardOptions {
+  std::string exe;
+  int maxOnMs = 250;
+};
+
 class GpiodLines {
  public:
   // `chip` is a device path (/dev/gpiochip0) or a chip label (alacs-sim). Outputs are
   // requested deasserted (laser off, motor disabled). Errors name the missing line.
   static Result<std::unique_ptr<GpiodLines>> open(const std::string& chip, const GpioLineNames& names,
-                                                  const std::string& consumer);
+                                                  const std::string& consumer, const LaserGuardOptions& guard = {});
+  // One output line, deasserted, owning its chip (the laser guard's).
+  static Result<std::unique_ptr<ports::DigitalOut>> openOutput(const std::string& chip, const std::string& name,
+                                                               const std::string& consumer);
   virtual ~GpiodLines() = default;
   virtual ports::SensorLines lines() = 0;
   // Drives every output to its safe level (laser off, motor disabled, STEP low).
