@@ -132,6 +132,7 @@ struct CaseResult {
   double distanceMm = 0.0;
   bool found = false;
   bool sphere = false;
+  bool outsideGate = false;      // found by the widened search
   double approachErr = 1e9;
   double centreErr = 1e9;
   double diameterErr = 1e9;
@@ -360,6 +361,7 @@ int localizeEval(const std::string& calPath, int cases, const std::vector<double
         if (est) {
           r.found = true;
           r.sphere = est->sphereFit;
+          r.outsideGate = est->outsideGate;
           r.approachErr = (est->approachMm - r.approachTruth).norm();
           r.centreErr = (est->centerMm - target.centerMm).norm();
           r.diameterErr = std::abs(est->diameterMm - 2.0 * target.radiusMm);
@@ -391,13 +393,14 @@ int localizeEval(const std::string& calPath, int cases, const std::vector<double
     std::ofstream csv(csvPath);
     csv << "case,distance_mm,found,sphere,approach_err_mm,centre_err_mm,diameter_err_mm,sigma_mm,confidence_pct,"
            "occlusion_truth,occlusion_est_pct,lines,diameter_est_mm,diameter_truth_mm,aspect_est,aspect_truth,"
-           "stops,diameter_sigma_mm,centre_dx_mm,centre_dy_mm,centre_dz_mm,centre_to_rough_mm,rough_approach_err_mm,description\n";
+           "stops,diameter_sigma_mm,centre_dx_mm,centre_dy_mm,centre_dz_mm,centre_to_rough_mm,rough_approach_err_mm,outside_gate,"
+           "description\n";
     for (const auto& r : results)
       csv << r.index << "," << r.distanceMm << "," << r.found << "," << r.sphere << "," << r.approachErr << "," << r.centreErr << ","
           << r.diameterErr << "," << r.sigma << "," << r.confidence << "," << r.occlusionTruth << "," << r.occlusionEst
           << "," << r.lines << "," << r.diameterEst << "," << r.diameterTruth << "," << r.aspectEst << ","
           << r.aspectTruth << "," << r.stops << "," << r.diameterSigma << "," << r.centreErrMm.x() << "," << r.centreErrMm.y() << "," << r.centreErrMm.z() << ","
-          << r.centreToRoughMm << "," << r.roughApproachErr << ",\""
+          << r.centreToRoughMm << "," << r.roughApproachErr << "," << r.outsideGate << ",\""
           << r.description << "\"\n";
   }
 
@@ -476,11 +479,21 @@ int localizeEval(const std::string& calPath, int cases, const std::vector<double
   md << "\nCalibration: `" << calPath << "` (" << (cal->quality.fromTruth ? "the twin's TRUTH" : "estimated") << ", gate "
      << (cal->quality.gate == geometry::CalibrationQuality::Gate::kPassed ? "passed" : "not passed") << ").\n";
   size_t followedUp = 0;
+  size_t widened = 0;
+  double widenedWorstMm = 0.0;
   double framesTaken = 0.0;
   for (const auto& r : results) {
     followedUp += r.stops > scan.stops ? 1U : 0U;
     framesTaken += r.stops;
+    if (r.outsideGate) {
+      ++widened;
+      widenedWorstMm = std::max(widenedWorstMm, r.approachErr);
+    }
   }
+  md << "Widened search (nothing fitted within the " << scan.gateMm << " mm gate): " << widened << " of "
+     << results.size() << " cases";
+  if (widened > 0) md << ", worst approach error among them " << widenedWorstMm << " mm";
+  md << ".\n";
   md << "Scan: " << scan.stops << " stops " << scan.stopSpacingMm << " mm apart; adaptive follow-up (up to "
      << scan.followUpMaxStops << " stops when fewer than " << scan.followUpMinLines << " lines reach the fit";
   if (scan.followUpDiameterSigmaMm > 0.0) md << " or the diameter's σ exceeds " << scan.followUpDiameterSigmaMm << " mm";
