@@ -414,7 +414,7 @@ TEST_CASE("The intrinsics' full covariance agrees with calib3d's sigma and keeps
 }
 
 TEST_CASE("The total depth sigma includes the intrinsics, grows with depth and predicts the real error",
-          "[calibration]") {
+          "[calibration][slow]") {
   Rig rig;
   double sumZ2 = 0.0;
   int count = 0;
@@ -454,7 +454,7 @@ TEST_CASE("The total depth sigma includes the intrinsics, grows with depth and p
   CHECK(rmsZ < 2.0);
 }
 
-TEST_CASE("The Monte Carlo of the intrinsics agrees with the linearised total sigma", "[calibration]") {
+TEST_CASE("The Monte Carlo of the intrinsics agrees with the linearised total sigma", "[calibration][slow]") {
   Rig rig;
   const SyntheticCalibration run = calibrateSynthetic(rig, 3, 10);
   auto linear = propagateCalibrationUncertainty(run.camera.camera, run.camera.covariance, run.laser, run.observations);
