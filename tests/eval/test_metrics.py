@@ -9,7 +9,7 @@ import pytest
 
 from alacs_eval import metrics, paper_method
 from alacs_eval.camera import Calibration
-from alacs_eval.paper_lle_fallback import PaperLine
+from alacs_eval.paper_line import PaperLine
 
 TRUTH_DTYPE = [("row", int), ("column", float), ("x", float), ("y", float), ("z", float), ("flags", int)]
 

@@ -2,4 +2,4 @@
 distance with and without occlusion, success rate within 20 mm), reproduced on scan
 directories of the digital twin, with the paper's own method beside ours."""
 
-__all__ = ["camera", "metrics", "paper_lle_fallback", "paper_method", "report", "scans", "twin"]
+__all__ = ["camera", "metrics", "paper_line", "paper_method", "report", "scans", "twin"]

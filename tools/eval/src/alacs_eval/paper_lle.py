@@ -1,5 +1,6 @@
-"""Which implementation of the paper's LLE the evaluation runs: issue 4's
-tools/paper_lle/paper_lle.py when it exists, else paper_lle_fallback."""
+"""The paper's LLE as the evaluation runs it: tools/paper_lle/paper_lle.py (the numpy
+reference that tools/lle/check.sh holds equal to the C++ paper path), adapted to the
+evaluation's PaperLine. There is no second copy: a missing reference is an error."""
 
 from __future__ import annotations
 
@@ -9,7 +10,7 @@ from typing import Callable
 
 import numpy as np
 
-from alacs_eval.paper_lle_fallback import PaperLine, paper_lle as fallback
+from alacs_eval.paper_line import PaperLine
 
 ROOT = Path(__file__).resolve().parents[4]
 UPSTREAM = ROOT / "tools" / "paper_lle" / "paper_lle.py"
@@ -47,12 +48,13 @@ def _adapt(fn: Callable) -> Callable[..., PaperLine]:
 
 
 def load() -> tuple[Callable[..., PaperLine], str]:
-    """(implementation, its name)."""
-    if UPSTREAM.exists():
-        spec = importlib.util.spec_from_file_location("alacs_paper_lle_upstream", UPSTREAM)
-        if spec is not None and spec.loader is not None:
-            mod = importlib.util.module_from_spec(spec)
-            spec.loader.exec_module(mod)
-            if hasattr(mod, "paper_lle"):
-                return _adapt(mod.paper_lle), "tools/paper_lle/paper_lle.py"
-    return fallback, "tools/eval (fallback)"
+    """(implementation, its name). Raises FileNotFoundError/ImportError when the reference
+    is missing or has no paper_lle."""
+    spec = importlib.util.spec_from_file_location("alacs_paper_lle_upstream", UPSTREAM)
+    if not UPSTREAM.exists() or spec is None or spec.loader is None:
+        raise FileNotFoundError(f"the paper's LLE reference {UPSTREAM} is missing")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    if not hasattr(mod, "paper_lle"):
+        raise ImportError(f"{UPSTREAM} has no paper_lle()")
+    return _adapt(mod.paper_lle), "tools/paper_lle/paper_lle.py"

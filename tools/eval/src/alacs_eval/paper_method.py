@@ -11,7 +11,7 @@ import dataclasses
 import numpy as np
 
 from alacs_eval.camera import Calibration
-from alacs_eval.paper_lle_fallback import PaperLine
+from alacs_eval.paper_line import PaperLine
 
 W1, W2 = 1.0, 2.0
 NOMINAL_RADIUS_MM = 40.0
