@@ -387,7 +387,7 @@ namespace {
 // `v` (may be null: absent) as an array of exactly `count` elements, else null with the
 // error recorded: wrong type through `wrongType`, a wrong length at `path`.
 template <typename WrongType>
-const Json* fixedArray(JsonErrors& errors, std::string_view /*key*/, const std::string& path, const Json* v,
+const Json* fixedArray(JsonErrors& errors, const std::string& path, const Json* v,
                        size_t count, const char* elements, WrongType&& wrongType) {
   if (v == nullptr) return nullptr;
   const std::string shape = "an array of " + std::to_string(count) + " " + elements;
@@ -404,7 +404,7 @@ const Json* fixedArray(JsonErrors& errors, std::string_view /*key*/, const std::
 }  // namespace
 
 bool JsonObjectReader::numbers(std::string_view key, std::span<double> out, Need need) {
-  const Json* v = fixedArray(errors_, key, pathOf(key), find(key, need), out.size(), "numbers", [&](const char* shape, const Json& got) {
+  const Json* v = fixedArray(errors_, pathOf(key), find(key, need), out.size(), "numbers", [&](const char* shape, const Json& got) {
     wrongType(key, shape, got);
   });
   if (v == nullptr) return false;
@@ -429,7 +429,7 @@ bool JsonObjectReader::numberList(std::string_view key, std::vector<double>& out
 }
 
 bool JsonObjectReader::integers(std::string_view key, std::span<int64_t> out, int64_t lo, int64_t hi, Need need) {
-  const Json* v = fixedArray(errors_, key, pathOf(key), find(key, need), out.size(), "integers", [&](const char* shape, const Json& got) {
+  const Json* v = fixedArray(errors_, pathOf(key), find(key, need), out.size(), "integers", [&](const char* shape, const Json& got) {
     wrongType(key, shape, got);
   });
   if (v == nullptr) return false;
