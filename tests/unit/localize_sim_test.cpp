@@ -16,6 +16,21 @@ namespace {
 image::ImageView viewOf(const cv::Mat& m) {
   return {m.data, m.cols, m.rows, m.step[0], image::PixelFormat::kBgr888};
 }
+
+// Renders each planned stop with the laser on and observes it.
+std::vector<localize::LineObservation> scanLines(sim::Renderer& renderer, const localize::Localizer& loc,
+                                                 const localize::ScanPlan& plan) {
+  std::vector<localize::LineObservation> lines;
+  image::LleWorkspace ws;
+  cv::Mat frame;
+  for (size_t i = 0; i < plan.stopsMm.size(); ++i) {
+    renderer.render(plan.stopsMm[i], 1.0, i, frame);
+    auto obs = loc.observe(viewOf(frame), plan, plan.stopsMm[i], ws);
+    REQUIRE(obs.isOk());
+    lines.push_back(*obs);
+  }
+  return lines;
+}
 }  // namespace
 
 TEST_CASE("LLE on a simulated frame follows the true laser line to a tenth of a pixel", "[sim][lle][render]") {
@@ -60,15 +75,7 @@ TEST_CASE("Five-stop scan localizes the simulated apple within 5 mm", "[sim][loc
   auto plan = loc.plan(apple.centerMm + Eigen::Vector3d(-12, 9, -20), 200.0);
   REQUIRE(plan.isOk());
   REQUIRE(plan->stopsMm.size() == 5);
-  std::vector<localize::LineObservation> lines;
-  image::LleWorkspace ws;
-  cv::Mat frame;
-  for (size_t i = 0; i < plan->stopsMm.size(); ++i) {
-    renderer.render(plan->stopsMm[i], 1.0, i, frame);
-    auto obs = loc.observe(viewOf(frame), *plan, plan->stopsMm[i], ws);
-    REQUIRE(obs.isOk());
-    lines.push_back(*obs);
-  }
+  const std::vector<localize::LineObservation> lines = scanLines(renderer, loc, *plan);
   auto est = loc.estimate(*plan, lines);
   REQUIRE(est.isOk());
   CHECK(est->sphereFit);
@@ -112,15 +119,7 @@ TEST_CASE("A rough position 100 mm short: the widened search finds the apple, fl
     localize::Localizer loc(scene.truth, image::LleParams{}, sp);
     auto plan = loc.plan(rough, 200.0);
     REQUIRE(plan.isOk());
-    std::vector<localize::LineObservation> lines;
-    image::LleWorkspace ws;
-    cv::Mat frame;
-    for (size_t i = 0; i < plan->stopsMm.size(); ++i) {
-      renderer.render(plan->stopsMm[i], 1.0, i, frame);
-      auto obs = loc.observe(viewOf(frame), *plan, plan->stopsMm[i], ws);
-      REQUIRE(obs.isOk());
-      lines.push_back(*obs);
-    }
+    const std::vector<localize::LineObservation> lines = scanLines(renderer, loc, *plan);
     // What the fusion costs (printed, not asserted: a measurement, median of 9).
     std::vector<double> ms;
     for (int rep = 0; rep < 9; ++rep) {
