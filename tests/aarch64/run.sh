@@ -91,7 +91,7 @@ step "configure"
 # DT_RUNPATH (--disable-new-dtags): only the former also serves the libraries' own
 # dependencies.
 nice cmake -S . -B "$build" -G Ninja -U 'ALACS_OPENCV_*'  -DCMAKE_TOOLCHAIN_FILE="$root/cmake/toolchain-aarch64.cmake" \
-  -DCMAKE_BUILD_TYPE=RelWithDebInfo -DCMAKE_PREFIX_PATH="$extra/usr" \
+  -DCMAKE_BUILD_TYPE=Release -DCMAKE_PREFIX_PATH="$extra/usr" \
   -DCMAKE_EXE_LINKER_FLAGS="-Wl,--disable-new-dtags -Wl,-rpath-link,$extra_libs" -DCMAKE_BUILD_RPATH="${extra_libs//:/;}" \
   >"$root/build/aarch64-configure.log" 2>&1 || { cat "$root/build/aarch64-configure.log"; fail "configure"; finish; }
 grep -E "^-- ALACS" "$root/build/aarch64-configure.log"
