@@ -14,9 +14,10 @@ Status bad(const std::string& key, const std::string& what) {
 }  // namespace
 
 Status validateConfig(const DaemonConfig& c) {
-  if (Status s = c.motion.validate(); !s) return s;
-  if (Status s = c.scan.validate(); !s) return s;
-  if (Status s = c.lle.validate(); !s) return s;
+  // The components' own checks (cross-field ones among them, e.g. scan.search_mm against
+  // scan.gate_mm) name their keys; from a file they are bad input like any other.
+  for (const Status& s : {c.motion.validate(), c.scan.validate(), c.lle.validate()})
+    if (!s) return {Error::kBadInput, "config: " + s.reason()};
   if (c.exposureUs * 2 > c.laserMaxOnMs * 1000)
     return bad("camera.exposure_us", "must be at most half of laser.max_on_ms");
   // The frame timeout must fire while the laser guard still has time left: otherwise a

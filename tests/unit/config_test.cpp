@@ -37,6 +37,14 @@ TEST_CASE("Config: defaults, overrides and errors that name the key", "[config]"
   CHECK(ok->scan.followUpDiameterSigmaMm == 0.0);
   auto tooMany = app::loadConfig(write(R"({"scan": {"follow_up_max_stops": 40}})"));
   CHECK(tooMany.status().reason().find("scan.follow_up_max_stops") != std::string::npos);
+  // A component's cross-field rule broken in a file is bad input naming the keys (the
+  // fuzzer's finding: it was kInvalidArgument, as if the caller had erred).
+  auto pulse = app::loadConfig(write(R"({"motion": {"max_speed_mm_s": 2000, "step_pulse_ns": 1000000}})"));
+  CHECK(pulse.status().code() == Error::kBadInput);
+  CHECK(pulse.status().reason().find("motion.max_speed_mm_s") != std::string::npos);
+  auto search = app::loadConfig(write(R"({"scan": {"gate_mm": 120, "search_mm": 100}})"));
+  CHECK(search.status().code() == Error::kBadInput);
+  CHECK(search.status().reason().find("scan.search_mm") != std::string::npos);
   auto frac = app::loadConfig(write(R"({"scan": {"stops": 2.5}})"));
   CHECK(frac.status().reason().find("scan.stops") != std::string::npos);
   auto cross = app::loadConfig(write(R"({"camera": {"exposure_us": 200000}, "laser": {"max_on_ms": 100}})"));
