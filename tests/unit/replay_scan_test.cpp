@@ -402,7 +402,7 @@ TEST_CASE("A scan directory is contained: no symlink, no FIFO, no escape, no ove
 }
 
 // Issue 15, finding 5: with --record, LOCALIZE commands over CAN could fill the disk.
-TEST_CASE("--record keeps to its quota: the oldest scans go, numbering goes on", "[replay]") {
+TEST_CASE("The recorder (--record) keeps to its quota: the oldest scans go, numbering goes on", "[replay]") {
   const test::TempDir tmp("alacs_quota");
   const std::string root = tmp.path();
   auto recordScans = [&](replay::ScanRecorder& rec, int scans, int frames) {
