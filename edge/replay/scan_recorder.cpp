@@ -73,6 +73,12 @@ void ScanRecorder::makeRoom(uint64_t more, bool newScan) {
   }
 }
 
+void ScanRecorder::recountNewest() {
+  const uint64_t before = kept_.back().bytes;
+  kept_.back().bytes = bytesUnder(kept_.back().dir);
+  bytes_ = bytes_ - std::min(bytes_, before) + kept_.back().bytes;
+}
+
 std::vector<std::string> ScanRecorder::scansKept() const {
   std::lock_guard<std::mutex> lock(mu_);
   std::vector<std::string> out;
@@ -130,11 +136,8 @@ Status ScanRecorder::frame(const image::ImageView& view, double slideMm, TimeNs 
   r.timestampS = static_cast<double>(exposureStartNs) / static_cast<double>(kNsPerS);
   r.exposureUs = exposureUs;
   r.laserOn = laserOn;
-  const std::string dir = writer_->dir();
-  const uint64_t before = kept_.back().bytes;
   const Status s = window.empty() ? writer_->addFrame(view, r) : writer_->addFrame(view, r, window);
-  kept_.back().bytes = bytesUnder(dir);
-  bytes_ = bytes_ - std::min(bytes_, before) + kept_.back().bytes;
+  recountNewest();
   return s;
 }
 
@@ -144,9 +147,7 @@ Result<std::string> ScanRecorder::end() {
   const Status s = writer_->finish();
   const std::string dir = writer_->dir();
   writer_.reset();
-  const uint64_t before = kept_.back().bytes;
-  kept_.back().bytes = bytesUnder(dir);
-  bytes_ = bytes_ - std::min(bytes_, before) + kept_.back().bytes;
+  recountNewest();
   if (!s) return s;
   return dir;
 }

@@ -60,6 +60,8 @@ class ScanRecorder {
   };
   // Drops the oldest scans (never the open one) until `more` bytes and one more scan fit.
   void makeRoom(uint64_t more, bool newScan);
+  // The newest kept scan's bytes counted again from the disk (after a frame or its manifest).
+  void recountNewest();
   void scanExisting();
 
   std::string root_;
