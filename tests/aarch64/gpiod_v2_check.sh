@@ -46,8 +46,16 @@ for pyver in "${versions[@]}"; do
   done
   ((ok)) && { ar rcs "$out/libgpiod.a" "${objs[@]}" >>"$log" 2>&1 || ok=0; }
   # The adapter, as the project builds it, but against v2.
-  ((ok)) && { "$cxx" -std=c++20 -O1 "${warn[@]}" -DALACS_GPIOD_API=2 -I "$root/edge" -I "$dir/include" \
-    -c "$root/edge/drivers/gpiod/gpiod_lines.cpp" -o "$out/gpiod_lines.o" >>"$log" 2>&1 || ok=0; }
+  # Every source of the alacs_drivers_gpiod library (edge/drivers/CMakeLists.txt), so a file added there
+  # and missing here fails this check at once rather than at link time.
+  driver_objs=()
+  for src in $(sed -n 's/^ *SOURCES \(gpiod\/.*\)$/\1/p' "$root/edge/drivers/CMakeLists.txt"); do
+    o=$out/$(basename "${src%.cpp}").o
+    ((ok)) && { "$cxx" -std=c++20 -O1 "${warn[@]}" -DALACS_GPIOD_API=2 -I "$root/edge" -I "$dir/include" \
+      -c "$root/edge/drivers/$src" -o "$o" >>"$log" 2>&1 || ok=0; }
+    driver_objs+=("$o")
+  done
+  ((${#driver_objs[@]} > 0)) || { echo "no gpiod sources found in edge/drivers/CMakeLists.txt" >>"$log"; ok=0; }
   cat >"$out/smoke.cpp" <<'CPP'
 #include <cstdio>
 #include "drivers/gpiod/gpiod_lines.h"
@@ -60,7 +68,7 @@ int main() {
 CPP
   ((ok)) && { "$cxx" -std=c++20 -O1 -I "$root/edge" -c "$out/smoke.cpp" -o "$out/smoke.o" >>"$log" 2>&1 &&
     "$cxx" -std=c++20 -O1 -I "$root/edge" -c "$root/edge/common/result.cpp" -o "$out/result.o" >>"$log" 2>&1 &&
-    "$cxx" -o "$out/smoke" "$out/smoke.o" "$out/gpiod_lines.o" "$out/result.o" "$out/libgpiod.a" >>"$log" 2>&1 &&
+    "$cxx" -o "$out/smoke" "$out/smoke.o" "${driver_objs[@]}" "$out/result.o" "$out/libgpiod.a" >>"$log" 2>&1 &&
     "$out/smoke" >>"$log" 2>&1 || ok=0; }
   if ((ok)); then
     echo "gpiod-v2: ok   gpiod_lines.cpp (ALACS_GPIOD_API=2) compiles, links and runs against libgpiod $libver (PyPI gpiod $pyver)"
