@@ -8,10 +8,10 @@
 
 #include "common/json_file.h"
 #include "common/result.h"
-#include "drivers/gpiod/gpiod_lines.h"
 #include "image/lle.h"
 #include "localize/localizer.h"
 #include "motion/trapezoid.h"
+#include "ports/digital_io.h"
 
 namespace alacs::app {
 
@@ -22,7 +22,7 @@ struct DaemonConfig {
   int statusPeriodMs = 100;
   bool nmtAutoStart = true;             // can.auto_start: OPERATIONAL after boot-up; false: wait for NMT START
   std::string gpioChip;                 // empty: no GPIO (only valid with --sim)
-  drivers::GpioLineNames lines;
+  ports::SensorLineNames lines;
   motion::SlideLimits motion;
   localize::ScanParams scan;
   image::LleParams lle;

@@ -4,6 +4,8 @@
 // business, configured per line.
 #pragma once
 
+#include <string>
+
 #include "common/result.h"
 
 namespace alacs::ports {
@@ -36,6 +38,20 @@ struct SensorLines {
   DigitalOut* laser = nullptr;    // asserted: laser emitting
   DigitalIn* home = nullptr;      // asserted: slide at home (0 mm)
   DigitalIn* end = nullptr;       // optional, asserted: slide at the far end
+};
+
+// The names of those lines on the board's GPIO chip (gpio-line-names in the device tree),
+// and which switches are wired active-low: the configuration's `gpio` table, read by the
+// app and used by the GPIO driver.
+struct SensorLineNames {
+  std::string step = "STEP";
+  std::string dir = "DIR";
+  std::string enable = "ENABLE";
+  std::string laser = "LASER";
+  std::string home = "HOME";
+  std::string end = "END";  // empty: no end switch
+  bool homeActiveLow = false;
+  bool endActiveLow = false;
 };
 
 }  // namespace alacs::ports

@@ -11,16 +11,7 @@
 
 namespace alacs::drivers {
 
-struct GpioLineNames {
-  std::string step = "STEP";
-  std::string dir = "DIR";
-  std::string enable = "ENABLE";
-  std::string laser = "LASER";
-  std::string home = "HOME";
-  std::string end = "END";        // empty: no end switch
-  bool homeActiveLow = false;
-  bool endActiveLow = false;
-};
+using GpioLineNames = ports::SensorLineNames;  // the configuration's `gpio` table
 
 // The LASER line through a guard process of its own (laser_guard.h): `exe` is the binary
 // that serves `--laser-guard` (alacsd itself); empty: the line is requested here.
