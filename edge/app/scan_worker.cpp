@@ -117,6 +117,8 @@ void ScanWorker::run() {
       cancel_.store(false);
       if (cancelEpoch_.load() != epoch) cancel_.store(true);
     }
+    // The job's sleeps take turns with the sweep's on a virtual sleeper (tests).
+    deps_.sleeper->attach();
     markProgress();
     resetProgress(job);
     WorkerEvent ev;
@@ -144,6 +146,7 @@ void ScanWorker::run() {
       (void)deps_.enable->set(false);
       post(std::move(ev));
     }
+    deps_.sleeper->detach();
   }
 }
 
@@ -160,10 +163,17 @@ void ScanWorker::post(WorkerEvent ev) {
 
 Status ScanWorker::settleBraking(WorkerEvent& ev) {
   if (!braking_) return Status::ok();
-  braking_->thread.join();
+  joinSweep(*braking_);
   const motion::MoveReport report = braking_->report;
   braking_.reset();
   return moveOutcome(report, ev);
+}
+
+void ScanWorker::joinSweep(Sweep& sweep) {
+  // Not attached while it waits: the sweep's steps go on in (virtual) time meanwhile.
+  deps_.sleeper->detach();
+  sweep.thread.join();
+  deps_.sleeper->attach();
 }
 
 void ScanWorker::finishBraking(const WorkerJob& job) {
@@ -481,9 +491,11 @@ Status ScanWorker::sweepStops(const localize::ScanPlan& plan, const ports::Captu
   sweep->runner.trackPosition(&positionSteps_);
   const TimeNs moveStart = deps_.clock->now() + lim.dirSetupNs;
   Sweep* sw = sweep.get();
+  deps_.sleeper->attach();  // for the sweep's thread, which detaches at its end
   sweep->thread = std::thread([this, sw] {
     sw->report = sw->runner.run(sw->move, sw->forward, cancel_);
     sw->moving.store(false);
+    deps_.sleeper->detach();
   });
   Status status = Status::ok();
   const TimeNs halfExposure = capture.exposureUs * kNsPerUs / 2;
@@ -517,7 +529,7 @@ Status ScanWorker::sweepStops(const localize::ScanPlan& plan, const ports::Captu
     braking_ = std::move(sweep);
     return status;
   }
-  sweep->thread.join();
+  joinSweep(*sweep);
   if (!status) {
     // The sweep was cut short on purpose: the failure above is the reason, not the stop.
     ev.maxStepLatenessNs = std::max(ev.maxStepLatenessNs, sweep->report.maxLatenessNs);

@@ -45,6 +45,13 @@ class Sleeper {
  public:
   virtual ~Sleeper() = default;
   virtual void sleepUntil(TimeNs t) = 0;
+  // For a sleeper shared by threads that take turns in virtual time (VirtualTimeline): a
+  // thread about to do timed work attaches, and detaches when it is done or before it
+  // waits for another attached thread (join). A count, not an identity: a thread may
+  // attach for one it is about to start, which then detaches itself at its end. The real
+  // and the single-threaded virtual sleeper ignore both.
+  virtual void attach() {}
+  virtual void detach() {}
 };
 
 class MonotonicSleeper final : public Sleeper {
