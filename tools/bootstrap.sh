@@ -11,7 +11,7 @@ apt_packages=(
   can-utils kmod iproute2
   user-mode-linux linux-source-6.1 flex bison bc libelf-dev xz-utils
   python3 python3-venv python3-pip
-  clang libclang-rt-14-dev
+  clang libclang-rt-14-dev clang-format clang-tidy
   nlohmann-json3-dev libcli11-dev
 )
 missing=()
