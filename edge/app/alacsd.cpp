@@ -22,6 +22,7 @@
 #include "app/process_memory.h"
 #include "app/scan_worker.h"
 #include "app/sensor.h"
+#include "app/sim_options.h"
 #include "common/log.h"
 #ifdef ALACS_HAVE_GPIOD
 #include "drivers/gpiod/laser_guard.h"

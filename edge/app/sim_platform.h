@@ -10,17 +10,9 @@
 #include <string>
 
 #include "app/platform.h"
+#include "app/sim_options.h"
 
 namespace alacs::app {
-
-struct SimOptions {
-  std::string scenePath;        // empty: sim::defaultScene()
-  std::string truthOut;         // write the scene's truth here (tests)
-  std::string calibrationPath;  // empty: the scene's true calibration (sim), the directory's (replay)
-  std::string fault;            // camera-timeout | camera-corrupt | home-stuck | empty
-  std::string debugDir;         // the laser timeline of each scan goes here (laser_timeline.json)
-  double startMm = 37.0;        // where the simulated slide starts
-};
 
 // Errors: a bad scene file, a bad fault name, the GPIO chip (when gpio.chip is set), CAN.
 Result<std::unique_ptr<Platform>> openSimPlatform(const DaemonConfig& cfg, const SimOptions& opts, const Clock& clock,
