@@ -9,6 +9,7 @@ apt_packages=(
   build-essential cmake ninja-build pkg-config git
   libopencv-dev libeigen3-dev libpng-dev libgpiod-dev gpiod libcamera-dev libsystemd-dev catch2
   can-utils kmod iproute2
+  libcamera-ipa libcamera-tools v4l-utils udev
   user-mode-linux linux-source-6.1 flex bison bc libelf-dev xz-utils
   python3 python3-venv python3-pip
   clang libclang-rt-14-dev clang-format clang-tidy

@@ -1,5 +1,11 @@
 #include "app/platform.h"
 
+#include <nlohmann/json.hpp>
+
+#include <atomic>
+#include <cstdio>
+#include <fstream>
+
 #include "common/log.h"
 #ifdef ALACS_HAVE_GPIOD
 #include "drivers/gpiod/gpiod_lines.h"
@@ -26,10 +32,100 @@ Status Platform::openCan(const DaemonConfig& cfg) {
 
 namespace {
 
+// --debug-dir: the laser line's edges and the exposures of the last scan, as JSON.
+class LaserTimelineWriter final : public ScanObserver {
+ public:
+  LaserTimelineWriter(std::string dir, ports::FakeDigitalOut& laser, int maxOnMs)
+      : dir_(std::move(dir)), laser_(laser), maxOnMs_(maxOnMs) {}
+  void scanFinished(const WorkerEvent& ev) override {
+    nlohmann::json j;
+    j["laser_max_on_ms"] = maxOnMs_;
+    j["edges"] = nlohmann::json::array();
+    for (const ports::Edge& e : laser_.edges()) j["edges"].push_back({e.timeNs, e.level ? 1 : 0});
+    j["exposures"] = nlohmann::json::array();
+    for (const ExposureWindow& w : ev.exposures) j["exposures"].push_back({w.startNs, w.endNs});
+    const std::string path = dir_ + "/laser_timeline.json";
+    {
+      std::ofstream out(path + ".tmp");
+      out << j.dump(2) << '\n';
+      if (!out) {
+        ALACS_LOG_WARN("debug", "cannot write %s", path.c_str());
+        return;
+      }
+    }
+    std::rename((path + ".tmp").c_str(), path.c_str());
+    laser_.clearEdges();
+  }
+
+ private:
+  std::string dir_;
+  ports::FakeDigitalOut& laser_;
+  int maxOnMs_;
+};
+
+}  // namespace
+
+std::unique_ptr<ScanObserver> makeLaserTimelineWriter(const std::string& dir, ports::FakeDigitalOut& laser,
+                                                      int maxOnMs) {
+  return std::make_unique<LaserTimelineWriter>(dir, laser, maxOnMs);
+}
+
+namespace {
+
 #if defined(ALACS_HAVE_GPIOD) && defined(ALACS_HAVE_LIBCAMERA)
+// The board's camera, opened at start and, if that failed (no camera yet, a size it
+// cannot give), again at each capture: the daemon stays up and answers on the bus, and a
+// scan fails as a camera fault naming the reason, instead of the process exiting and
+// systemd restarting it in a loop.
+class CameraWhenAvailable final : public ports::FrameSource {
+ public:
+  explicit CameraWhenAvailable(drivers::LibcameraConfig cfg) : cfg_(std::move(cfg)) { (void)tryOpen(); }
+  const char* name() const override { return "libcamera"; }
+  const Status& openError() const { return error_; }
+  std::string lostReason() const {
+    const drivers::LibcameraSource* s = source_.load();
+    return s != nullptr && s->stats().lost ? "camera " + s->stats().cameraId + " lost (its device was removed)" : "";
+  }
+
+ private:
+  Status tryOpen() {
+    Result<std::unique_ptr<drivers::LibcameraSource>> cam = drivers::LibcameraSource::open(cfg_);
+    if (!cam) {
+      error_ = cam.status();
+      return error_;
+    }
+    owner_ = std::move(*cam);
+    error_ = Status::ok();
+    source_.store(owner_.get());
+    return error_;
+  }
+  Result<ports::CapturedFrame> doCapture(const ports::CaptureRequest& r, const std::function<void()>& end) override {
+    if (source_.load() == nullptr) {
+      if (Status s = tryOpen(); !s) {
+        if (end) end();
+        return Status(Error::kTimeout, "camera unavailable: " + s.toString());
+      }
+      ALACS_LOG_INFO("camera", "camera opened");
+    }
+    return source_.load()->capture(r, end);
+  }
+  void doInterrupt() override {
+    if (drivers::LibcameraSource* s = source_.load()) s->interrupt();
+  }
+  void doResume() override {
+    if (drivers::LibcameraSource* s = source_.load()) s->resume();
+  }
+
+  drivers::LibcameraConfig cfg_;
+  std::unique_ptr<drivers::LibcameraSource> owner_;  // set once, by the worker's thread
+  std::atomic<drivers::LibcameraSource*> source_{nullptr};
+  Status error_;
+};
+
 class HardwarePlatform final : public Platform {
  public:
-  static Result<std::unique_ptr<Platform>> open(const DaemonConfig& cfg, const std::string& calibrationPath) {
+  static Result<std::unique_ptr<Platform>> open(const DaemonConfig& cfg, const std::string& calibrationPath,
+                                                const Clock& clock, const std::string& debugDir) {
     std::unique_ptr<HardwarePlatform> p(new HardwarePlatform);
     if (cfg.gpioChip.empty()) return Status(Error::kInvalidArgument, "no GPIO chip configured (gpio.chip) and not --sim");
     Result<std::unique_ptr<drivers::GpiodLines>> g =
@@ -37,30 +133,41 @@ class HardwarePlatform final : public Platform {
     if (!g) return g.status();
     p->gpio_ = std::move(*g);
     p->lines_ = p->gpio_->lines();
+    if (!debugDir.empty()) {
+      // --debug-dir: the LASER line's edges as the daemon drives them, beside the exposures.
+      p->laserEdges_ = std::make_unique<ports::FakeDigitalOut>(clock);
+      p->laserTee_ = std::make_unique<ports::TeeDigitalOut>(*p->lines_.laser, *p->laserEdges_);
+      p->lines_.laser = p->laserTee_.get();
+      p->timeline_ = makeLaserTimelineWriter(debugDir, *p->laserEdges_, cfg.laserMaxOnMs);
+    }
     ALACS_LOG_INFO("gpio", "lines requested on %s", p->gpio_->chipName().c_str());
     p->setCalibration(geometry::loadCalibration(calibrationPath.empty() ? cfg.calibrationPath : calibrationPath));
     drivers::LibcameraConfig lc;
     lc.cameraId = cfg.cameraId;
-    lc.retries = cfg.frameRetries;
     if (p->calibration()) {
       lc.widthPx = p->calibration()->camera.widthPx;
       lc.heightPx = p->calibration()->camera.heightPx;
     }
-    Result<std::unique_ptr<drivers::LibcameraSource>> cam = drivers::LibcameraSource::open(lc);
-    if (!cam) return cam.status();
-    p->camera_ = std::move(*cam);
+    p->camera_ = std::make_unique<CameraWhenAvailable>(lc);
+    if (const Status& e = p->camera_->openError(); !e)
+      ALACS_LOG_ERROR("camera", "%s; the daemon runs on and tries again at each scan", e.toString().c_str());
     if (Status s = p->openCan(cfg); !s) return s;
     return std::unique_ptr<Platform>(std::move(p));
   }
   const char* name() const override { return "hardware"; }
   const ports::SensorLines& lines() const override { return lines_; }
   ports::FrameSource& camera() override { return *camera_; }
+  ScanObserver* observer() override { return timeline_.get(); }
+  std::string restartReason() const override { return camera_->lostReason(); }
 
  private:
   HardwarePlatform() = default;
   std::unique_ptr<drivers::GpiodLines> gpio_;
+  std::unique_ptr<ports::FakeDigitalOut> laserEdges_;
+  std::unique_ptr<ports::TeeDigitalOut> laserTee_;
+  std::unique_ptr<ScanObserver> timeline_;
   ports::SensorLines lines_;
-  std::unique_ptr<drivers::LibcameraSource> camera_;
+  std::unique_ptr<CameraWhenAvailable> camera_;
 };
 #endif
 
@@ -104,12 +211,15 @@ Status driveLaserOff(const DaemonConfig& cfg) {
 #endif
 }
 
-Result<std::unique_ptr<Platform>> openHardwarePlatform(const DaemonConfig& cfg, const std::string& calibrationPath) {
+Result<std::unique_ptr<Platform>> openHardwarePlatform(const DaemonConfig& cfg, const std::string& calibrationPath,
+                                                      const Clock& clock, const std::string& debugDir) {
 #if defined(ALACS_HAVE_GPIOD) && defined(ALACS_HAVE_LIBCAMERA)
-  return HardwarePlatform::open(cfg, calibrationPath);
+  return HardwarePlatform::open(cfg, calibrationPath, clock, debugDir);
 #else
   (void)cfg;
   (void)calibrationPath;
+  (void)clock;
+  (void)debugDir;
   return Status(Error::kUnsupported, "this build has no libgpiod or no libcamera driver: use --sim or --replay");
 #endif
 }

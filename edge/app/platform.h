@@ -1,3 +1,6 @@
+// alacsd's exit status when it ends for a restart (Platform::restartReason): EX_TEMPFAIL.
+inline constexpr int kExitRestart = 75;
+
 // Where the sensor's ports come from, chosen once at start (libcamera's pipeline
 // handlers' shape): the hardware platform (libgpiod lines, the libcamera camera), the
 // simulated one and the replay one (edge/app/sim_platform.h, only in builds with the
@@ -19,6 +22,7 @@
 #endif
 #include "geometry/calibration.h"
 #include "ports/digital_io.h"
+#include "ports/digital_io_fake.h"
 #include "ports/frame_source.h"
 
 namespace alacs::app {
@@ -44,6 +48,9 @@ class Platform {
   // Extra time the worker may go without progress (Sensor::setWorkerSlack): a simulated
   // camera renders each frame, which takes seconds under emulation.
   virtual TimeNs workerSlackNs() const { return 2 * kNsPerS; }
+  // Non-empty when the process must end for the unit to start it afresh: the camera's
+  // device went away, which libcamera 0.0.3 cannot recover from in-process.
+  virtual std::string restartReason() const { return {}; }
   // Told of each scan (the simulator's laser timeline); may be null.
   virtual ScanObserver* observer() { return nullptr; }
 
@@ -62,10 +69,20 @@ class Platform {
 };
 
 // The board: GPIO through libgpiod (gpio.chip), the libcamera camera, the calibration at
-// `calibrationPath` (empty: the config's `calibration`). Errors: a missing GPIO chip or
-// camera, a build without those drivers, the CAN interface. A bad calibration is not an
-// error: the platform opens and reports why it is not calibrated.
-Result<std::unique_ptr<Platform>> openHardwarePlatform(const DaemonConfig& cfg, const std::string& calibrationPath);
+// `calibrationPath` (empty: the config's `calibration`). Errors: a missing GPIO chip, a
+// build without those drivers, the CAN interface. A camera that cannot be opened is not
+// an error (logged, and tried again at each scan, which fails as a camera fault until it
+// opens), nor is a bad calibration: the platform opens and reports why it is not
+// calibrated.
+// `debugDir` (alacsd --debug-dir): the LASER line's edges as the daemon drives them and
+// the exposures of each scan, as laser_timeline.json there (makeLaserTimelineWriter).
+Result<std::unique_ptr<Platform>> openHardwarePlatform(const DaemonConfig& cfg, const std::string& calibrationPath,
+                                                      const Clock& clock, const std::string& debugDir);
+
+// --debug-dir's laser timeline: after each scan, `laser`'s recorded edges and the scan's
+// exposure windows go to DIR/laser_timeline.json (then the edges are cleared).
+std::unique_ptr<ScanObserver> makeLaserTimelineWriter(const std::string& dir, ports::FakeDigitalOut& laser,
+                                                      int maxOnMs);
 
 // What the scan worker needs from the config and the platform: its lines, `camera`
 // (the platform's, or a recorder in front of it), the laser guard, the clock.

@@ -62,6 +62,8 @@ void ScanWorker::cancel() {
   // The epoch first: a job that starts after this sees it changed and stays cancelled.
   cancelEpoch_.fetch_add(1);
   cancel_.store(true);
+  // A camera waiting for a frame lets go of it now, not at its timeout.
+  deps_.camera->interrupt();
 }
 
 std::optional<WorkerEvent> ScanWorker::takeEvent() {
@@ -116,6 +118,9 @@ void ScanWorker::run() {
       // A cancel() after the job's submission cancels it; none: it runs.
       cancel_.store(false);
       if (cancelEpoch_.load() != epoch) cancel_.store(true);
+      // Before this job, the camera takes captures again. A cancel() from here on sets
+      // cancel_ (checked before every capture) and interrupts the camera anew.
+      deps_.camera->resume();
     }
     // The job's sleeps take turns with the sweep's on a virtual sleeper (tests).
     deps_.sleeper->attach();
@@ -303,6 +308,7 @@ Result<ports::CapturedFrame> ScanWorker::exposeStop(size_t stop, const ports::Ca
       stopsDone_.fetch_add(1);
       break;
     }
+    if (cancel_.load()) break;  // interrupted by STOP: not a dropped frame
     dropped_.fetch_add(1);
     ALACS_LOG_WARN("camera", "stop %zu attempt %d: %s", stop, attempt + 1, frame.status().toString().c_str());
   }

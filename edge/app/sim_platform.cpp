@@ -1,10 +1,5 @@
 #include "app/sim_platform.h"
 
-#include <nlohmann/json.hpp>
-
-#include <cstdio>
-#include <fstream>
-
 #include "common/log.h"
 #include "ports/digital_io_fake.h"
 #include "ports/frame_source_fault.h"
@@ -18,37 +13,6 @@
 
 namespace alacs::app {
 namespace {
-
-// --debug-dir: the laser line's edges and the exposures of the last scan, as JSON.
-class LaserTimelineWriter final : public ScanObserver {
- public:
-  LaserTimelineWriter(std::string dir, ports::FakeDigitalOut& laser, int maxOnMs)
-      : dir_(std::move(dir)), laser_(laser), maxOnMs_(maxOnMs) {}
-  void scanFinished(const WorkerEvent& ev) override {
-    nlohmann::json j;
-    j["laser_max_on_ms"] = maxOnMs_;
-    j["edges"] = nlohmann::json::array();
-    for (const ports::Edge& e : laser_.edges()) j["edges"].push_back({e.timeNs, e.level ? 1 : 0});
-    j["exposures"] = nlohmann::json::array();
-    for (const ExposureWindow& w : ev.exposures) j["exposures"].push_back({w.startNs, w.endNs});
-    const std::string path = dir_ + "/laser_timeline.json";
-    {
-      std::ofstream out(path + ".tmp");
-      out << j.dump(2) << '\n';
-      if (!out) {
-        ALACS_LOG_WARN("debug", "cannot write %s", path.c_str());
-        return;
-      }
-    }
-    std::rename((path + ".tmp").c_str(), path.c_str());
-    laser_.clearEdges();
-  }
-
- private:
-  std::string dir_;
-  ports::FakeDigitalOut& laser_;
-  int maxOnMs_;
-};
 
 class SimPlatform final : public Platform {
  public:
@@ -91,7 +55,7 @@ class SimPlatform final : public Platform {
       lines_.end = &slide_->endSwitch();
     }
     lines_.home = opts.fault == "home-stuck" ? static_cast<ports::DigitalIn*>(&stuckOpenHome_) : &slide_->homeSwitch();
-    if (!opts.debugDir.empty()) timeline_ = std::make_unique<LaserTimelineWriter>(opts.debugDir, *laser_, cfg.laserMaxOnMs);
+    if (!opts.debugDir.empty()) timeline_ = makeLaserTimelineWriter(opts.debugDir, *laser_, cfg.laserMaxOnMs);
     return openCan(cfg);
   }
 
@@ -153,7 +117,7 @@ class SimPlatform final : public Platform {
   std::unique_ptr<ports::FrameSource> camera_;
   replay::ReplaySource* replay_ = nullptr;  // the camera, when replaying (owned by camera_)
   std::unique_ptr<ports::FaultInjectingFrameSource> faulty_;
-  std::unique_ptr<LaserTimelineWriter> timeline_;
+  std::unique_ptr<ScanObserver> timeline_;
 };
 
 }  // namespace

@@ -24,8 +24,8 @@ struct CaptureRequest {
 
 struct FrameInfo {
   uint64_t sequence = 0;
-  TimeNs exposureStartNs = 0;
-  int64_t exposureUs = 0;
+  TimeNs exposureStartNs = 0;  // the sensor's time base (CLOCK_MONOTONIC on Linux)
+  int64_t exposureUs = 0;      // as applied, when the source can tell; else as requested
 };
 
 struct CapturedFrame {
@@ -45,9 +45,17 @@ class FrameSource {
   }
   virtual const char* name() const = 0;
 
+  // Thread-safe, for STOP: a capture() in progress on another thread ends as soon as the
+  // source can (its request cancelled), and every capture fails at once (kFault) until
+  // resume(). Sources whose captures never block long need not override these.
+  void interrupt() { doInterrupt(); }
+  void resume() { doResume(); }
+
  private:
   virtual Result<CapturedFrame> doCapture(const CaptureRequest& request,
                                           const std::function<void()>& onExposureEnd) = 0;
+  virtual void doInterrupt() {}
+  virtual void doResume() {}
 };
 
 }  // namespace alacs::ports

@@ -40,6 +40,8 @@ class FaultInjectingFrameSource final : public FrameSource {
     }
     return inner_.capture(request, onExposureEnd);
   }
+  void doInterrupt() override { inner_.interrupt(); }
+  void doResume() override { inner_.resume(); }
 
   FrameSource& inner_;
   const Clock& clock_;

@@ -90,6 +90,8 @@ class RecordingSource final : public ports::FrameSource {
  private:
   Result<ports::CapturedFrame> doCapture(const ports::CaptureRequest& request,
                                          const std::function<void()>& onExposureEnd) override;
+  void doInterrupt() override { inner_.interrupt(); }
+  void doResume() override { inner_.resume(); }
   ports::FrameSource& inner_;
   ScanRecorder& recorder_;
   std::function<double()> slideMm_;

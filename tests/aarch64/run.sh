@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # Cross-builds the whole project for aarch64 (Raspberry Pi 4/5) into build/aarch64 with
 # cmake/toolchain-aarch64.cmake and runs the unit tests under qemu-user; then checks the
-# libgpiod v2 backend (tests/aarch64/gpiod_v2_check.sh). Installs what is missing first
+# libgpiod v2 backend (tests/aarch64/gpiod_v2_check.sh) and the libcamera adapter against
+# newer libcamera APIs (tests/aarch64/libcamera_api_check.sh). Installs what is missing first
 # (apt, as root or through sudo). Ends with one line: "aarch64: N passed, N failed"
 # (N = unit test cases run under qemu plus this script's own checks).
 #
@@ -146,5 +147,8 @@ fi
 
 step "libgpiod v2 backend"
 if tests/aarch64/gpiod_v2_check.sh; then pass "gpiod v2 compile check"; else fail "gpiod v2 compile check"; fi
+
+step "libcamera 0.4 and newest APIs"
+if tests/aarch64/libcamera_api_check.sh; then pass "libcamera API check"; else fail "libcamera API check"; fi
 
 finish

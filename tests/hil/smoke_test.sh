@@ -8,7 +8,8 @@
 #    (guest powered off under the command) is an error, not a success;
 #  - tests/hil/test_bench_smoke.py inside UML: cansend seen by candump -L and
 #    by python-can, a candump log decoded by cantools, gpioset/gpioget on the
-#    gpio-sim chip by line name against gpio_sim.py.
+#    gpio-sim chip by line name against gpio_sim.py, and `cam -l` listing the
+#    vimc camera once udev has run (tests/hil/start_udev.sh).
 # ALACS_PYTHON picks the interpreter (default: the repo's .venv).
 set -euo pipefail
 

@@ -254,3 +254,14 @@ def test_gpio_sim_refuses_to_work_outside_the_bench(monkeypatch):
 def test_tools_are_installed():
     for tool in ("candump", "cansend", "gpioset", "gpioget", "gpioinfo", "gpiofind"):
         assert shutil.which(tool), f"{tool} missing: apt-get install can-utils gpiod"
+
+
+@bench
+def test_vimc_camera_is_listed_by_cam():
+    """The bench kernel has vimc built in; with udev started, libcamera's own `cam -l`
+    lists its sensor (the one step that is easy to miss: without udev it lists none)."""
+    assert Path("/dev/media0").exists(), "no /dev/media0: the bench kernel lacks CONFIG_VIDEO_VIMC"
+    subprocess.run([str(Path(__file__).resolve().parent / "start_udev.sh")], check=True, timeout=60)
+    out = subprocess.run(["cam", "-l"], capture_output=True, text=True, timeout=60)
+    assert out.returncode == 0, out.stderr
+    assert re.search(r"^\d+: .*\(platform/vimc\.0 Sensor B\)", out.stdout, re.M), out.stdout

@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Print the absolute path of a User-Mode Linux kernel with SocketCAN (vcan,
-# vxcan) and gpio-sim built in, building it from Debian's linux-source-6.1 on
-# first use.
+# vxcan), gpio-sim and the vimc virtual camera built in, building it from
+# Debian's linux-source-6.1 on first use.
 #
 # Usage: tests/hil/uml_kernel.sh
 #
@@ -22,7 +22,16 @@ readonly kOptions=(
     CAN CAN_RAW CAN_BCM CAN_GW CAN_DEV CAN_VCAN CAN_VXCAN
     GPIOLIB GPIO_CDEV GPIO_CDEV_V1 GPIO_SIM CONFIGFS_FS
     HOSTFS DEVTMPFS DEVTMPFS_MOUNT TMPFS
+    # vimc, the kernel's virtual media-controller camera that libcamera's vimc
+    # pipeline handler drives (docs/hil.md). VIRTIO_UML and UML_PCI_OVER_VIRTIO
+    # bring no device: they supply the IOMEM and DMA emulation the media core
+    # depends on under ARCH=um.
+    VIRTIO_UML UML_PCI_OVER_VIRTIO
+    MEDIA_SUPPORT MEDIA_SUPPORT_FILTER MEDIA_TEST_SUPPORT MEDIA_CAMERA_SUPPORT
+    VIDEO_DEV MEDIA_CONTROLLER V4L_TEST_DRIVERS VIDEO_VIMC VIDEOBUF2_VMALLOC
 )
+# Integer options (name=value), set with the booleans above.
+readonly kValues=(UML_PCI_OVER_VIRTIO_DEVICE_ID=1234)
 
 die() {
     echo "uml_kernel.sh: $*" >&2
@@ -38,6 +47,9 @@ build_kernel() {
     local -a enable=()
     for opt in "${kOptions[@]}"; do
         enable+=(-e "$opt")
+    done
+    for opt in "${kValues[@]}"; do
+        enable+=(--set-val "${opt%%=*}" "${opt#*=}")
     done
     # nice: the machines that run this are shared; the build is not urgent.
     local -a run=(nice -n 19)
@@ -78,7 +90,7 @@ main() {
     local key
     key=$(
         {
-            printf '%s\n' "${kOptions[@]}"
+            printf "%s\n" "${kOptions[@]}" "${kValues[@]}"
             echo "$kSourcePackage $version"
             declare -f build_kernel
         } | sha256sum | cut -c1-16

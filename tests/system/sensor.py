@@ -1,4 +1,5 @@
-"""A live alacsd --sim on the bench, driven over the real vcan0 (for system tests)."""
+"""A live alacsd on the bench (--sim, or with sim=False the hardware platform: the real
+gpio-sim lines and the vimc camera through libcamera), driven over the real vcan0."""
 
 from __future__ import annotations
 
@@ -20,8 +21,9 @@ DB = cantools.database.load_file(str(ROOT / "can_protocol" / "alacs.dbc"))
 
 
 class Sensor:
-    def __init__(self, alacsd: Path, tmp: Path, *args: str, config: dict | None = None) -> None:
-        cmd = [str(alacsd), "--sim", "--can", os.environ["ALACS_CAN_IFACE"],
+    def __init__(self, alacsd: Path, tmp: Path, *args: str, config: dict | None = None,
+                 sim: bool = True) -> None:
+        cmd = [str(alacsd), *(["--sim"] if sim else []), "--can", os.environ["ALACS_CAN_IFACE"],
                "--gpio-chip", os.environ["ALACS_GPIO_CHIP"], *args]
         if config is not None:
             path = tmp / "alacsd.json"
@@ -62,6 +64,11 @@ class Sensor:
         self.send("LOCALIZE", LocalizeMode="STOP_AND_GO", TargetId=1, RoughX=x, RoughY=y, RoughZ=z)
 
     def stop(self) -> int:
+        if self.proc.returncode is not None:  # ended already: its output, once
+            if not self.log and self.proc.stdout is not None and not self.proc.stdout.closed:
+                self.log, _ = self.proc.communicate()
+                self.bus.shutdown()
+            return self.proc.returncode
         self.bus.shutdown()
         self.proc.send_signal(signal.SIGTERM)
         try:
@@ -70,3 +77,9 @@ class Sensor:
             self.proc.kill()
             self.log, _ = self.proc.communicate()
         return self.proc.returncode
+
+    def stop_and_log(self) -> str:
+        """Stops the daemon (if it runs) and returns its log, for an assertion's message."""
+        if self.proc.poll() is None:
+            self.stop()
+        return self.log[-4000:]

@@ -1,121 +1,403 @@
 #include "drivers/libcamera/libcamera_source.h"
 
 #include <libcamera/libcamera.h>
+#include <libcamera/version.h>
+#include <dirent.h>
 #include <sys/mman.h>
+#include <unistd.h>
+#include <time.h>
 
 #include <algorithm>
+#include <atomic>
 #include <chrono>
+#include <cstdlib>
 #include <condition_variable>
 #include <cstring>
 #include <memory>
 #include <mutex>
+#include <sstream>
+#include <string_view>
 #include <vector>
+
+// libcamera 0.5 replaced AeEnable with per-quantity modes (ExposureTimeMode,
+// AnalogueGainMode); 0.0.x-0.4 only have AeEnable.
+#if LIBCAMERA_VERSION_MAJOR > 0 || LIBCAMERA_VERSION_MINOR >= 5
+#define ALACS_LIBCAMERA_HAS_EXPOSURE_MODE 1
+#else
+#define ALACS_LIBCAMERA_HAS_EXPOSURE_MODE 0
+#endif
 
 namespace alacs::drivers {
 namespace {
 
+namespace lc = libcamera;
+
+// The sensor timestamps' base: V4L2 (and so libcamera) stamps frames with CLOCK_MONOTONIC.
+TimeNs monotonicNowNs() {
+  timespec ts{};
+  clock_gettime(CLOCK_MONOTONIC, &ts);
+  return static_cast<TimeNs>(ts.tv_sec) * 1'000'000'000 + ts.tv_nsec;
+}
+
+// A frame whose applied exposure (metadata) differs from the one asked for by more than
+// this or 5 % is one of the frames queued before the change, not this capture's.
+constexpr int64_t kExposureToleranceUs = 50;
+// After a timeout, how long to wait for libcamera to report the camera removed.
+constexpr int kRemovalWaitMs = 300;
+
+// True when a V4L2 or media-controller node this process holds open has been deleted
+// (its device unplugged or its driver unbound): /proc/self/fd shows it "(deleted)".
+// libcamera 0.0.3 does not always report such a removal (cameraRemoved), and stopping a
+// camera whose device is gone aborts the process there; this is the check that does
+// not depend on it. The product has one camera, so any such node is the camera's.
+bool videoNodeVanished() {
+  DIR* dir = opendir("/proc/self/fd");
+  if (dir == nullptr) return false;
+  bool vanished = false;
+  char target[256];
+  while (const dirent* e = readdir(dir)) {
+    const std::string link = std::string("/proc/self/fd/") + e->d_name;
+    const ssize_t n = readlink(link.c_str(), target, sizeof(target) - 1);
+    if (n <= 0) continue;
+    const std::string_view t(target, static_cast<size_t>(n));
+    const bool v4l = t.rfind("/dev/video", 0) == 0 || t.rfind("/dev/media", 0) == 0 || t.rfind("/dev/v4l-subdev", 0) == 0;
+    if (v4l && t.size() > 10 && t.substr(t.size() - 10) == " (deleted)") vanished = true;
+  }
+  closedir(dir);
+  return vanished;
+}
+
+bool advertises(const lc::Camera& camera, const lc::ControlId& id) {
+  return camera.controls().find(&id) != camera.controls().end();
+}
+
+// What a camera offers for a stream role, for the refusal message.
+std::string describeOffer(const lc::StreamConfiguration& sc) {
+  std::ostringstream out;
+  bool first = true;
+  for (const lc::PixelFormat& f : sc.formats().pixelformats()) {
+    const lc::SizeRange range = sc.formats().range(f);
+    out << (first ? "" : ", ") << f.toString() << " " << range.min.toString() << ".." << range.max.toString();
+    first = false;
+  }
+  return first ? std::string("nothing") : out.str();
+}
+
 class Impl final : public LibcameraSource {
  public:
   ~Impl() override {
-    if (camera_) {
-      camera_->stop();
-      camera_->requestCompleted.disconnect(this);
-      camera_->release();
+    close();
+    if (manager_) {
+      manager_->cameraRemoved.disconnect(this);
+      manager_->stop();
     }
-    for (auto& m : maps_) munmap(m.first, m.second);
-    requests_.clear();
-    allocator_.reset();
-    camera_.reset();
-    if (manager_) manager_->stop();
   }
 
   Status init(const LibcameraConfig& cfg) {
     cfg_ = cfg;
-    manager_ = std::make_unique<libcamera::CameraManager>();
+    if (cfg.widthPx <= 0 || cfg.heightPx <= 0 || cfg.bufferCount < 1)
+      return {Error::kInvalidArgument, "camera size and buffer count must be positive"};
+    manager_ = std::make_unique<lc::CameraManager>();
     if (manager_->start() != 0) return {Error::kIo, "libcamera CameraManager failed to start"};
-    auto cams = manager_->cameras();
-    if (cams.empty()) return {Error::kNotFound, "libcamera sees no camera"};
-    camera_ = cfg.cameraId.empty() ? cams.front() : manager_->get(cfg.cameraId);
-    if (!camera_) return {Error::kNotFound, "no camera with id '" + cfg.cameraId + "'"};
-    if (camera_->acquire() != 0) return {Error::kBusy, "camera is in use by another process"};
-    config_ = camera_->generateConfiguration({libcamera::StreamRole::StillCapture});
-    if (!config_) return {Error::kIo, "camera cannot produce a still stream"};
-    libcamera::StreamConfiguration& sc = config_->at(0);
-    sc.pixelFormat = libcamera::formats::RGB888;  // memory order B, G, R (DRM naming)
-    sc.size = {static_cast<unsigned>(cfg.widthPx), static_cast<unsigned>(cfg.heightPx)};
-    sc.bufferCount = 2;
-    if (config_->validate() == libcamera::CameraConfiguration::Invalid) return {Error::kIo, "camera configuration invalid"};
-    if (sc.pixelFormat != libcamera::formats::RGB888) return {Error::kUnsupported, "camera cannot deliver RGB888"};
-    if (camera_->configure(config_.get()) != 0) return {Error::kIo, "camera configure failed"};
-    stream_ = sc.stream();
-    allocator_ = std::make_unique<libcamera::FrameBufferAllocator>(camera_);
-    if (allocator_->allocate(stream_) < 0) return {Error::kIo, "frame buffer allocation failed"};
-    for (const auto& buffer : allocator_->buffers(stream_)) {
-      const auto& plane = buffer->planes()[0];
-      void* p = mmap(nullptr, plane.length, PROT_READ, MAP_SHARED, plane.fd.get(), static_cast<off_t>(plane.offset));
-      if (p == MAP_FAILED) return {Error::kIo, "mmap of a frame buffer failed"};
-      maps_.emplace_back(p, plane.length);
-      std::unique_ptr<libcamera::Request> req = camera_->createRequest();
-      if (!req || req->addBuffer(stream_, buffer.get()) != 0) return {Error::kIo, "cannot create a capture request"};
-      requests_.push_back(std::move(req));
-    }
-    camera_->requestCompleted.connect(this, &Impl::onComplete);
-    if (camera_->start() != 0) return {Error::kIo, "camera start failed"};
-    stride_ = sc.stride;
-    width_ = static_cast<int>(sc.size.width);
-    height_ = static_cast<int>(sc.size.height);
-    // Left uninitialised (new[] without a value): only the rows of each request's window
-    // are written, so only their pages become resident (docs/daemon.md, "Memory").
-    copySize_ = static_cast<size_t>(stride_) * static_cast<size_t>(height_);
-    copy_.reset(new uint8_t[copySize_]);
-    return Status::ok();
+    manager_->cameraRemoved.connect(this, &Impl::onCameraRemoved);
+    return openCamera();
   }
 
   const char* name() const override { return "libcamera"; }
 
- private:
-  void onComplete(libcamera::Request* request) {
+  LibcameraStats stats() const override {
     std::lock_guard<std::mutex> lock(mu_);
-    completed_ = request;
+    return stats_;
+  }
+
+ private:
+  // Acquires, configures and starts the camera; allocates every buffer and request.
+  Status openCamera() {
+    const std::vector<std::shared_ptr<lc::Camera>> cams = manager_->cameras();
+    if (cams.empty()) return {Error::kNotFound, "libcamera sees no camera"};
+    const std::string wanted = cfg_.cameraId.empty() ? openedId_ : cfg_.cameraId;
+    camera_ = wanted.empty() ? cams.front() : manager_->get(wanted);
+    if (!camera_) return {Error::kNotFound, "no camera with id '" + wanted + "' (libcamera sees " +
+                                               std::to_string(cams.size()) + ")"};
+    if (camera_->acquire() != 0) {
+      camera_.reset();
+      return {Error::kBusy, "camera is in use by another process"};
+    }
+    acquired_ = true;
+    {
+      std::lock_guard<std::mutex> lock(mu_);
+      openedId_ = camera_->id();
+      removed_ = false;
+    }
+    config_ = camera_->generateConfiguration({lc::StreamRole::StillCapture});
+    if (!config_ || config_->empty()) return {Error::kIo, "camera cannot produce a still stream"};
+    lc::StreamConfiguration& sc = config_->at(0);
+    const lc::Size want{static_cast<unsigned>(cfg_.widthPx), static_cast<unsigned>(cfg_.heightPx)};
+    // RGB888 is memory B, G, R (DRM naming), BGR888 memory R, G, B; the LLE reads both.
+    const std::string offer = describeOffer(sc);
+    bool configured = false;
+    for (const lc::PixelFormat f : {lc::formats::RGB888, lc::formats::BGR888}) {
+      sc.pixelFormat = f;
+      sc.size = want;
+      sc.bufferCount = static_cast<unsigned>(cfg_.bufferCount);
+      if (config_->validate() != lc::CameraConfiguration::Invalid && sc.pixelFormat == f && sc.size == want) {
+        configured = true;
+        break;
+      }
+    }
+    if (!configured)
+      return {Error::kUnsupported, "camera " + openedId_ + " cannot give RGB888 or BGR888 at " + want.toString() +
+                                       " (it offers " + offer + ")"};
+    format_ = sc.pixelFormat == lc::formats::RGB888 ? image::PixelFormat::kBgr888 : image::PixelFormat::kRgb888;
+    if (camera_->configure(config_.get()) != 0) return {Error::kIo, "camera configure failed"};
+    stream_ = sc.stream();
+    allocator_ = std::make_unique<lc::FrameBufferAllocator>(camera_);
+    if (allocator_->allocate(stream_) < 0) return {Error::kIo, "frame buffer allocation failed"};
+    for (const std::unique_ptr<lc::FrameBuffer>& buffer : allocator_->buffers(stream_)) {
+      const lc::FrameBuffer::Plane& plane = buffer->planes()[0];
+      void* p = mmap(nullptr, plane.length, PROT_READ, MAP_SHARED, plane.fd.get(), static_cast<off_t>(plane.offset));
+      if (p == MAP_FAILED) return {Error::kIo, "mmap of a frame buffer failed"};
+      maps_.emplace_back(p, plane.length);
+      std::unique_ptr<lc::Request> req = camera_->createRequest(maps_.size() - 1);
+      if (!req || req->addBuffer(stream_, buffer.get()) != 0) return {Error::kIo, "cannot create a capture request"};
+      requests_.push_back(std::move(req));
+    }
+    stride_ = sc.stride;
+    width_ = static_cast<int>(sc.size.width);
+    height_ = static_cast<int>(sc.size.height);
+    const size_t size = static_cast<size_t>(stride_) * static_cast<size_t>(height_);
+    // Left uninitialised (new[] without a value): only the rows of each request's window
+    // are written, so only their pages become resident (docs/daemon.md, "Memory"). Kept
+    // across a reopen of the same geometry.
+    if (size != copySize_) {
+      copySize_ = size;
+      copy_.reset(new uint8_t[copySize_]);
+    }
+    exposureControl_ = advertises(*camera_, lc::controls::ExposureTime);
+    camera_->requestCompleted.connect(this, &Impl::onComplete);
+    if (Status s = startStreaming(); !s) return s;
+    std::lock_guard<std::mutex> lock(mu_);
+    stats_.cameraId = openedId_;
+    stats_.pixelFormat = sc.pixelFormat.toString();
+    stats_.widthPx = width_;
+    stats_.heightPx = height_;
+    stats_.strideBytes = static_cast<int>(stride_);
+    stats_.buffers = static_cast<int>(requests_.size());
+    stats_.exposureControl = exposureControl_;
+    stats_.gainControl = advertises(*camera_, lc::controls::AnalogueGain);
+    return Status::ok();
+  }
+
+  // Undoes openCamera(), whatever state it reached. The copy buffer stays.
+  void close() {
+    if (camera_) {
+      if (started_) camera_->stop();
+      camera_->requestCompleted.disconnect(this);
+    }
+    started_ = false;
+    for (auto& m : maps_) munmap(m.first, m.second);
+    maps_.clear();
+    requests_.clear();
+    allocator_.reset();
+    config_.reset();
+    if (camera_ && acquired_) camera_->release();
+    acquired_ = false;
+    camera_.reset();
+    stream_ = nullptr;
+    std::lock_guard<std::mutex> lock(mu_);
+    doneHead_ = doneCount_ = 0;
+  }
+
+  // Starts the camera with every request queued. The stream is kept fed: V4L2 drivers
+  // start streaming only with enough buffers queued (vimc: 2), so one request at a time
+  // would never see a frame. Frames that began before a capture was asked for are
+  // dropped and their requests queued again (capture()).
+  Status startStreaming() {
+    {
+      std::lock_guard<std::mutex> lock(mu_);
+      done_.assign(requests_.size(), nullptr);
+      doneHead_ = doneCount_ = 0;
+    }
+    if (camera_->start() != 0) return {Error::kIo, "camera start failed"};
+    started_ = true;
+    for (const std::unique_ptr<lc::Request>& req : requests_)
+      if (Status s = requeue(req.get(), 0); !s) return s;
+    return Status::ok();
+  }
+
+  Status requeue(lc::Request* req, int64_t exposureUs) {
+    req->reuse(lc::Request::ReuseBuffers);
+    if (exposureUs > 0) setControls(*req, exposureUs);
+    if (camera_->queueRequest(req) != 0) return {Error::kIo, "queueRequest failed (camera gone?)"};
+    return Status::ok();
+  }
+
+  // libcamera's thread. done_ has room for every request: reserved at open.
+  void onComplete(lc::Request* request) {
+    std::lock_guard<std::mutex> lock(mu_);
+    if (request->status() == lc::Request::RequestCancelled) ++stats_.requestsCancelled;
+    if (doneCount_ == done_.size()) return;  // a request completed twice: cannot happen
+    done_[(doneHead_ + doneCount_++) % done_.size()] = request;
     cv_.notify_all();
+  }
+
+  void doInterrupt() override {
+    std::lock_guard<std::mutex> lock(mu_);
+    interrupted_ = true;
+    cv_.notify_all();
+  }
+  bool lost() const {
+    std::lock_guard<std::mutex> lock(mu_);
+    return stats_.lost;
+  }
+  void doResume() override {
+    std::lock_guard<std::mutex> lock(mu_);
+    interrupted_ = false;
+  }
+
+  void setControls(lc::Request& req, int64_t exposureUs) {
+    if (!exposureControl_) return;
+    lc::ControlList& c = req.controls();
+#if ALACS_LIBCAMERA_HAS_EXPOSURE_MODE
+    if (advertises(*camera_, lc::controls::ExposureTimeMode))
+      c.set(lc::controls::ExposureTimeMode, lc::controls::ExposureTimeModeManual);
+#else
+    if (advertises(*camera_, lc::controls::AeEnable)) c.set(lc::controls::AeEnable, false);
+#endif
+    c.set(lc::controls::ExposureTime, static_cast<int32_t>(exposureUs));
+  }
+
+  // The next completed request; or kTimeout at `deadlineNs`, or kFault when interrupted,
+  // after `beforeRecovery` (the laser off) and the camera's recovery: stop and start again
+  // (interrupted: stop() completes every queued request, cancelled, before it returns),
+  // or after a timeout, stop and reopen at the next capture.
+  Result<lc::Request*> nextCompleted(TimeNs deadlineNs, int64_t timeoutMs, const std::function<void()>& beforeRecovery) {
+    std::unique_lock<std::mutex> lock(mu_);
+    const auto left = std::chrono::nanoseconds(std::max<TimeNs>(deadlineNs - monotonicNowNs(), 0));
+    cv_.wait_for(lock, left, [&] { return doneCount_ > 0 || interrupted_; });
+    if (interrupted_) {
+      ++stats_.interrupted;
+      lock.unlock();
+      beforeRecovery();
+      camera_->stop();
+      started_ = false;
+      if (!startStreaming()) needReopen_ = true;
+      return Status(Error::kFault, "capture interrupted (STOP)");
+    }
+    if (doneCount_ == 0) {
+      ++stats_.timeouts;
+      lock.unlock();
+      beforeRecovery();
+      stopAfterTimeout();
+      return Status(Error::kTimeout, "camera frame timed out after " + std::to_string(timeoutMs) + " ms");
+    }
+    lc::Request* req = done_[doneHead_];
+    doneHead_ = (doneHead_ + 1) % done_.size();
+    --doneCount_;
+    return req;
+  }
+
+  // A camera that stopped answering may be slow, or gone (unplugged, its driver unbound).
+  // libcamera 0.0.3 aborts the process (an assertion in PipelineHandler::stop) when a
+  // vanished camera is stopped before libcamera has seen it removed; once it has,
+  // Camera::stop() returns at once. So: wait for udev's word on the removal first.
+  void stopAfterTimeout() {
+    {
+      std::unique_lock<std::mutex> lock(mu_);
+      cv_.wait_for(lock, std::chrono::milliseconds(kRemovalWaitMs), [&] { return removed_; });
+    }
+    if (removed_ || videoNodeVanished()) {
+      {
+        std::lock_guard<std::mutex> lock(mu_);
+        stats_.lost = true;
+      }
+      // Requests the pipeline still holds must outlive it: keep them (and the buffers they
+      // point to) until the process ends, rather than free memory libcamera may touch.
+      parked_.push_back({std::move(camera_), std::move(allocator_), std::move(requests_)});
+      for (auto& m : maps_) munmap(m.first, m.second);
+      maps_.clear();
+      config_.reset();
+      acquired_ = started_ = false;
+      stream_ = nullptr;
+    } else {
+      camera_->stop();
+      started_ = false;
+    }
+    needReopen_ = true;
+  }
+
+  void onCameraRemoved(std::shared_ptr<lc::Camera> camera) {
+    std::lock_guard<std::mutex> lock(mu_);
+    if (camera && camera->id() == openedId_) {
+      removed_ = true;
+      cv_.notify_all();
+    }
   }
 
   Result<ports::CapturedFrame> doCapture(const ports::CaptureRequest& r,
                                          const std::function<void()>& onExposureEnd) override {
-    Status last(Error::kTimeout, "no attempt");
-    for (int attempt = 0; attempt <= cfg_.retries; ++attempt) {
-      libcamera::Request* req = requests_[next_ % requests_.size()].get();
-      ++next_;
-      req->reuse(libcamera::Request::ReuseBuffers);
-      req->controls().set(libcamera::controls::AeEnable, false);
-      req->controls().set(libcamera::controls::ExposureTime, static_cast<int32_t>(r.exposureUs));
-      {
-        std::lock_guard<std::mutex> lock(mu_);
-        completed_ = nullptr;
+    // Exposure end is only known once the request completes (libcamera has no
+    // start-of-frame or end-of-exposure event): the laser goes off then, on every path.
+    struct LaserOff {
+      const std::function<void()>& f;
+      bool done = false;
+      void operator()() {
+        if (!done && f) f();
+        done = true;
       }
-      if (camera_->queueRequest(req) != 0) {
-        last = Status(Error::kIo, "queueRequest failed");
+      ~LaserOff() { (*this)(); }
+    } laserOff{onExposureEnd};
+    {
+      std::lock_guard<std::mutex> lock(mu_);
+      if (interrupted_) return Status(Error::kFault, "capture interrupted (STOP)");
+      stats_.lastExposureRequestedUs = r.exposureUs;
+    }
+    if (lost()) return Status(Error::kTimeout, "camera " + openedId_ + " is gone (its device was removed)");
+    if (needReopen_) {
+      close();
+      if (Status s = openCamera(); !s) {
+        close();
+        return Status(Error::kTimeout, "camera " + (openedId_.empty() ? std::string("?") : openedId_) +
+                                           " stopped answering and cannot be opened again: " + s.reason());
+      }
+      needReopen_ = false;
+      std::lock_guard<std::mutex> lock(mu_);
+      ++stats_.reopens;
+    }
+    // The frame must begin exposing after this point, when the caller's laser is on.
+    const TimeNs askedNs = monotonicNowNs();
+    const TimeNs deadlineNs = askedNs + r.timeoutMs * kNsPerMs;
+    while (true) {
+      Result<lc::Request*> next = nextCompleted(deadlineNs, r.timeoutMs, [&laserOff] { laserOff(); });
+      if (!next) return next.status();
+      lc::Request* req = *next;
+      const lc::FrameBuffer* fb = req->buffers().begin()->second;
+      const lc::FrameMetadata& meta = fb->metadata();
+      const std::optional<int64_t> sensorNs = req->metadata().get(lc::controls::SensorTimestamp);
+      const TimeNs startNs = sensorNs ? static_cast<TimeNs>(*sensorNs) : static_cast<TimeNs>(meta.timestamp);
+      const bool failed = req->status() != lc::Request::RequestComplete ||
+                          meta.status != lc::FrameMetadata::FrameSuccess || meta.planes().empty() ||
+                          meta.planes()[0].bytesused < copySize_;
+      // The requests in flight carry the controls they were queued with: after a change
+      // of exposure, the first frames may still have the old one.
+      const std::optional<int32_t> appliedUs = req->metadata().get(lc::controls::ExposureTime);
+      const bool otherExposure =
+          appliedUs && std::abs(*appliedUs - r.exposureUs) > std::max<int64_t>(kExposureToleranceUs, r.exposureUs / 20);
+      if (failed || startNs < askedNs || otherExposure) {
+        // A frame of the stream that began before the laser was on (or a failed one):
+        // its request goes back, with this capture's exposure for the frames to come.
+        {
+          std::lock_guard<std::mutex> lock(mu_);
+          ++(failed ? stats_.failedFrames : stats_.staleFramesSkipped);
+        }
+        if (Status s = requeue(req, r.exposureUs); !s) {
+          needReopen_ = true;
+          return s;
+        }
+        if (failed && startNs >= askedNs) return Status(Error::kBadInput, "camera delivered a failed or short frame");
         continue;
       }
-      std::unique_lock<std::mutex> lock(mu_);
-      const bool done = cv_.wait_for(lock, std::chrono::milliseconds(r.timeoutMs), [&] { return completed_ == req; });
-      if (onExposureEnd) onExposureEnd();
-      if (!done) {
-        last = Status(Error::kTimeout, "camera frame timed out after " + std::to_string(r.timeoutMs) + " ms");
-        continue;
-      }
-      if (req->status() != libcamera::Request::RequestComplete) {
-        last = Status(Error::kBadInput, "camera request was cancelled (dropped frame)");
-        continue;
-      }
-      const libcamera::FrameBuffer* fb = req->buffers().begin()->second;
-      const auto& meta = fb->metadata();
-      if (meta.status != libcamera::FrameMetadata::FrameSuccess || meta.planes().empty() ||
-          meta.planes()[0].bytesused < copySize_) {
-        last = Status(Error::kBadInput, "camera delivered a corrupted or short frame");
-        continue;
-      }
-      const size_t index = (next_ - 1) % requests_.size();
+      const size_t index = req->cookie();
       // Copy only the rows of the requested window (a 5 MP frame is 15 MB; a target's
       // window a few hundred kB).
       const auto* src = static_cast<const uint8_t*>(maps_[index].first);
@@ -124,32 +406,55 @@ class Impl final : public LibcameraSource {
       std::memcpy(copy_.get() + static_cast<size_t>(y0) * stride_, src + static_cast<size_t>(y0) * stride_,
                   static_cast<size_t>(y1 - y0) * stride_);
       ports::CapturedFrame out;
-      out.view = {copy_.get(), width_, height_, stride_, image::PixelFormat::kBgr888};
+      out.view = {copy_.get(), width_, height_, stride_, format_};
       out.info.sequence = meta.sequence;
-      out.info.exposureStartNs = static_cast<TimeNs>(meta.timestamp);
-      out.info.exposureUs = r.exposureUs;
+      out.info.exposureStartNs = startNs;
+      out.info.exposureUs = appliedUs ? *appliedUs : r.exposureUs;
+      if (Status s = requeue(req, r.exposureUs); !s) needReopen_ = true;  // the frame is copied: still good
+      std::lock_guard<std::mutex> lock(mu_);
+      ++stats_.framesDelivered;
+      stats_.sensorTimestamp = sensorNs.has_value();
+      stats_.lastExposureAppliedUs = appliedUs ? *appliedUs : -1;
       return out;
     }
-    return last;
   }
 
   LibcameraConfig cfg_;
-  std::unique_ptr<libcamera::CameraManager> manager_;
-  std::shared_ptr<libcamera::Camera> camera_;
-  std::unique_ptr<libcamera::CameraConfiguration> config_;
-  libcamera::Stream* stream_ = nullptr;
-  std::unique_ptr<libcamera::FrameBufferAllocator> allocator_;
-  std::vector<std::unique_ptr<libcamera::Request>> requests_;
+  std::unique_ptr<lc::CameraManager> manager_;
+  std::shared_ptr<lc::Camera> camera_;
+  std::string openedId_;
+  bool acquired_ = false;
+  bool started_ = false;
+  bool needReopen_ = false;
+  bool exposureControl_ = false;
+  std::unique_ptr<lc::CameraConfiguration> config_;
+  lc::Stream* stream_ = nullptr;
+  std::unique_ptr<lc::FrameBufferAllocator> allocator_;
+  std::vector<std::unique_ptr<lc::Request>> requests_;
   std::vector<std::pair<void*, size_t>> maps_;
   std::unique_ptr<uint8_t[]> copy_;
   size_t copySize_ = 0;
   size_t stride_ = 0;
   int width_ = 0;
   int height_ = 0;
+  image::PixelFormat format_ = image::PixelFormat::kBgr888;
   size_t next_ = 0;
-  std::mutex mu_;
+  mutable std::mutex mu_;  // guards what libcamera's thread and interrupt() touch, and stats_
   std::condition_variable cv_;
-  libcamera::Request* completed_ = nullptr;
+  // Completed requests not yet looked at, in completion order: a ring with room for every
+  // request, sized at open, so that completing a frame allocates nothing.
+  std::vector<lc::Request*> done_;
+  size_t doneHead_ = 0;
+  size_t doneCount_ = 0;
+  bool interrupted_ = false;
+  bool removed_ = false;  // libcamera reported the open camera removed
+  LibcameraStats stats_;
+  struct Parked {
+    std::shared_ptr<lc::Camera> camera;
+    std::unique_ptr<lc::FrameBufferAllocator> allocator;
+    std::vector<std::unique_ptr<lc::Request>> requests;
+  };
+  std::vector<Parked> parked_;  // cameras that vanished with requests queued (stopAfterTimeout)
 };
 
 }  // namespace
