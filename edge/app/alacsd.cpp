@@ -130,7 +130,6 @@ int runDaemon(const Options& o, const DaemonConfig& cfg) {
   ALACS_LOG_INFO("main", "alacsd %d.%d.%d up: node 0x%02x on %s (%s platform)", kVersion.major, kVersion.minor,
                  kVersion.patch, cfg.nodeId, cfg.canInterface.c_str(), platform.name());
   int exitCode = 0;
-  TimeNs restartAt = 0;
   for (bool running = true; running;) {
     // Wake for the node's next deadline (heartbeat, status, a paced retry) to the ms.
     const TimeNs untilNs = sensor.nextDeadline() - clock.now();
@@ -164,14 +163,9 @@ int runDaemon(const Options& o, const DaemonConfig& cfg) {
       }
     }
     sensor.tick(now);
-    // The camera's device gone: the fault on the bus for a second (status frames), then exit.
-    if (const std::string why = platform.restartReason(); !why.empty() && !worker->busy()) {
-      if (restartAt == 0) restartAt = now + kNsPerS;
-      if (now >= restartAt) {
-        ALACS_LOG_ERROR("main", "%s: exiting (%d) for the unit to start alacsd afresh", why.c_str(), kExitRestart);
-        exitCode = kExitRestart;
-        running = false;
-      }
+    if (platform.restartDue(worker->busy(), now)) {
+      exitCode = kExitRestart;
+      running = false;
     }
     // The watchdog is fed only while the worker keeps its deadlines (Sensor::healthy).
     if (watchdogUs > 0 && sensor.healthy() && now - lastWatchdog > static_cast<TimeNs>(watchdogUs) * kNsPerUs / 2) {

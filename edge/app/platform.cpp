@@ -30,6 +30,15 @@ Status Platform::openCan(const DaemonConfig& cfg) {
   return Status::ok();
 }
 
+bool Platform::restartDue(bool workerBusy, TimeNs now) {
+  const std::string why = restartReason();
+  if (why.empty() || workerBusy) return false;
+  if (restartAtNs_ == 0) restartAtNs_ = now + kNsPerS;
+  if (now < restartAtNs_) return false;
+  ALACS_LOG_ERROR("main", "%s: exiting (%d) for the unit to start alacsd afresh", why.c_str(), kExitRestart);
+  return true;
+}
+
 namespace {
 
 // --debug-dir: the laser line's edges and the exposures of the last scan, as JSON.

@@ -51,6 +51,10 @@ class Platform {
   // Non-empty when the process must end for the unit to start it afresh: the camera's
   // device went away, which libcamera 0.0.3 cannot recover from in-process.
   virtual std::string restartReason() const { return {}; }
+  // For the event loop, at each wake-up: true (and logged) once restartReason() has been
+  // set for a second with the worker idle, so that the fault is on the bus meanwhile;
+  // the daemon then exits with kExitRestart.
+  bool restartDue(bool workerBusy, TimeNs now);
   // Told of each scan (the simulator's laser timeline); may be null.
   virtual ScanObserver* observer() { return nullptr; }
 
@@ -65,6 +69,7 @@ class Platform {
 
  private:
   std::unique_ptr<drivers::SocketCanBus> can_;
+  TimeNs restartAtNs_ = 0;
   Result<geometry::Calibration> calibration_ = Status(Error::kNotCalibrated, "no calibration loaded");
 };
 

@@ -438,7 +438,6 @@ class Impl final : public LibcameraSource {
   int width_ = 0;
   int height_ = 0;
   image::PixelFormat format_ = image::PixelFormat::kBgr888;
-  size_t next_ = 0;
   mutable std::mutex mu_;  // guards what libcamera's thread and interrupt() touch, and stats_
   std::condition_variable cv_;
   // Completed requests not yet looked at, in completion order: a ring with room for every
