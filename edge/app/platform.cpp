@@ -221,7 +221,7 @@ Status driveLaserOff(const DaemonConfig& cfg) {
 }
 
 Result<std::unique_ptr<Platform>> openHardwarePlatform(const DaemonConfig& cfg, const std::string& calibrationPath,
-                                                      const Clock& clock, const std::string& debugDir) {
+                                                       const Clock& clock, const std::string& debugDir) {
 #if defined(ALACS_HAVE_GPIOD) && defined(ALACS_HAVE_LIBCAMERA)
   return HardwarePlatform::open(cfg, calibrationPath, clock, debugDir);
 #else

@@ -82,7 +82,7 @@ class Platform {
 // `debugDir` (alacsd --debug-dir): the LASER line's edges as the daemon drives them and
 // the exposures of each scan, as laser_timeline.json there (makeLaserTimelineWriter).
 Result<std::unique_ptr<Platform>> openHardwarePlatform(const DaemonConfig& cfg, const std::string& calibrationPath,
-                                                      const Clock& clock, const std::string& debugDir);
+                                                       const Clock& clock, const std::string& debugDir);
 
 // --debug-dir's laser timeline: after each scan, `laser`'s recorded edges and the scan's
 // exposure windows go to DIR/laser_timeline.json (then the edges are cleared).

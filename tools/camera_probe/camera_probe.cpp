@@ -59,8 +59,8 @@ nlohmann::json statsJson(const drivers::LibcameraStats& s) {
           {"gain_control", s.gainControl},
           {"sensor_timestamp", s.sensorTimestamp},
           {"exposure_requested_us", s.lastExposureRequestedUs},
-          {"exposure_applied_us", s.lastExposureAppliedUs < 0 ? nlohmann::json(nullptr)
-                                                               : nlohmann::json(s.lastExposureAppliedUs)},
+          {"exposure_applied_us",
+           s.lastExposureAppliedUs < 0 ? nlohmann::json(nullptr) : nlohmann::json(s.lastExposureAppliedUs)},
           {"frames_delivered", s.framesDelivered},
           {"timeouts", s.timeouts},
           {"failed_frames", s.failedFrames},

@@ -1,17 +1,17 @@
 #include "drivers/libcamera/libcamera_source.h"
 
+#include <dirent.h>
 #include <libcamera/libcamera.h>
 #include <libcamera/version.h>
-#include <dirent.h>
 #include <sys/mman.h>
-#include <unistd.h>
 #include <time.h>
+#include <unistd.h>
 
 #include <algorithm>
 #include <atomic>
 #include <chrono>
-#include <cstdlib>
 #include <condition_variable>
+#include <cstdlib>
 #include <cstring>
 #include <memory>
 #include <mutex>
@@ -60,7 +60,8 @@ bool videoNodeVanished() {
     const ssize_t n = readlink(link.c_str(), target, sizeof(target) - 1);
     if (n <= 0) continue;
     const std::string_view t(target, static_cast<size_t>(n));
-    const bool v4l = t.rfind("/dev/video", 0) == 0 || t.rfind("/dev/media", 0) == 0 || t.rfind("/dev/v4l-subdev", 0) == 0;
+    const bool v4l =
+        t.rfind("/dev/video", 0) == 0 || t.rfind("/dev/media", 0) == 0 || t.rfind("/dev/v4l-subdev", 0) == 0;
     if (v4l && t.size() > 10 && t.substr(t.size() - 10) == " (deleted)") vanished = true;
   }
   closedir(dir);
@@ -117,8 +118,9 @@ class Impl final : public LibcameraSource {
     if (cams.empty()) return {Error::kNotFound, "libcamera sees no camera"};
     const std::string wanted = cfg_.cameraId.empty() ? openedId_ : cfg_.cameraId;
     camera_ = wanted.empty() ? cams.front() : manager_->get(wanted);
-    if (!camera_) return {Error::kNotFound, "no camera with id '" + wanted + "' (libcamera sees " +
-                                               std::to_string(cams.size()) + ")"};
+    if (!camera_)
+      return {Error::kNotFound,
+              "no camera with id '" + wanted + "' (libcamera sees " + std::to_string(cams.size()) + ")"};
     if (camera_->acquire() != 0) {
       camera_.reset();
       return {Error::kBusy, "camera is in use by another process"};
@@ -271,7 +273,8 @@ class Impl final : public LibcameraSource {
   // after `beforeRecovery` (the laser off) and the camera's recovery: stop and start again
   // (interrupted: stop() completes every queued request, cancelled, before it returns),
   // or after a timeout, stop and reopen at the next capture.
-  Result<lc::Request*> nextCompleted(TimeNs deadlineNs, int64_t timeoutMs, const std::function<void()>& beforeRecovery) {
+  Result<lc::Request*> nextCompleted(TimeNs deadlineNs, int64_t timeoutMs,
+                                     const std::function<void()>& beforeRecovery) {
     std::unique_lock<std::mutex> lock(mu_);
     const auto left = std::chrono::nanoseconds(std::max<TimeNs>(deadlineNs - monotonicNowNs(), 0));
     cv_.wait_for(lock, left, [&] { return doneCount_ > 0 || interrupted_; });

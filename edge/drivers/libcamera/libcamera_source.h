@@ -42,7 +42,7 @@ struct LibcameraConfig {
 // What the adapter negotiated and counted; for diagnostics and the bench's tests.
 struct LibcameraStats {
   std::string cameraId;
-  std::string pixelFormat;       // "RGB888" (memory B, G, R) or "BGR888" (memory R, G, B)
+  std::string pixelFormat;  // "RGB888" (memory B, G, R) or "BGR888" (memory R, G, B)
   int widthPx = 0;
   int heightPx = 0;
   int strideBytes = 0;
@@ -54,12 +54,12 @@ struct LibcameraStats {
   int64_t lastExposureAppliedUs = -1;  // from the metadata; -1: the pipeline did not report it
   uint64_t framesDelivered = 0;
   uint64_t timeouts = 0;
-  uint64_t failedFrames = 0;     // completed by the pipeline with an error or short
+  uint64_t failedFrames = 0;        // completed by the pipeline with an error or short
   uint64_t staleFramesSkipped = 0;  // began exposing before the capture was asked for, or
                                     // with another exposure: queued again, not delivered
-  uint64_t interrupted = 0;      // captures ended by interrupt()
-  uint64_t requestsCancelled = 0;  // requests libcamera completed as cancelled (stop)
-  uint64_t reopens = 0;          // the camera opened again after it stopped answering
+  uint64_t interrupted = 0;         // captures ended by interrupt()
+  uint64_t requestsCancelled = 0;   // requests libcamera completed as cancelled (stop)
+  uint64_t reopens = 0;             // the camera opened again after it stopped answering
   // Its device went away (unplugged, driver unbound). libcamera 0.0.3 cannot take it back
   // in this process (it aborts on the camera's return, its removal never seen): the
   // daemon ends and its unit starts it afresh (docs/daemon.md, "The camera").
