@@ -17,9 +17,9 @@ cc=${CC:-gcc}
 mkdir -p "$work"
 # The project's warning flags, read from cmake/AlacsWarnings.cmake: ALACS_WARNINGS, plus
 # ALACS_STRICT_WARNINGS (stricter than the project builds the driver).
-mapfile -t warn < <(sed -n '/^set(ALACS_\(STRICT_\)\?WARNINGS/,/)/p' "$root/cmake/AlacsWarnings.cmake" |
-  sed -e 's/^set(ALACS_[A-Z_]*//' -e 's/)//' | tr ' ' '\n' | grep '^-W')
-((${#warn[@]} > 5)) || { echo "gpiod-v2: FAIL cannot read the warning flags from cmake/AlacsWarnings.cmake"; exit 1; }
+# shellcheck source=tests/aarch64/adapter_check_lib.sh
+source "$root/tests/aarch64/adapter_check_lib.sh"
+project_warnings || { echo "gpiod-v2: FAIL cannot read the warning flags from cmake/AlacsWarnings.cmake"; exit 1; }
 versions=("2.1.3" "${ALACS_GPIOD_PY_LATEST:-2.5.0}")
 fails=0
 for pyver in "${versions[@]}"; do
@@ -66,16 +66,9 @@ int main() {
   return 0;
 }
 CPP
-  ((ok)) && { "$cxx" -std=c++20 -O1 -I "$root/edge" -c "$out/smoke.cpp" -o "$out/smoke.o" >>"$log" 2>&1 &&
-    "$cxx" -std=c++20 -O1 -I "$root/edge" -c "$root/edge/common/result.cpp" -o "$out/result.o" >>"$log" 2>&1 &&
-    "$cxx" -o "$out/smoke" "$out/smoke.o" "${driver_objs[@]}" "$out/result.o" "$out/libgpiod.a" >>"$log" 2>&1 &&
-    "$out/smoke" >>"$log" 2>&1 || ok=0; }
-  if ((ok)); then
-    echo "gpiod-v2: ok   gpiod_lines.cpp (ALACS_GPIOD_API=2) compiles, links and runs against libgpiod $libver (PyPI gpiod $pyver)"
-  else
-    echo "gpiod-v2: FAIL against libgpiod $libver (PyPI gpiod $pyver); log: $log"
-    grep -E "error|undefined" "$log" | head -20
-    fails=$((fails + 1))
-  fi
+  ((ok)) && { link_smoke "$out" "$log" "${driver_objs[@]}" -- "$out/libgpiod.a" && "$out/smoke" >>"$log" 2>&1 || ok=0; }
+  report "$ok" "$log" \
+    "gpiod-v2: ok   gpiod_lines.cpp (ALACS_GPIOD_API=2) compiles, links and runs against libgpiod $libver (PyPI gpiod $pyver)" \
+    "gpiod-v2: FAIL against libgpiod $libver (PyPI gpiod $pyver)"
 done
 ((fails == 0))

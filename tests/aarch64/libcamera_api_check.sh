@@ -16,9 +16,9 @@ root=$(cd "$(dirname "${BASH_SOURCE[0]}")/../.." && pwd -P)
 work=${1:-$root/build/libcamera-api}
 cxx=${CXX:-g++}
 mkdir -p "$work"
-mapfile -t warn < <(sed -n '/^set(ALACS_\(STRICT_\)\?WARNINGS/,/)/p' "$root/cmake/AlacsWarnings.cmake" |
-  sed -e 's/^set(ALACS_[A-Z_]*//' -e 's/)//' | tr ' ' '\n' | grep '^-W')
-((${#warn[@]} > 5)) || { echo "libcamera-api: FAIL cannot read the warning flags from cmake/AlacsWarnings.cmake"; exit 1; }
+# shellcheck source=tests/aarch64/adapter_check_lib.sh
+source "$root/tests/aarch64/adapter_check_lib.sh"
+project_warnings || { echo "libcamera-api: FAIL cannot read the warning flags from cmake/AlacsWarnings.cmake"; exit 1; }
 fails=0
 for suite in ${ALACS_LIBCAMERA_SUITES:-trixie sid}; do
   dir=$work/$suite
@@ -60,17 +60,10 @@ int main() {
   return 0;
 }
 CPP
-  ((ok)) && { "$cxx" -std=c++20 -O1 -I "$root/edge" -c "$out/smoke.cpp" -o "$out/smoke.o" >>"$log" 2>&1 &&
-    "$cxx" -std=c++20 -O1 -I "$root/edge" -c "$root/edge/common/result.cpp" -o "$out/result.o" >>"$log" 2>&1 &&
-    "$cxx" -o "$out/smoke" "$out/smoke.o" "$out/libcamera_source.o" "$out/result.o" \
-      -L "$libdir" -Wl,--allow-shlib-undefined -Wl,-rpath-link,"$libdir" -lcamera -lcamera-base \
-      >>"$log" 2>&1 || ok=0; }
-  if ((ok)); then
-    echo "libcamera-api: ok   libcamera_source.cpp compiles and links against libcamera $version (Debian $suite)"
-  else
-    echo "libcamera-api: FAIL against libcamera ${version:-?} (Debian $suite); log: $log"
-    grep -E "error|undefined" "$log" | head -20
-    fails=$((fails + 1))
-  fi
+  ((ok)) && { link_smoke "$out" "$log" "$out/libcamera_source.o" -- \
+    -L "$libdir" -Wl,--allow-shlib-undefined -Wl,-rpath-link,"$libdir" -lcamera -lcamera-base || ok=0; }
+  report "$ok" "$log" \
+    "libcamera-api: ok   libcamera_source.cpp compiles and links against libcamera $version (Debian $suite)" \
+    "libcamera-api: FAIL against libcamera ${version:-?} (Debian $suite)"
 done
 ((fails == 0))
