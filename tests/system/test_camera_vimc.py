@@ -197,6 +197,35 @@ def test_alacsd_localizes_through_vimc_honestly(tmp_path, alacsd, vimc) -> None:
         assert sensor.stop() == 0, sensor.log
 
 
+def test_stop_mid_scan_aborts_at_once_with_the_laser_off(tmp_path, alacsd, vimc) -> None:
+    """STOP while the scan exposes through the real pipeline: the capture is interrupted
+    (the requests in flight cancelled, not waited for), the result is ABORTED / STOPPED
+    within a fraction of a second, the laser is off, and the next scan runs."""
+    sensor = Sensor(alacsd, tmp_path, config=_config(tmp_path, vimc), sim=False)
+    try:
+        _home(sensor)
+        sensor.localize(x=10, y=-20, z=1200)
+        assert sensor.recv(lambda n, s: n == ac.MSG_PROGRESS and str(s["ProgressPhase"]) == "EXPOSING", 60)
+        sent = time.monotonic()
+        sensor.send("STOP")
+        header = _result(sensor, 10)
+        took_ms = (time.monotonic() - sent) * 1000
+        assert header is not None, "no result after STOP:\n" + sensor.stop_and_log()
+        assert (str(header["ResultStatus"]), str(header["ResultReason"])) == ("ABORTED", "STOPPED"), header
+        print(f"\nSTOP to ABORTED result through vimc: {took_ms:.0f} ms")
+        assert took_ms < 1000
+        assert gpio_sim.read_output("LASER") == 0
+        status = sensor.status(timeout=5)
+        assert status is not None and status["DroppedFrames"] == 0, status  # an interrupted capture is no drop
+        sensor.send("CLEAR_FAULT")
+        assert sensor.status(lambda s: str(s["State"]) == "IDLE", 10) is not None
+        sensor.localize(x=10, y=-20, z=1200)
+        again = _result(sensor, 120)
+        assert again is not None and str(again["ResultReason"]) not in ("CAMERA_FAULT", "STOPPED"), again
+    finally:
+        assert sensor.stop() == 0, sensor.log
+
+
 def test_camera_unbound_mid_scan_faults_then_recovers(tmp_path, alacsd, vimc) -> None:
     """vimc unbound through sysfs mid-scan: CAMERA_TIMEOUT, FAULT, a FAILED result with
     reason CAMERA_FAULT, laser off. libcamera 0.0.3 cannot take the camera back in the same
