@@ -40,7 +40,6 @@ namespace {
 
 constexpr SensorVersion kVersion{ALACS_VERSION_MAJOR, ALACS_VERSION_MINOR, ALACS_VERSION_PATCH};
 
-
 void notify(const char* what) {
 #ifdef ALACS_HAVE_SYSTEMD
   sd_notify(0, what);
