@@ -14,7 +14,11 @@ std::string describe(const char* field, double value, const char* relation, doub
   std::ostringstream s;
   s.imbue(std::locale::classic());
   s.precision(3);
-  s << "quality." << field << " " << value << " " << relation << " " << limit;
+  if (std::isnan(value)) {
+    s << "quality." << field << " not measured (limit " << limit << ")";  // its stage failed: see the log
+  } else {
+    s << "quality." << field << " " << value << " " << relation << " " << limit;
+  }
   return s.str();
 }
 

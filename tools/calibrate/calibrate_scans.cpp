@@ -5,6 +5,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <limits>
 #include <sstream>
 
 #include "geometry/triangulation.h"
@@ -212,9 +213,11 @@ Result<CalibrationRun> runCalibration(const CalibrationInput& in, const ImageLoa
   }
   Result<geometry::CalibrationUncertainty> unc =
       geometry::propagateCalibrationUncertainty(cam->camera, cam->covariance, *laser, observations, uo);
-  if (!unc) return Status(unc.status().code(), "total σ: " + unc.status().reason());
-  run.uncertainty = *unc;
-  {
+  if (!unc) {
+    run.uncertaintyError = "total σ: " + unc.status().reason();
+    run.log.push_back(run.uncertaintyError + " (the gate refuses a calibration without it)");
+  } else {
+    run.uncertainty = *unc;
     std::ostringstream msg;
     msg << "total σ: " << unc->solves << " re-solves of poses and laser plane ("
         << (uo.draws > 0 ? "Monte Carlo" : "±1σ per direction") << "), stroke " << uo.strokeStartMm << ".."
@@ -242,7 +245,14 @@ Result<CalibrationRun> runCalibration(const CalibrationInput& in, const ImageLoa
   q.scaleSigma = laser->scaleSigma;
   q.depthSigmaMmAt1000 = laser->depthSigmaMmAt1000;
   q.depthSigmaMmAt1600 = laser->depthSigmaMmAt1600;
-  for (const auto& u : unc->byDepth) {
+  if (!unc) {
+    const double nan = std::numeric_limits<double>::quiet_NaN();
+    for (double* f : {&q.depthSigmaTotalMmAt1000, &q.depthSigmaTotalMmAt1200, &q.depthSigmaTotalMmAt1400,
+                      &q.depthSigmaTotalMmAt1600, &q.sigma3dTotalMmAt1000, &q.sigma3dTotalMmAt1200,
+                      &q.sigma3dTotalMmAt1400, &q.sigma3dTotalMmAt1600})
+      *f = nan;
+  }
+  for (const auto& u : unc ? unc->byDepth : std::vector<geometry::DepthUncertainty>{}) {
     const long mm = std::lround(u.depthMm);
     double* depth = mm == 1000 ? &q.depthSigmaTotalMmAt1000
                     : mm == 1200 ? &q.depthSigmaTotalMmAt1200

@@ -64,6 +64,10 @@ struct CalibrationRun {
   geometry::CameraFit camera;
   geometry::LaserFit laser;
   geometry::CalibrationUncertainty uncertainty;  // total σ per working distance
+  // Why the total σ could not be computed (empty: it was). The calibration is still
+  // returned, its total-σ figures NaN ("not measured"), so that the quality gate gives
+  // its verdict with that among its reasons instead of the run ending before it.
+  std::string uncertaintyError;
   std::vector<std::string> log;       // what was used and what was skipped, and why
 };
 

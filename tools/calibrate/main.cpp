@@ -194,7 +194,9 @@ int main(int argc, char** argv) {
               input.placements.size(), scansDir.c_str());
   Result<calib::CalibrationRun> run = calib::runCalibration(input, load);
   if (!run) {
+    // No calibration to judge: the gate's verdict says where the run stopped.
     std::fprintf(stderr, "alacs_calibrate: %s\n", run.status().toString().c_str());
+    std::fprintf(stderr, "alacs_calibrate: REFUSED: the quality gate was not reached (the stage above failed)\n");
     return 1;
   }
   if (verbose)
@@ -209,7 +211,8 @@ int main(int argc, char** argv) {
               l.slideAxis.y(), l.slideAxis.z(), l.slideScale);
   printQuality(cal.quality);
   if (verbose) printUncertainty(run->uncertainty);
-  const geometry::GateVerdict verdict = geometry::checkCalibrationQuality(cal.quality, limits);
+  geometry::GateVerdict verdict = geometry::checkCalibrationQuality(cal.quality, limits);
+  if (!run->uncertaintyError.empty()) verdict.failures.insert(verdict.failures.begin(), run->uncertaintyError);
   if (!verdict.passed()) {
     cal.quality.gate = geometry::CalibrationQuality::Gate::kRefused;
     std::fprintf(stderr, "alacs_calibrate: REFUSED by the quality gate:\n");

@@ -400,6 +400,7 @@ class Impl final : public LibcameraSource {
         if (failed && startNs >= askedNs) return Status(Error::kBadInput, "camera delivered a failed or short frame");
         continue;
       }
+      laserOff();  // this frame is complete: the laser's work is done before the copy
       const size_t index = req->cookie();
       // Copy only the rows of the requested window (a 5 MP frame is 15 MB; a target's
       // window a few hundred kB).
