@@ -156,7 +156,11 @@ void Sensor::onStop(const protocol::Command& c) {
 }
 
 void Sensor::onClearFault(const protocol::Command& c) {
-  if ((state_ == State::kFault || state_ == State::kStopped) && !ports_.worker->busy()) {
+  // A fault cannot be cleared while the worker it stopped has not let go yet (a stuck
+  // frame read): say so, rather than ACK a clear that did not happen.
+  if ((state_ == State::kFault || state_ == State::kStopped) && ports_.worker->busy())
+    return node_.nack(c.opcode, c.counter, NackReason::kBusy);
+  if (state_ == State::kFault || state_ == State::kStopped) {
     faults_ &= static_cast<uint16_t>(protocol::kFaultNotCalibrated);
     ports_.laser->reset();
     state_ = State::kIdle;

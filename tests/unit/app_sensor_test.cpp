@@ -413,8 +413,8 @@ TEST_CASE("Sensor: STOP in each phase ends the job, the laser and latches STOPPE
     CHECK(r.worker.cancels() == cancelsBefore + 1);
     CHECK(!r.laserLine.level());
     CHECK(r.sensor->state() == State::kStopped);
-    // Still busy: CLEAR_FAULT is acknowledged but cannot leave STOPPED yet.
-    CHECK(r.answer(r.simple(Opcode::kClearFault)).result == protocol::AckResult::kAck);
+    // Still busy: CLEAR_FAULT cannot leave STOPPED yet, and its NACK says so (BUSY).
+    CHECK(r.answer(r.simple(Opcode::kClearFault)).reason == NackReason::kBusy);
     CHECK(r.sensor->state() == State::kStopped);
     r.finishCancelled();
     if (std::string(phase) != "homing") {
@@ -626,10 +626,17 @@ TEST_CASE("Sensor: a worker without progress beyond its deadline is a fault, ans
   auto res = r.results();
   REQUIRE(res.size() == 1);  // answered at once: the worker may never come back
   CHECK(res[0].result_status == static_cast<uint8_t>(protocol::ResultStatus::kFailed));
+  // CLEAR_FAULT while the worker is still stuck: NACKed BUSY (nothing is cleared), the
+  // fault and the unhealthy watchdog stay.
+  CHECK(r.answer(r.simple(Opcode::kClearFault)).reason == NackReason::kBusy);
+  CHECK(r.sensor->state() == State::kFault);
+  CHECK(!r.sensor->healthy());
   // If it does come back, its event is not a second result, and the sensor is healthy again.
   r.finishCancelled();
   CHECK(r.results().size() == 1);
   CHECK(r.sensor->healthy());
+  CHECK(r.answer(r.simple(Opcode::kClearFault)).result == protocol::AckResult::kAck);
+  CHECK(r.sensor->state() == State::kIdle);
 }
 
 TEST_CASE("Sensor: progress within the deadline keeps a long scan healthy", "[app][sensor]") {
