@@ -13,6 +13,9 @@
 
 #ifdef __cplusplus
 extern "C" {
+/* C casts in C code: not C++'s old-style casts (-Wold-style-cast) when C++ includes this. */
+#pragma GCC diagnostic push
+#pragma GCC diagnostic ignored "-Wold-style-cast"
 #endif
 
 #define ALACS_PROTOCOL_VERSION (2u)
@@ -72,6 +75,7 @@ static inline bool alacs_command_checksum_ok(const uint8_t *data, size_t dlc)
 }
 
 #ifdef __cplusplus
+#pragma GCC diagnostic pop
 }
 #endif
 

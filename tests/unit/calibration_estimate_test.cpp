@@ -222,7 +222,9 @@ TEST_CASE("Camera intrinsics and distortion come back from checkerboard views", 
   // principal point itself is not compared here: an offset of it within its σ is taken
   // up by the poses (a rotation of ~0.3 mrad), and where the solver settles inside that
   // valley differs between builds (x86 vs aarch64 floating-point contraction).
-  for (const auto& [px, tolerance] : {std::pair{PixelPoint{40.0, 30.0}, 1.0}, std::pair{PixelPoint{700.0, 500.0}, 0.2}}) {
+  for (const auto& [pixel, tolerance] :
+       {std::pair{PixelPoint{40.0, 30.0}, 1.0}, std::pair{PixelPoint{700.0, 500.0}, 0.2}}) {
+    const PixelPoint px = pixel;  // a copy: clang before 16 cannot capture a structured binding
     const auto shift = [&](const CameraIntrinsics& cam) {
       const Eigen::Vector2d linear((px.columnPx - cam.cxPx) / cam.fxPx, (px.rowPx - cam.cyPx) / cam.fyPx);
       return Eigen::Vector2d(undistortPixels(cam, {px})[0] - linear);
