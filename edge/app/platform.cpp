@@ -3,8 +3,6 @@
 #include <nlohmann/json.hpp>
 
 #include <atomic>
-#include <cstdio>
-#include <fstream>
 
 #include "common/log.h"
 #ifdef ALACS_HAVE_GPIOD
@@ -54,15 +52,10 @@ class LaserTimelineWriter final : public ScanObserver {
     j["exposures"] = nlohmann::json::array();
     for (const ExposureWindow& w : ev.exposures) j["exposures"].push_back({w.startNs, w.endNs});
     const std::string path = dir_ + "/laser_timeline.json";
-    {
-      std::ofstream out(path + ".tmp");
-      out << j.dump(2) << '\n';
-      if (!out) {
-        ALACS_LOG_WARN("debug", "cannot write %s", path.c_str());
-        return;
-      }
+    if (Status w = geometry::writeFileAtomically(path, j.dump(2) + "\n"); !w) {
+      ALACS_LOG_WARN("debug", "%s", w.toString().c_str());
+      return;
     }
-    std::rename((path + ".tmp").c_str(), path.c_str());
     laser_.clearEdges();
   }
 
@@ -93,7 +86,8 @@ class CameraWhenAvailable final : public ports::FrameSource {
   const Status& openError() const { return error_; }
   std::string lostReason() const {
     const drivers::LibcameraSource* s = source_.load();
-    return s != nullptr && s->stats().lost ? "camera " + s->stats().cameraId + " lost (its device was removed)" : "";
+    if (s == nullptr || !s->lost()) return {};  // the event loop asks at every wake-up: no copy
+    return "camera " + s->stats().cameraId + " lost (its device was removed)";
   }
 
  private:

@@ -248,7 +248,7 @@ class Impl final : public LibcameraSource {
     interrupted_ = true;
     cv_.notify_all();
   }
-  bool lost() const {
+  bool lost() const override {
     std::lock_guard<std::mutex> lock(mu_);
     return stats_.lost;
   }

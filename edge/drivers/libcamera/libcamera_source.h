@@ -77,6 +77,8 @@ class LibcameraSource : public ports::FrameSource {
 
   // Thread-safe snapshot.
   virtual LibcameraStats stats() const = 0;
+  // Thread-safe: stats().lost, without the copy.
+  virtual bool lost() const = 0;
 };
 
 }  // namespace alacs::drivers
