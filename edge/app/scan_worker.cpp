@@ -1,4 +1,5 @@
 #include "app/scan_worker.h"
+#include "app/result_status.h"
 
 #include <pthread.h>
 #include <sys/eventfd.h>
@@ -449,9 +450,11 @@ WorkerEvent ScanWorker::doLocalize(const WorkerJob& job) {
   ev.estimates.push_back(*est);
   // Without a sphere fit the estimate is the rough position with the default size: never
   // a measurement (docs/can-protocol.md, ROUGH_ONLY).
-  ev.resultStatus = est->sphereFit ? protocol::ResultStatus::kMeasured : protocol::ResultStatus::kRoughOnly;
-  if (!est->sphereFit) ev.resultReason = protocol::ResultReason::kTooFewLines;
-  if (est->sphereFit && est->outsideGate) ev.resultReason = protocol::ResultReason::kOutsideGate;
+  // A fit that is more likely another object than the target goes out as AMBIGUOUS with its
+  // reason: the best guess, its σ and a low confidence (app/result_status.h).
+  const ResultClass rc = classifyEstimate(*est);
+  ev.resultStatus = rc.status;
+  ev.resultReason = rc.reason;
   ev.status = Status::ok();
   return ev;
 }

@@ -4,6 +4,7 @@
 #include <algorithm>
 #include <cmath>
 #include <string>
+#include <utility>
 
 namespace alacs::geometry {
 
@@ -573,6 +574,20 @@ Result<SphereFit> finishOneLine(const std::vector<Eigen::Vector3d>& pts, const P
   return out;
 }
 
+// The chosen fit with its score and its strongest rival: the best other object whose
+// centre is more than kRivalSeparationMm away.
+Result<SphereFit> withRival(Result<SphereFit> chosen, double score,
+                            const std::vector<std::pair<double, Eigen::Vector3d>>& objects) {
+  if (!chosen) return chosen;
+  chosen->score = score;
+  for (const auto& [sc, centre] : objects) {
+    if ((centre - chosen->centerMm).norm() <= kRivalSeparationMm || sc <= chosen->rivalScore) continue;
+    chosen->rivalScore = sc;
+    chosen->rivalCenterMm = centre;
+  }
+  return chosen;
+}
+
 Result<SphereFit> fit(const std::vector<Eigen::Vector3d>& pts, const std::vector<int>* lineIds,
                       const std::vector<int>* groupIds, const SphereFitParams& p) {
   const size_t n = pts.size();
@@ -587,6 +602,7 @@ Result<SphereFit> fit(const std::vector<Eigen::Vector3d>& pts, const std::vector
   // line and the priors can say.
   Result<SphereFit> multi = Status(Error::kBadInput, "no sphere across the lines");
   double multiScore = 0.0;
+  std::vector<std::pair<double, Eigen::Vector3d>> objects;  // every multi-line object: score, centre
   if (lineIds == nullptr) {
     const Hypothesis h = search(pts, pieces, scorer, mean, p, false);
     if (h.score > 0.0) multi = finish(pts, lineIds, pieces, h, p);
@@ -609,6 +625,7 @@ Result<SphereFit> fit(const std::vector<Eigen::Vector3d>& pts, const std::vector
       const std::vector<bool> taken = f->inlier;
       if (f->linesUsed >= 2) {
         const double sc = std::max(scorer.score(h.c, h.r), scorer.score(f->centerMm, f->radiusMm));
+        objects.emplace_back(sc, f->centerMm);
         if (sc > multiScore) {
           multiScore = sc;
           multi = std::move(f);
@@ -663,18 +680,20 @@ Result<SphereFit> fit(const std::vector<Eigen::Vector3d>& pts, const std::vector
     if (scorer.centreFactor(multi->centerMm) >= 0.1 && strongLines >= 2 &&
         scorer.freeSpaceFactor(multi->centerMm, multi->radiusMm) >= 0.1 &&
         multi->centerSigmaMm <= p.maxPlausibleCenterSigmaMm)
-      return multi;
+      return withRival(std::move(multi), multiScore, objects);
   }
   // Otherwise both compete on the common score (support × priors), each by the better of its
   // hypothesis and its refinement (refining towards all the points can cost a sphere a
   // little of its coherent support): a sphere across two objects' lines far from the
   // rough position must not beat one line of the target near it.
+  const double ss = single ? std::max(one.score, scorer.score(single->centerMm, single->radiusMm)) : 0.0;
   if (multi && single) {
-    const double ss = std::max(one.score, scorer.score(single->centerMm, single->radiusMm));
-    return multiScore >= ss ? multi : single;
+    if (multiScore >= ss) return withRival(std::move(multi), multiScore, objects);
+    objects.emplace_back(multiScore, multi->centerMm);
+    return withRival(std::move(single), ss, objects);
   }
-  if (multi) return multi;
-  if (single) return single;
+  if (multi) return withRival(std::move(multi), multiScore, objects);
+  if (single) return withRival(std::move(single), ss, objects);
   return multi;
 }
 

@@ -71,7 +71,17 @@ struct SphereFit {
   int groupsUsed = 0;            // pieces explained
   int linesUsed = 0;             // lines with an explained piece
   std::vector<bool> inlier;      // per input point
+  // The competition the fit won: its own score (support × priors) and the best score of
+  // another object in the same points whose centre lies more than kRivalSeparationMm away
+  // (0: none). Two objects that explain the lines about equally well leave the choice to
+  // the priors (two surfaces: the target and a neighbour, or a leaf).
+  double score = 0.0;
+  double rivalScore = 0.0;
+  Eigen::Vector3d rivalCenterMm = Eigen::Vector3d::Zero();
 };
+
+// Centres closer than this are the same object for the rival above.
+constexpr double kRivalSeparationMm = 20.0;
 
 // Fits without knowing lines or pieces (all points one piece, random samples only).
 // Errors: kBadInput (too few points or inliers), kOutOfRange (the radius is not a fruit's).

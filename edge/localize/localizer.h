@@ -53,7 +53,7 @@ struct ScanParams {
   // these priors (aspect = height/width; the stem's tilt from "up" in the camera frame).
   bool spheroid = true;
   double priorAspect = 0.9;
-  double priorAspectSigma = 0.05;
+  double priorAspectSigma = 0.1;
   double stemTiltSigmaDeg = 20.0;
   // The rough position's error, 1σ per axis (the RealSense D435i's, paper Table 2:
   // 16–21.5 mm mean 3D error at 1.0–1.6 m). Among the spheres the lines support, the one
@@ -75,6 +75,15 @@ struct ScanParams {
   // far away leave the diameter to ±4 mm and more). 0 (the default): lines only; 4 meets
   // the diameter targets at 1.6 m, at the price of a second pass on ~45 % of the scans
   // (docs/geometry.md, docs/daemon.md).
+  // Honest uncertainty (docs/geometry.md "Honest uncertainty"): a fitted fruit may be
+  // another object than the target (a touching neighbour, a leaf and the fruit bent into
+  // one sphere). The chance that it is the target weighs how far its centre lies from the
+  // rough position (the RGB-D error above, against "anywhere in the gate"; this prior share
+  // of other objects) and how well the best rival object explains the same lines. σ is
+  // that mixture's (the other object's error is its distance from the rough position);
+  // the confidence is multiplied by the chance. Set a priori, not tuned on a benchmark.
+  // 0: off (σ and confidence from the fit alone).
+  double otherObjectPrior = 0.1;
   int followUpMinLines = 3;
   double followUpDiameterSigmaMm = 0.0;
   int followUpMaxStops = 6;
@@ -127,6 +136,16 @@ struct AppleEstimate {
   int pointsUsed = 0;
   bool sphereFit = false;        // false: the paper's single-line estimate
   bool outsideGate = false;      // found by the widened search, away from the rough position
+  // Why the estimate may be another object than the target, when the chance that it is
+  // the target (targetPct) is below one half: its centre is far from the rough position,
+  // or another object explains the lines about as well. The bus reports such a result
+  // as AMBIGUOUS with the reason (docs/can-protocol.md).
+  enum class Doubt { kNone, kFarFromRough, kTwoSurfaces };
+  Doubt doubt = Doubt::kNone;
+  double targetPct = 100.0;      // chance that the fitted object is the target
+  double fitSigmaMm = 0.0;       // σ of the approach point from the fit alone (before the mixture)
+  double rivalShare = 0.0;       // rival score / (own + rival) from the sphere fit (0: no rival)
+  Eigen::Vector3d rivalCenterMm = Eigen::Vector3d::Zero();
 };
 
 // The paper's candidates: one per line with points on the target.
@@ -187,6 +206,9 @@ class Localizer {
   Result<AppleEstimate> estimateWidened(const ScanPlan& plan, const std::vector<LineObservation>& lines) const;
   // The estimate from the rough position alone: centre there, a prior radius, σ its error.
   AppleEstimate roughEstimate(const ScanPlan& plan) const;
+  // Weighs a sphere-fit estimate against the chance that it is another object (see
+  // ScanParams::otherObjectPrior): targetPct, doubt, the mixture σ and the confidence.
+  void weighDoubt(const ScanPlan& plan, double ballMm, AppleEstimate& est) const;
 
   geometry::Calibration cal_;
   image::LleParams lle_;

@@ -43,6 +43,22 @@ const char* lightingName(LightingKind k) {
   return "lab";
 }
 
+const char* worldName(World w) {
+  switch (w) {
+    case World::kBenchmark: return "benchmark";
+    case World::kBenchmarkHard: return "benchmark-hard";
+    case World::kHoldout: return "holdout";
+  }
+  return "benchmark";
+}
+
+Result<World> parseWorld(const std::string& name) {
+  if (name == "benchmark") return World::kBenchmark;
+  if (name == "benchmark-hard") return World::kBenchmarkHard;
+  if (name == "holdout") return World::kHoldout;
+  return Status(Error::kInvalidArgument, "world must be benchmark|benchmark-hard|holdout, got '" + name + "'");
+}
+
 Result<LightingKind> parseLighting(const std::string& name) {
   if (name == "lab") return LightingKind::kLab;
   if (name == "overcast") return LightingKind::kOvercast;
@@ -277,10 +293,166 @@ bool occludeTarget(SimScene& s, const SimApple& target, CaseRng& rng) {
   return done;
 }
 
+// ---- The hard worlds -------------------------------------------------------------------
+// Two worlds of hard cases share this code with different settings: the second world
+// (World::kHoldout), which no parameter choice may look at, and the benchmark's own hard
+// cases (World::kBenchmarkHard), which parameters may be tuned on. Every range differs
+// between them, and so do their seeds (docs/evaluation.md "The second world").
+struct HardSettings {
+  // Target shapes, one third each: a sphere (aspect in sphere[]), oblate, prolate.
+  double sphere[2];
+  double oblate[2];
+  double prolate[2];
+  double radiusMm[2];
+  double stemTiltDeg;
+  int maxNeighbours;
+  double neighbourGapMm[2];
+  double neighbourMinDirZ;     // -0.35: a little in front of the target; 0: beside or behind
+  double neighbourHideShare;   // what neighbours may hide of the target
+  double bands[4][2];          // hidden share bands of the occluded cases
+  double leafGapMm[2];         // in front of the target's skin
+  int maxLeaves;
+  double leafLengthMm[2];
+  double laserMw[2];
+  double backgroundMm[2];      // behind the target's centre
+  double sunLux[2];
+  double sunExposure[2];       // × the auto exposure, in sun (and direct light when fixedInDirect)
+  bool fixedInDirect;
+  uint64_t salt;
+};
+
+constexpr HardSettings kHoldoutSettings{{1.0, 1.0}, {0.78, 0.95}, {1.02, 1.15}, {30.0, 50.0}, 60.0,
+                                        4, {0.0, 3.0}, -0.35, 0.12,
+                                        {{0.25, 0.40}, {0.45, 0.60}, {0.65, 0.80}, {0.80, 0.95}}, {10.0, 60.0}, 5,
+                                        {60.0, 130.0}, {8.0, 30.0}, {150.0, 1500.0}, {30000.0, 90000.0},
+                                        {1.6, 2.6}, true, 0x7B0D5EEDULL};
+constexpr HardSettings kTuningHardSettings{{0.97, 1.03}, {0.80, 0.97}, {1.0, 1.10}, {31.0, 49.0}, 45.0,
+                                           3, {0.5, 8.0}, 0.0, 0.06,
+                                           {{0.30, 0.45}, {0.45, 0.60}, {0.60, 0.75}, {0.70, 0.88}}, {20.0, 100.0}, 4,
+                                           {55.0, 115.0}, {10.0, 25.0}, {250.0, 1200.0}, {25000.0, 70000.0},
+                                           {1.3, 2.2}, false, 0x5EED4A4DULL};
+
+const HardSettings* hardSettings(World w) {
+  if (w == World::kHoldout) return &kHoldoutSettings;
+  if (w == World::kBenchmarkHard) return &kTuningHardSettings;
+  return nullptr;
+}
+
+SimApple hardApple(const HardSettings& h, CaseRng& rng, int id, std::string* shape) {
+  SimApple a = randomApple(rng, id);
+  a.radiusMm = rng.uniform(h.radiusMm[0], h.radiusMm[1]);
+  const int kind = rng.integer(0, 2);
+  const double* range = kind == 0 ? h.sphere : kind == 1 ? h.oblate : h.prolate;
+  a.aspect = rng.uniform(range[0], range[1]);
+  if (shape != nullptr) *shape = kind == 0 ? "sphere" : kind == 1 ? "oblate" : "prolate";
+  const double tiltRad = rng.uniform(0.0, h.stemTiltDeg) * M_PI / 180.0;
+  const double spinRad = rng.uniform(0.0, 2.0 * M_PI);
+  a.stemAxis = Eigen::Vector3d(std::sin(tiltRad) * std::cos(spinRad), -std::cos(tiltRad), std::sin(tiltRad) * std::sin(spinRad));
+  a.skinRgb = Eigen::Vector3d(rng.uniform(0.30, 0.60), rng.uniform(0.04, 0.12), rng.uniform(0.03, 0.08));
+  return a;
+}
+
+// True when any point of the leaf's blade lies inside an apple or within 2 mm of it
+// (sampled over the blade; the benchmark's test is a coarser bound that keeps every
+// leaf a half-length away, which cannot put a leaf 10 mm in front of the skin).
+bool leafCutsApple(const SimLeaf& l, const std::vector<SimApple>& apples) {
+  const Eigen::Vector3d side = l.normal.cross(l.axis).normalized();
+  for (const auto& ap : apples) {
+    if ((l.centerMm - ap.centerMm).norm() > appleBoundMm(ap) + 0.5 * l.lengthMm + 3.0) continue;
+    const Eigen::Matrix3d toLocal = appleFrame(ap).transpose();
+    const Eigen::Vector3d inv(1.0 / (ap.radiusMm + 2.0), 1.0 / (ap.radiusMm + 2.0), 1.0 / (ap.radiusMm * ap.aspect + 2.0));
+    for (int i = -8; i <= 8; ++i) {
+      const double u = 0.5 * l.lengthMm * i / 8.0;
+      const double half = 0.5 * l.widthMm * (1.0 - (2.0 * u / l.lengthMm) * (2.0 * u / l.lengthMm));
+      for (int j = -4; j <= 4; ++j) {
+        const Eigen::Vector3d p = l.centerMm + u * l.axis + half * (j / 4.0) * side;
+        if ((toLocal * (p - ap.centerMm)).cwiseProduct(inv).norm() < 1.0) return true;
+      }
+    }
+  }
+  return false;
+}
+
+// Neighbours touching the target (or nearly), beside, behind or a little in front of it.
+void addHardNeighbours(const HardSettings& h, SimScene& s, const SimApple& target, CaseRng& rng) {
+  const int neighbours = rng.integer(0, h.maxNeighbours);
+  for (int k = 0; k < neighbours; ++k) {
+    for (int attempt = 0; attempt < 40; ++attempt) {
+      SimApple a = hardApple(h, rng, 2 + k, nullptr);
+      Eigen::Vector3d dir = rng.unitVector();
+      dir.z() = h.neighbourMinDirZ < 0.0 ? std::max(dir.z(), h.neighbourMinDirZ) : std::abs(dir.z()) * 0.8;
+      dir.normalize();
+      a.centerMm = target.centerMm +
+                   dir * (appleBoundMm(target) + appleBoundMm(a) + rng.uniform(h.neighbourGapMm[0], h.neighbourGapMm[1]));
+      bool ok = a.centerMm.z() + appleBoundMm(a) < s.background.depthMm;
+      for (const auto& b : s.apples) ok = ok && (a.centerMm - b.centerMm).norm() > appleBoundMm(a) + appleBoundMm(b) - 0.5;
+      if (!ok) continue;
+      SimScene trial = s;
+      trial.apples.push_back(a);
+      if (shareWith(trial, target) > h.neighbourHideShare) continue;
+      s.apples.push_back(a);
+      break;
+    }
+  }
+}
+
+// Leaves close in front of the target's skin until the hidden share is in a band drawn
+// per case.
+bool occludeHard(const HardSettings& h, SimScene& s, const SimApple& target, CaseRng& rng) {
+  const auto& band = h.bands[rng.integer(0, 3)];
+  const Eigen::Vector3d tc = target.centerMm;
+  for (int round = 0; round < 120; ++round) {
+    SimScene trial = s;
+    const int count = rng.integer(1, h.maxLeaves);
+    for (int k = 0; k < count; ++k) {
+      for (int attempt = 0; attempt < 20; ++attempt) {
+        const double zl = tc.z() - appleBoundMm(target) - rng.uniform(h.leafGapMm[0], h.leafGapMm[1]);
+        const double ang = rng.uniform(0.0, 2.0 * M_PI);
+        const double off = rng.uniform(0.0, 1.1) * target.radiusMm;
+        const Eigen::Vector3d c = tc * (zl / tc.z()) + off * Eigen::Vector3d(std::cos(ang), std::sin(ang), 0.0);
+        SimLeaf l = randomLeaf(rng, c);
+        l.lengthMm = rng.uniform(h.leafLengthMm[0], h.leafLengthMm[1]);
+        l.widthMm = l.lengthMm * rng.uniform(0.4, 0.6);
+        l.normal = Eigen::Vector3d(rng.uniform(-0.6, 0.6), rng.uniform(-0.6, 0.6), -1.0).normalized();
+        l.axis = l.normal.unitOrthogonal();
+        const double spin = rng.uniform(0.0, 2.0 * M_PI);
+        l.axis = (std::cos(spin) * l.axis + std::sin(spin) * l.normal.cross(l.axis)).normalized();
+        if (leafCutsApple(l, trial.apples)) continue;
+        trial.leaves.push_back(l);
+        break;
+      }
+    }
+    const double share = shareWith(trial, target);
+    if (share >= band[0] && share <= band[1]) {
+      s = trial;
+      return true;
+    }
+  }
+  return false;
+}
+
+// The hard world's light, laser and background, after the benchmark's own choices.
+void hardConditions(const HardSettings& h, SimScene& s, const CaseSpec& spec, const SimApple& target, CaseRng& rng) {
+  s.laser.powerMw = rng.uniform(h.laserMw[0], h.laserMw[1]);
+  s.background.depthMm = target.centerMm.z() + rng.uniform(h.backgroundMm[0], h.backgroundMm[1]);
+  if (spec.lighting == LightingKind::kFullSun) s.lighting.directLux = rng.uniform(h.sunLux[0], h.sunLux[1]);
+}
+
+// A fixed exposure in sun: a multiple of what an auto-exposure would pick, so the red of
+// sunlit skin comes near full scale (the daemon does not meter the scene).
+int64_t hardExposureUs(const HardSettings& h, const SimScene& s, const CaseSpec& spec, CaseRng& rng) {
+  const int64_t autoUs = autoExposureUs(s);
+  const bool fixed = spec.lighting == LightingKind::kFullSun || (h.fixedInDirect && spec.lighting == LightingKind::kDirect);
+  if (!fixed) return autoUs;
+  return std::clamp<int64_t>(std::llround(static_cast<double>(autoUs) * rng.uniform(h.sunExposure[0], h.sunExposure[1])),
+                             20, 3000);
+}
+
 }  // namespace
 
 Result<OrchardCase> makeOrchardCase(const CaseSpec& spec, uint64_t seed) {
-  CaseRng rng(seed * 0x9E3779B97F4A7C15ULL + 0x1234567ULL);
+  const HardSettings* hard = hardSettings(spec.world);
+  CaseRng rng(seed * 0x9E3779B97F4A7C15ULL + (hard != nullptr ? hard->salt : 0x1234567ULL));
   OrchardCase oc;
   SimScene& s = oc.scene;
   s = defaultScene();
@@ -294,7 +466,8 @@ Result<OrchardCase> makeOrchardCase(const CaseSpec& spec, uint64_t seed) {
 
   // The target: at the distance, where the slide can centre five stops on it, inside
   // the central part of the image.
-  SimApple target = randomApple(rng, 1);
+  oc.shape = "oblate";
+  SimApple target = hard != nullptr ? hardApple(*hard, rng, 1, &oc.shape) : randomApple(rng, 1);
   bool placed = false;
   for (int attempt = 0; attempt < 200 && !placed; ++attempt) {
     const double z = spec.distanceMm + rng.uniform(-25.0, 25.0);
@@ -326,19 +499,28 @@ Result<OrchardCase> makeOrchardCase(const CaseSpec& spec, uint64_t seed) {
     s.background.textureCellMm = rng.uniform(25.0, 45.0);
   }
 
-  addNeighbours(s, target, spec.maxNeighbours, rng);
+  if (hard != nullptr) {
+    hardConditions(*hard, s, spec, target, rng);
+    oc.lux = s.lighting.totalLux();
+    addHardNeighbours(*hard, s, target, rng);
+  } else {
+    addNeighbours(s, target, spec.maxNeighbours, rng);
+  }
   addCanopy(s, target, rng);
   addBranches(s, target, rng);
 
-  // Occlusion: one to three leaves in front of the target, until 15-50 % of it is hidden.
-  if (spec.occluded && !occludeTarget(s, target, rng))
+  // Occlusion: one to three leaves in front of the target, until 15-50 % of it is hidden
+  // (the second world: up to five, 10-60 mm in front, up to 95 %).
+  if (spec.occluded && hard != nullptr && !occludeHard(*hard, s, target, rng))
+    return Status(Error::kInternal, "could not occlude the target in its band");
+  if (spec.occluded && hard == nullptr && !occludeTarget(s, target, rng))
     return Status(Error::kInternal, "could not occlude the target by 15-50 %");
   oc.occlusionShare = occlusionShare(s, *s.apple(1));
 
   // What the RGB-D camera reports: the truth plus its error.
   const double sigma = roughSigmaMm(tc.norm());
   oc.roughMm = tc + sigma * Eigen::Vector3d(rng.normal(), rng.normal(), rng.normal());
-  s.sensor.exposureUs = autoExposureUs(s);
+  s.sensor.exposureUs = hard != nullptr ? hardExposureUs(*hard, s, spec, rng) : autoExposureUs(s);
   oc.targetId = 1;
   char buf[256];
   std::snprintf(buf, sizeof buf, "%s %.0f lux, target d=%.0f mm at %.0f mm, %zu apples, %zu leaves, %zu branches, occlusion %.0f %%",

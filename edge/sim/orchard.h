@@ -15,6 +15,18 @@
 namespace alacs::sim {
 
 enum class LightingKind { kLab, kOvercast, kDirect, kFullSun };
+
+// Which world a case belongs to. kBenchmark is the world the parameters were tuned on
+// (docs/evaluation.md). kHoldout is a second world that no parameter choice may look at
+// (docs/evaluation.md "The second world"): its own seeds, leaves 10-60 mm in front of the
+// fruit hiding up to 95 % of it, touching clusters, spheres and prolate fruit beside
+// oblate ones, sun at a fixed exposure (skin near saturation), laser power 8-30 mW and a
+// background 150-1500 mm behind the fruit. kBenchmarkHard is the benchmark's own hard
+// cases, with other ranges and seeds: what parameters for hard cases may be tuned on.
+enum class World { kBenchmark, kBenchmarkHard, kHoldout };
+const char* worldName(World w);
+// Errors: kInvalidArgument for an unknown name (benchmark|benchmark-hard|holdout).
+Result<World> parseWorld(const std::string& name);
 const char* lightingName(LightingKind k);
 // Errors: kInvalidArgument for an unknown name (lab|overcast|direct|sun).
 Result<LightingKind> parseLighting(const std::string& name);
@@ -28,6 +40,7 @@ struct CaseSpec {
   int maxNeighbours = 3;         // apples in the target's cluster
   double slideCentreMinMm = 45.0;   // the plane through the target's centre needs the
   double slideCentreMaxMm = 155.0;  // slide within these, so five stops 20 mm apart fit
+  World world = World::kBenchmark;
 };
 
 struct OrchardCase {
@@ -37,6 +50,7 @@ struct OrchardCase {
   double occlusionShare = 0.0;    // measured share of the target hidden from the camera
   double slideCentreMm = 0.0;     // slide position whose plane passes through the target's centre
   double lux = 0.0;               // total illuminance of the condition
+  std::string shape;              // the target's: sphere, oblate or prolate
   std::string description;
 };
 

@@ -180,7 +180,9 @@ TEST_CASE("One line alone: the paper's single-line estimate", "[localize]") {
   // The line through the middle of the fruit: its middle is near the approach point, but
   // not on it (the median row is not the point nearest the sensor): millimetres off.
   CHECK((est->approachMm - approachTruth).norm() < 10.0);
-  CHECK(est->sigmaMm >= 3.0);
+  // One line's σ is what one line misses in practice (13-16 mm on the benchmark), never
+  // the few millimetres of its geometry alone.
+  CHECK(est->sigmaMm >= 15.0);
   CHECK(est->confidencePct < 60.0);
   CHECK(loc.estimate(*plan, {}).status().code() == Error::kNotFound);
 }
@@ -291,7 +293,7 @@ TEST_CASE("The adaptive second pass: stops in between and beyond, only when too 
   REQUIRE(all.isOk());
   CHECK(all->sphereFit);
   CHECK(all->linesUsed >= 4);
-  CHECK((all->centerMm - k.center).norm() < (one->centerMm - k.center).norm());
+  CHECK(all->centerSigmaMm < one->centerSigmaMm);
   CHECK((all->centerMm - k.center).norm() < 3.0);
   // Enough lines: nothing more. No estimate (nothing lit near the rough position): nothing
   // more either. Off: nothing.
@@ -400,6 +402,22 @@ TEST_CASE("Nothing within the gate: the widened search fits the lines the scan s
   CHECK((est->centerMm - k.center).norm() < 2.0);
   CHECK(std::abs(est->diameterMm - 2 * k.radius) < 2.0);
   CHECK(est->confidencePct <= k.scan.outsideGateConfidencePct);
+  // Far beyond the rough position's error: more likely another object than the target, so
+  // σ spans the distance to where the rough position says the target is, and the bus says
+  // AMBIGUOUS, FAR_FROM_ROUGH.
+  const double away = (est->centerMm - rough).norm();
+  CHECK(est->doubt == localize::AppleEstimate::Doubt::kFarFromRough);
+  CHECK(est->targetPct < 50.0);
+  CHECK(est->sigmaMm > 0.5 * away);
+  CHECK(est->fitSigmaMm < 2.0);
+  // Without the doubt model the same fit went out at the fit's own σ, a few tenths of a
+  // millimetre, though nothing but the prior said it was the fruit the arm meant.
+  localize::ScanParams plainScan = k.scan;
+  plainScan.otherObjectPrior = 0.0;
+  auto plain = localize::Localizer(k.cal, image::LleParams{}, plainScan).estimate(*plan, lines);
+  REQUIRE(plain.isOk());
+  CHECK(plain->doubt == localize::AppleEstimate::Doubt::kNone);
+  CHECK(plain->sigmaMm < 2.0);
 }
 
 TEST_CASE("The widened search takes no flat surface for a fruit", "[localize][widened]") {
@@ -424,4 +442,59 @@ TEST_CASE("The widened search takes no flat surface for a fruit", "[localize][wi
   }
   auto est = loc.estimate(*plan, lines);
   CHECK_FALSE((est.isOk() && est->sphereFit));
+}
+
+TEST_CASE("Honest uncertainty: a fit where the rough position says is the target, σ the fit's own",
+          "[localize][doubt]") {
+  Case k;
+  std::mt19937 rng(41);
+  localize::Localizer loc(k.cal, image::LleParams{}, k.scan);
+  auto plan = loc.plan(k.center + Eigen::Vector3d(6, -5, 9), 200.0);
+  REQUIRE(plan.isOk());
+  std::vector<localize::LineObservation> lines;
+  for (double s : plan->stopsMm) lines.push_back(lineOf(k.cal, k.center, k.radius, s, 0.4, {}, rng));
+  auto est = loc.estimate(*plan, lines);
+  REQUIRE(est.isOk());
+  REQUIRE(est->sphereFit);
+  CHECK(est->doubt == localize::AppleEstimate::Doubt::kNone);
+  CHECK(est->targetPct > 95.0);
+  CHECK(est->sigmaMm == Approx(est->fitSigmaMm));
+  // Off: the fit's σ and confidence alone, the same numbers here.
+  localize::ScanParams off = k.scan;
+  off.otherObjectPrior = 0.0;
+  auto plain = localize::Localizer(k.cal, image::LleParams{}, off).estimate(*plan, lines);
+  REQUIRE(plain.isOk());
+  CHECK(plain->sigmaMm == Approx(est->sigmaMm));
+  CHECK(plain->confidencePct == Approx(est->confidencePct).epsilon(0.05));
+}
+
+TEST_CASE("Honest uncertainty: two fruit that explain the lines alike are two surfaces", "[localize][doubt]") {
+  // Two equal fruit side by side, the rough position halfway between them: the lines
+  // cross both, each sphere explains its own pieces, and nothing says which is meant.
+  Case k;
+  std::mt19937 rng(47);
+  localize::Localizer loc(k.cal, image::LleParams{}, k.scan);
+  const Eigen::Vector3d a = k.center + Eigen::Vector3d(0.0, -39.0, 0.0);
+  const Eigen::Vector3d b = k.center + Eigen::Vector3d(0.0, 39.0, 0.0);
+  auto plan = loc.plan(k.center, 200.0);
+  REQUIRE(plan.isOk());
+  std::vector<localize::LineObservation> lines;
+  for (double s : plan->stopsMm) {
+    localize::LineObservation la = lineOf(k.cal, a, 38.0, s, 0.3, {}, rng);
+    const localize::LineObservation lb = lineOf(k.cal, b, 38.0, s, 0.3, {}, rng);
+    la.pointsMm.insert(la.pointsMm.end(), lb.pointsMm.begin(), lb.pointsMm.end());
+    la.pixels.insert(la.pixels.end(), lb.pixels.begin(), lb.pixels.end());
+    lines.push_back(la);
+  }
+  auto est = loc.estimate(*plan, lines);
+  REQUIRE(est.isOk());
+  REQUIRE(est->sphereFit);
+  INFO("centre " << est->centerMm.transpose() << " rival share " << est->rivalShare << " target " << est->targetPct
+                 << " % σ " << est->sigmaMm);
+  CHECK(std::min((est->centerMm - a).norm(), (est->centerMm - b).norm()) < 3.0);
+  CHECK(est->rivalShare > 0.3);
+  CHECK((est->rivalCenterMm - est->centerMm).norm() > 60.0);
+  CHECK(est->doubt == localize::AppleEstimate::Doubt::kTwoSurfaces);
+  CHECK(est->confidencePct < 50.0);
+  CHECK(est->sigmaMm > 30.0);  // spans the other fruit
 }

@@ -22,6 +22,15 @@ tools::Json estimateJson(const Result<localize::AppleEstimate>& e) {
           {"approach_mm", jsonVec(e->approachMm)},
           {"diameter_mm", tools::jsonNumber(e->diameterMm)},
           {"sigma_mm", tools::jsonNumber(e->sigmaMm)},
+          {"center_sigma_mm", tools::jsonNumber(e->centerSigmaMm)},
+          {"diameter_sigma_mm", tools::jsonNumber(e->diameterSigmaMm)},
+          {"rms_mm", tools::jsonNumber(e->rmsMm)},
+          {"outside_gate", e->outsideGate},
+          {"fit_sigma_mm", tools::jsonNumber(e->fitSigmaMm)},
+          {"target_pct", tools::jsonNumber(e->targetPct)},
+          {"doubt", e->doubt == localize::AppleEstimate::Doubt::kTwoSurfaces    ? "TWO_SURFACES"
+                    : e->doubt == localize::AppleEstimate::Doubt::kFarFromRough ? "FAR_FROM_ROUGH"
+                                                                                : "NONE"},
           {"confidence_pct", tools::jsonNumber(e->confidencePct)},
           {"occlusion_pct", tools::jsonNumber(e->occlusionPct)},
           {"lines_used", e->linesUsed},
@@ -54,6 +63,12 @@ int processMain(const Args& args) {
     std::fprintf(stderr, "alacs-twin process: %s\n", s.reason().c_str());
     return 2;
   }
+  localize::ScanParams scan;
+  scan.otherObjectPrior = args.num("other-object-prior", scan.otherObjectPrior);
+  if (Status s = scan.validate(); !s) {
+    std::fprintf(stderr, "alacs-twin process: %s\n", s.reason().c_str());
+    return 2;
+  }
   const bool wantRows = args.has("rows");
   const int jobs = static_cast<int>(args.integer("jobs", 2));
   std::vector<std::string> lines(dirs.size());
@@ -82,7 +97,7 @@ int processMain(const Args& args) {
           if (!c) return Status(c.status().code(), dir + ": " + c.status().reason());
           cal = *c;
         }
-        const localize::Localizer loc(cal, lle, localize::ScanParams{});
+        const localize::Localizer loc(cal, lle, scan);
         o["kind"] = m.scan.kind;
         if (!m.scan.roughMm) {
           o["error"] = "no rough position";

@@ -91,16 +91,20 @@ MEANINGS: dict[type[IntEnum], dict[str, str]] = {
                       "measurement**; one object, `LinesUsed` 0",
         "FAILED": "the scan could not be completed (fault); `ObjectCount` 0",
         "ABORTED": "the scan was stopped (STOP, NMT, shutdown); `ObjectCount` 0",
-        "AMBIGUOUS": "two surfaces fit equally, or too few lines to choose; `ObjectCount` 0",
+        "AMBIGUOUS": "a fit that is more likely another object than the target (far from the rough "
+                     "position, or two objects explain the lines alike); one object: the best guess, "
+                     "its σ wide enough to cover the other and a confidence below 50 %",
     },
     c.ResultReason: {
         "NONE": "MEASURED (no reason needed)",
         "NO_LINES_IN_GATE": "no laser line fell within the gate around the rough position",
         "TOO_FEW_LINES": "lines were found but too few (or too short) to fit a sphere",
         "FIT_FAILED": "the fit found no sphere of an apple's size in the points",
-        "TWO_SURFACES": "two spheres fit the points equally well",
-        "FAR_FROM_ROUGH": "the only fit lies farther from the rough position than the gate "
-                          "(a leaf or a neighbour)",
+        "TWO_SURFACES": "two objects (the target and a neighbour or a leaf) explain the lines about "
+                        "equally well (AMBIGUOUS)",
+        "FAR_FROM_ROUGH": "the fit lies farther from the rough position than the RGB-D camera's error "
+                          "makes likely: more likely a neighbour (AMBIGUOUS), or the one line taken "
+                          "was (ROUGH_ONLY)",
         "CAMERA_FAULT": "camera timeout or corrupt frames",
         "MOTION_FAULT": "slide fault (limit hit, homing lost)",
         "LASER_FAULT": "laser on-time limit hit",

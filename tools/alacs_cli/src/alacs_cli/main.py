@@ -179,7 +179,7 @@ def print_result(result: LocalizationResult, out: TextIO) -> None:
 RESULT_MEANING = {
     "NOT_FOUND": "nothing was found",
     "ROUGH_ONLY": "the rough position echoed back, not a measurement",
-    "AMBIGUOUS": "two surfaces fit equally, or too few lines to choose",
+    "AMBIGUOUS": "more likely another object than the target (see the reason); the best guess, low confidence",
     "FAILED": "the scan could not be completed",
     "ABORTED": "the scan was stopped",
 }

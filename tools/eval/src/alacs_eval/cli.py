@@ -14,7 +14,7 @@ import sys
 import time
 from pathlib import Path
 
-from alacs_eval import evaluate, report, twin
+from alacs_eval import evaluate, report, twin, worlds
 
 ROOT = twin.ROOT
 
@@ -37,7 +37,10 @@ def _report(a: argparse.Namespace) -> int:
         paths["examples"] = report.examples_figure(examples, figs / "eval_lle_examples.png")
     command = "tools/eval/run.sh report" + (" --small" if a.small else "")
     doc.parent.mkdir(parents=True, exist_ok=True)
+    kept = worlds.section_of(doc)  # `alacs-eval worlds` writes its own section; keep it
     doc.write_text(report.markdown(res, paths, doc, command))
+    if kept:
+        worlds.insert(doc, kept)
     print(f"alacs-eval: {doc} and {len(paths)} figures in {figs} ({res['meta']['total_s']:.0f} s); "
           f"numbers in {work / 'results.json'}")
     return 0
@@ -52,8 +55,31 @@ def _render(a: argparse.Namespace) -> int:
     paths = report.figures(res, figs, "eval_")
     if (figs / "eval_lle_examples.png").exists():
         paths["examples"] = figs / "eval_lle_examples.png"
+    kept = worlds.section_of(doc)
     doc.write_text(report.markdown(res, paths, doc, "tools/eval/run.sh report" + (" --small" if res["meta"]["small"] else "")))
+    if kept:
+        worlds.insert(doc, kept)
     print(f"alacs-eval: {doc} from {work / 'results.json'}")
+    return 0
+
+
+def _worlds(a: argparse.Namespace) -> int:
+    """Both worlds side by side: the section of docs/evaluation.md between its markers."""
+    work = Path(a.work) if a.work else ROOT / "build" / ("worlds-small" if a.small else "worlds")
+    if a.regenerate and work.exists():
+        import shutil
+        shutil.rmtree(work)
+    work.mkdir(parents=True, exist_ok=True)
+    cfg = worlds.Config(work=work, twin=twin.find_twin(a.twin), jobs=a.jobs, small=a.small, quiet=a.quiet,
+                        other_object_prior=a.other_object_prior)
+    res = worlds.run(cfg)
+    (work / "results.json").write_text(json.dumps(res, indent=1, default=float))
+    doc = Path(a.doc) if a.doc else (work / "evaluation.md" if a.small else ROOT / "docs" / "evaluation.md")
+    figs = Path(a.figures) if a.figures else (work / "figures" if a.small else ROOT / "docs" / "figures")
+    fig = worlds.figure(res, figs / "eval_worlds_sigma.png")
+    rel = str(fig.relative_to(doc.parent)) if fig.is_relative_to(doc.parent) else str(fig)
+    worlds.insert(doc, worlds.markdown(res, rel, "tools/eval/run.sh worlds" + (" --small" if a.small else "")))
+    print(f"alacs-eval: both worlds into {doc}; numbers in {work / 'results.json'}")
     return 0
 
 
@@ -73,6 +99,17 @@ def main(argv: list[str] | None = None) -> int:
                    help="skip the run with a calibration estimated from the twin's calibration scans")
     r.add_argument("--quiet", action="store_true", help="no progress bars")
     r.set_defaults(func=_report)
+    v = sub.add_parser("worlds", help="the benchmark and the second world side by side (issue 17)")
+    v.add_argument("--small", action="store_true", help="a few scans per world (CI)")
+    v.add_argument("--work", help="default build/worlds (--small: build/worlds-small)")
+    v.add_argument("--doc", help="default docs/evaluation.md (--small: WORK/evaluation.md)")
+    v.add_argument("--figures", help="default docs/figures (--small: WORK/figures)")
+    v.add_argument("--twin", help="the alacs-twin binary")
+    v.add_argument("--jobs", type=int, default=2)
+    v.add_argument("--regenerate", action="store_true", help="write both worlds' scans again")
+    v.add_argument("--other-object-prior", type=float, help="the localizer's ScanParams::otherObjectPrior (0: the fit's σ alone)")
+    v.add_argument("--quiet", action="store_true")
+    v.set_defaults(func=_worlds)
     w = sub.add_parser("render", help="write the report and plots again from a previous run's results.json")
     w.add_argument("--work", required=True, help="the run's work directory (holds results.json)")
     w.add_argument("--doc", help="default docs/evaluation.md")

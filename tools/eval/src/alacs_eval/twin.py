@@ -85,8 +85,11 @@ def generate(twin: Path, out: Path, set_name: str, args: dict[str, str], total: 
 
 
 def process(twin: Path, dirs: list[str], jobs: int, desc: str, rows: bool = False, step: int | None = None,
-            threshold: int | None = None, calibration: str | None = None, quiet: bool = False) -> dict[str, dict]:
+            threshold: int | None = None, calibration: str | None = None, quiet: bool = False,
+            other_object_prior: float | None = None) -> dict[str, dict]:
     cmd = [str(twin), "process", "--jobs", str(jobs)]
+    if other_object_prior is not None:
+        cmd += ["--other-object-prior", str(other_object_prior)]
     if rows:
         cmd.append("--rows")
     if step is not None:

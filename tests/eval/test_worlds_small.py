@@ -1,0 +1,62 @@
+"""Both worlds side by side on the small CI set (alacs_eval.worlds): the second world is
+really another world (heavier occlusion, other shapes), the report section is written and
+kept when the main report is written again, and no world returns a miss beyond 20 mm at a
+confidence of 80 % or more."""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+
+import pytest
+
+from alacs_eval import cli, worlds
+
+
+@pytest.fixture(scope="module")
+def run(tmp_path_factory) -> Path:
+    twin = os.environ.get("ALACS_TWIN")
+    if not twin:
+        pytest.fail("set ALACS_TWIN to the alacs-twin binary (tests/eval/run.sh does)")
+    work = tmp_path_factory.mktemp("worlds")
+    assert cli.main(["worlds", "--small", "--quiet", "--twin", twin, "--work", str(work)]) == 0
+    return work
+
+
+def test_the_second_world_is_another_world(run):
+    res = json.loads((run / "results.json").read_text())
+    bench, hold = res["benchmark"]["loc"], res["holdout"]["loc"]
+    # The benchmark hides 15-50 %; the second world goes beyond half.
+    assert bench["occlusion_share"][1] <= 0.5
+    assert hold["occlusion_share"][1] > 0.5
+    # Spheres and prolate fruit beside the benchmark's oblate ones.
+    assert set(bench["shapes"]) == {"oblate"}
+    assert {"sphere", "prolate"} & set(hold["shapes"])
+    cases = [json.loads(line) for line in (run / "holdout" / "loc" / "set.jsonl").read_text().splitlines()]
+    assert {c["world"] for c in cases} == {"holdout"}
+    # The laser's power varies (the benchmark's is always 20 mW), and so does the background.
+    assert len({c["laser_mw"] for c in cases}) > 1
+    assert min(c["background_mm"] for c in cases) < 1500
+
+
+def test_no_confident_miss_in_any_world(run):
+    res = json.loads((run / "results.json").read_text())
+    for world in worlds.WORLDS:
+        cov = res[world]["loc"]["coverage"]
+        assert cov["results"] > 0, world
+        assert cov["confident_misses"] == 0, world
+
+
+def test_the_section_is_written_and_survives_the_report(run, tmp_path):
+    doc = run / "evaluation.md"
+    text = doc.read_text()
+    assert worlds.BEGIN in text and worlds.END in text
+    for title in ("benchmark", "benchmark, hard cases", "second world"):
+        assert f"| {title} |" in text
+    assert "## The second world" in text
+    png = run / "figures" / "eval_worlds_sigma.png"
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    # Writing the section again replaces it rather than appending a second one.
+    worlds.insert(doc, worlds.section_of(doc))
+    assert doc.read_text().count(worlds.BEGIN) == 1

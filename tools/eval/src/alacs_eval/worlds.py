@@ -1,0 +1,416 @@
+"""Both worlds side by side (issue 17): the benchmark world the parameters were tuned on,
+and the second world that no parameter choice may look at (sim/orchard.h World::kHoldout).
+
+The same code measures both: the twin writes each world's scans (its own seeds), our
+pipeline and the paper's method run on the same frames, and only aggregates leave this
+module. The per-case results of the second world stay in WORK/holdout/cases.jsonl, which
+the rules in docs/evaluation.md ("The second world") keep closed while parameters are
+being chosen.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import multiprocessing
+import shutil
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from tqdm import tqdm
+
+from alacs_eval import evaluate, metrics, twin
+from alacs_eval.scans import Scan, target_truth
+
+# Seeds: the benchmark world's localization set uses seed 1 in docs/evaluation.md; this
+# side-by-side draw of it uses 5 (another sample of the same world). Its hard cases
+# (benchmark-hard) were tuned on with seed 3; this report draws seed 4. The second
+# world's evaluation seed is 2026 (seed 11 was a smoke test of its generator, 24 scans).
+WORLDS = {"benchmark": {"seed": 5, "title": "benchmark"},
+          "benchmark-hard": {"seed": 4, "title": "benchmark, hard cases"},
+          "holdout": {"seed": 2026, "title": "second world"}}
+# Binning of the calibration plot: reported 1σ (3D, approach point), mm.
+SIGMA_BINS = (0.0, 0.5, 1.0, 2.0, 4.0, 8.0, 16.0, math.inf)
+CONFIDENCE_BINS = (0.0, 20.0, 50.0, 80.0, 90.0, 100.01)
+
+
+@dataclasses.dataclass
+class Config:
+    work: Path
+    twin: Path
+    jobs: int = 2
+    small: bool = False
+    quiet: bool = False
+    other_object_prior: float | None = None  # None: the localizer's default
+
+    @property
+    def loc_per_cell(self) -> int:
+        return 2 if self.small else 40
+
+    @property
+    def lle_count(self) -> int:
+        return 10 if self.small else 160
+
+
+# What decides the scans of a world (scenes, renders, the plan's stops). Narrower than
+# twin.GENERATOR_SOURCES: the localizer's estimate does not change the scans, and leaving
+# it out keeps the worlds from being written again for every change to the fit. A change
+# to Localizer::plan() needs `alacs-eval worlds --regenerate`.
+WORLD_SOURCES = ("edge/sim", "edge/replay", "tools/twin/generate.cpp", "tools/twin/main.cpp",
+                 "tools/twin/twin.h", "edge/geometry/calibration.cpp", "edge/geometry/calibration.h")
+
+
+def _generator_version() -> str:
+    import hashlib
+    h = hashlib.sha256()
+    for rel in WORLD_SOURCES:
+        p = twin.ROOT / rel
+        for f in sorted(p.rglob("*") if p.is_dir() else [p]):
+            if f.is_file() and f.suffix in (".cpp", ".h", ".txt"):
+                h.update(str(f.relative_to(twin.ROOT)).encode())
+                h.update(f.read_bytes())
+    return h.hexdigest()[:16]
+
+
+def _generate(cfg: Config, world: str, set_name: str, count: int, total: int) -> list[dict]:
+    out = cfg.work / world / set_name
+    seed = WORLDS[world]["seed"]
+    signature = {"world": world, "set": set_name, "count": count, "seed": seed, "generator": _generator_version()}
+    sig_file, index = out / "args.json", out / "set.jsonl"
+    if sig_file.exists() and index.exists() and json.loads(sig_file.read_text()) == signature:
+        cases = [json.loads(line) for line in index.read_text().splitlines() if line.strip()]
+        if len(cases) == total:
+            return cases
+    if out.exists():
+        shutil.rmtree(out)
+    out.mkdir(parents=True)
+    cmd = [str(cfg.twin), "generate", "--set", set_name, "--world", world, "--out", str(out), "--count", str(count),
+           "--seed", str(seed), "--jobs", str(cfg.jobs)]
+    twin.run_lines(cmd, total, f"{world}: generating {set_name}", cfg.quiet)
+    sig_file.write_text(json.dumps(signature))
+    return [json.loads(line) for line in index.read_text().splitlines() if line.strip()]
+
+
+def _saturated_share(scan: Scan, frame, truth: np.ndarray) -> float:
+    """Share of the visible truth rows whose red is at full scale within ±2 px of the line."""
+    vis = metrics.visible_rows(truth)
+    if len(vis) == 0:
+        return math.nan
+    roi = scan.roi
+    rgb = scan.region(frame, roi)
+    full = 255 if rgb.dtype == np.uint8 else int(np.iinfo(rgb.dtype).max if rgb.dtype.kind == "u" else 1)
+    sat = 0
+    for row, col in zip(vis["row"], vis["column"]):
+        y = int(round(row)) - roi[1]
+        x = int(round(col)) - roi[0]
+        if 0 <= y < rgb.shape[0]:
+            win = rgb[y, max(0, x - 2):min(rgb.shape[1], x + 3), 0]
+            sat += int(win.size > 0 and win.max() >= 0.98 * full)
+    return sat / len(vis)
+
+
+def _lle(cfg: Config, world: str, cases: list[dict]) -> tuple[dict[str, Any], list[dict]]:
+    dirs = [c["dir"] for c in cases]
+    truths, saturated = {}, {}
+    for d in dirs:
+        s = Scan.load(d)
+        frame = next(f for f in s.frames if f.laser_on)
+        truths[d] = s.truth_rows(frame, s.target_id)
+        saturated[d] = _saturated_share(s, frame, truths[d])
+    step, th = evaluate.DEFAULT_COMBO
+    raw = twin.process(cfg.twin, dirs, cfg.jobs, f"{world}: our LLE", rows=True, step=step, threshold=th, quiet=cfg.quiet)
+    ours = evaluate._ours_lle(raw, truths)
+    paper: dict[str, dict] = {}
+    with multiprocessing.get_context("fork").Pool(cfg.jobs) as pool:
+        for r in tqdm(pool.imap_unordered(evaluate._paper_lle_case, [(d, [evaluate.DEFAULT_COMBO]) for d in dirs]),
+                      total=len(dirs), desc=f"{world}: paper's LLE", disable=cfg.quiet, leave=False):
+            paper[r["scan"]] = r
+    key = f"{step},{th}"
+    out: dict[str, Any] = {"cases": len(dirs), "segments": {}}
+    for s in metrics.SEGMENTS:
+        o = metrics.summarize(ours[d]["disp"][s] for d in dirs)
+        p = metrics.summarize(paper[d]["combos"][key]["disp"][str(s)] if str(s) in paper[d]["combos"][key]["disp"]
+                              else paper[d]["combos"][key]["disp"][s] for d in dirs)
+        out["segments"][str(s)] = {
+            "ours": dataclasses.asdict(o), "paper": dataclasses.asdict(p),
+            "ours_cover": float(np.mean([ours[d]["cover"][s] for d in dirs])),
+            "paper_cover": float(np.mean([paper[d]["combos"][key]["cover"].get(str(s), paper[d]["combos"][key]["cover"].get(s, 0.0))
+                                          for d in dirs]))}
+    by_light: dict[str, list] = {}
+    for c in cases:
+        by_light.setdefault(c["lighting"], []).append(c["dir"])
+    out["by_lighting"] = {
+        k: {"ours_mean50": metrics.summarize(ours[d]["disp"][50] for d in v).avg,
+            "ours_cover80": float(np.mean([ours[d]["cover"][80] for d in v])),
+            "saturated": float(np.nanmean([saturated[d] for d in v])), "n": len(v)}
+        for k, v in sorted(by_light.items())}
+    per_case = [{"case": c["case"], "lighting": c["lighting"], "occluded": c["occluded"],
+                 "ours50": ours[c["dir"]]["disp"][50], "cover80": ours[c["dir"]]["cover"][80],
+                 "saturated": saturated[c["dir"]]} for c in cases]
+    return out, per_case
+
+
+def _loc(cfg: Config, world: str, cases: list[dict]) -> tuple[dict[str, Any], list[dict]]:
+    dirs = [c["dir"] for c in cases]
+    ours = twin.process(cfg.twin, dirs, cfg.jobs, f"{world}: our localization", quiet=cfg.quiet,
+                        other_object_prior=cfg.other_object_prior)
+    paper: dict[str, dict] = {}
+    with multiprocessing.get_context("fork").Pool(cfg.jobs) as pool:
+        for r in tqdm(pool.imap_unordered(evaluate._paper_loc_case, [(d, None) for d in dirs]), total=len(dirs),
+                      desc=f"{world}: paper's localization", disable=cfg.quiet, leave=False):
+            paper[r["scan"]] = r
+    rows = []
+    for c in cases:
+        d = c["dir"]
+        centre, radius, approach = target_truth(Scan.load(d))
+        e = ours.get(d, {}).get("multi", {})
+        row = {"case": c["case"], "distance": int(c["distance_mm"]), "occluded": bool(c["occluded"]),
+               "occlusion_share": c["occlusion_share"], "shape": c.get("shape", "oblate"), "lighting": c["lighting"],
+               "paper_approach": paper[d]["multi"]["approach_err"]}
+        if e.get("ok"):
+            row.update({"approach": float(np.linalg.norm(np.asarray(e["approach_mm"]) - approach)),
+                        "centre": float(np.linalg.norm(np.asarray(e["center_mm"]) - centre)),
+                        "diameter": abs(float(e["diameter_mm"]) - 2.0 * radius),
+                        "sigma": float(e["sigma_mm"]), "confidence": float(e["confidence_pct"]),
+                        "lines": int(e["lines_used"]), "sphere": bool(e["sphere_fit"]),
+                        "doubt": e.get("doubt", "NONE"), "target_pct": float(e.get("target_pct", 100.0)),
+                        "fit_sigma": float(e.get("fit_sigma_mm", e["sigma_mm"]))})
+        else:
+            row.update({"approach": math.nan, "centre": math.nan, "diameter": math.nan, "sigma": math.nan,
+                        "confidence": 0.0, "lines": 0, "sphere": False, "doubt": e.get("error", "none")})
+        rows.append(row)
+    return _loc_summary(rows), rows
+
+
+def _loc_summary(rows: list[dict]) -> dict[str, Any]:
+    out: dict[str, Any] = {"cells": {}}
+    for occ in (False, True):
+        for dist in evaluate.DISTANCES:
+            sel = [r for r in rows if r["distance"] == dist and r["occluded"] == occ]
+            out["cells"][f"{'occluded' if occ else 'clear'} {dist}"] = {
+                "approach": dataclasses.asdict(metrics.loc_stats(r["approach"] for r in sel)),
+                "centre": float(np.nanmean([r["centre"] for r in sel])) if sel else math.nan,
+                "diameter": float(np.nanmean([r["diameter"] for r in sel])) if sel else math.nan,
+                "paper": dataclasses.asdict(metrics.loc_stats(r["paper_approach"] for r in sel)),
+            }
+    out["coverage"] = coverage(rows)
+    out["occlusion_share"] = [float(np.min([r["occlusion_share"] for r in rows if r["occluded"]] or [math.nan])),
+                              float(np.max([r["occlusion_share"] for r in rows if r["occluded"]] or [math.nan]))]
+    out["shapes"] = {s: sum(r["shape"] == s for r in rows) for s in sorted({r["shape"] for r in rows})}
+    return out
+
+
+def coverage(rows: list[dict]) -> dict[str, Any]:
+    """σ coverage, confidence against error, and the calibration plot's bins."""
+    res = [r for r in rows if math.isfinite(r["approach"])]
+    err = np.array([r["approach"] for r in res], float)
+    sig = np.array([r["sigma"] for r in res], float)
+    conf = np.array([r["confidence"] for r in res], float)
+    n = len(res)
+    out: dict[str, Any] = {"results": n, "no_result": len(rows) - n}
+    if n == 0:
+        return out
+    out["within_2sigma"] = float(np.mean(err <= 2.0 * sig))
+    out["within_3sigma"] = float(np.mean(err <= 3.0 * sig))
+    out["within_20mm"] = float(np.sum(err <= metrics.TOLERANCE_MM) / len(rows))
+    out["confident_misses"] = int(np.sum((err > metrics.TOLERANCE_MM) & (conf >= 80.0)))
+    out["sigma_bins"] = []
+    for lo, hi in zip(SIGMA_BINS[:-1], SIGMA_BINS[1:]):
+        m = (sig >= lo) & (sig < hi)
+        if m.any():
+            out["sigma_bins"].append({"lo": lo, "hi": hi, "n": int(m.sum()), "median_sigma": float(np.median(sig[m])),
+                                      "rms_error": float(np.sqrt(np.mean(err[m] ** 2))),
+                                      "median_error": float(np.median(err[m])),
+                                      "within_2sigma": float(np.mean(err[m] <= 2.0 * sig[m]))})
+    out["confidence_bins"] = []
+    for lo, hi in zip(CONFIDENCE_BINS[:-1], CONFIDENCE_BINS[1:]):
+        m = (conf >= lo) & (conf < hi)
+        if m.any():
+            out["confidence_bins"].append({"lo": lo, "hi": min(hi, 100.0), "n": int(m.sum()),
+                                           "mean_error": float(np.mean(err[m])),
+                                           "p95_error": float(np.percentile(err[m], 95)),
+                                           "beyond_20mm": int(np.sum(err[m] > metrics.TOLERANCE_MM))})
+    means = [b["mean_error"] for b in out["confidence_bins"]]
+    out["confidence_monotone"] = all(a >= b for a, b in zip(means, means[1:]))
+    out["scatter"] = [[float(s), float(e)] for s, e in zip(sig, err)]
+    return out
+
+
+def run(cfg: Config) -> dict[str, Any]:
+    result: dict[str, Any] = {"meta": {"small": cfg.small, "loc_per_cell": cfg.loc_per_cell, "lle_count": cfg.lle_count,
+                                       "seeds": {w: v["seed"] for w, v in WORLDS.items()}}}
+    for world in WORLDS:
+        t0 = time.monotonic()
+        n_loc = cfg.loc_per_cell * len(evaluate.DISTANCES) * 2
+        loc_cases = _generate(cfg, world, "loc", cfg.loc_per_cell, n_loc)
+        lle_cases = _generate(cfg, world, "lle", cfg.lle_count, cfg.lle_count)
+        lle, lle_rows = _lle(cfg, world, lle_cases)
+        loc, loc_rows = _loc(cfg, world, loc_cases)
+        with open(cfg.work / world / "cases.jsonl", "w") as f:
+            for r in loc_rows + lle_rows:
+                f.write(json.dumps(r, default=float) + "\n")
+        result[world] = {"lle": lle, "loc": loc, "seconds": time.monotonic() - t0}
+    return result
+
+
+# ---- the report section ---------------------------------------------------------------
+
+BEGIN, END = "<!-- worlds:begin -->", "<!-- worlds:end -->"
+RULES = [
+    "The benchmark above is the world every parameter was chosen on. A figure measured only there is not a "
+    "result, so a second world is generated beside it (`alacs-twin generate --world holdout`, "
+    "edge/sim/orchard.cpp `kHoldoutSettings`) with its own settings and seeds, nearer the hard cases the "
+    "field brings:",
+    "",
+    "- leaves 10–60 mm in front of the fruit, one to five of them, hiding 25–95 % of it (the benchmark: "
+    "25–160 mm, 15–50 %);",
+    "- clusters of up to four touching fruit (0–3 mm apart), a little in front of the target as well as beside "
+    "and behind it (the benchmark: up to three, 1–30 mm apart, never in front);",
+    "- spheres (aspect 1.0), oblate (0.78–0.95) and prolate (1.02–1.15) fruit, one third each, 60–100 mm across, "
+    "the stem up to 60° off vertical (the benchmark: oblate 0.82–0.98, 65–95 mm, 35°);",
+    "- every light: lab, overcast, direct and full sun (30–90 klux), with the exposure fixed at 1.6–2.6 times what "
+    "an auto-exposure would pick in sun and direct light, so sunlit skin nears full scale;",
+    "- laser power 8–30 mW (the benchmark: 20 mW) and a background 150–1500 mm behind the fruit.",
+    "",
+    "Irregular, lumpy fruit are not in it yet: the renderer's fruit is an ellipsoid of revolution, and a lumpy "
+    "surface needs its own ray intersection and truth (issue 17 keeps this open).",
+    "",
+    "**Kept out of tuning.** Parameters may be chosen on the benchmark and on its own hard cases "
+    "(`--world benchmark-hard`, `kTuningHardSettings`: other ranges and seeds for the same kinds of difficulty). "
+    "The second world's per-case results (build/worlds/holdout/cases.jsonl) are not opened while a parameter is "
+    "being chosen; only the aggregates below are read, and only after a change is decided, to report it. Its "
+    "evaluation seed is 2026; seed 11 (24 scans) was looked at case by case once, to check the generator itself, "
+    "before any parameter of this change was chosen. In the change of issue 17, the second world's aggregates (not "
+    "its cases) were read three times: before the change, after a first version of the doubt model, and after "
+    "its share left uncovered was set from the benchmark's own σ bins; the single-line σ, the prior for fits on "
+    "fewer than three lines and the aspect prior were then chosen on the benchmark's hard cases (seed 3) alone.",
+]
+
+
+def _f(x: float, fmt: str = "{:.1f}") -> str:
+    return "–" if x is None or (isinstance(x, float) and not math.isfinite(x)) else fmt.format(x)
+
+
+def _pct(x: float) -> str:
+    return _f(100.0 * x if x is not None and math.isfinite(x) else math.nan, "{:.1f} %")
+
+
+def markdown(res: dict[str, Any], figure: str | None, command: str) -> str:
+    ws = [(WORLDS[k]["title"], res[k]) for k in WORLDS]
+    m = res["meta"]
+    seeds = ", ".join(f"{WORLDS[k]['title']} {m['seeds'][k]}" for k in WORLDS)
+    L: list[str] = [BEGIN, "", "## The second world", "", *RULES, "", "## Both worlds side by side", "",
+                    f"Generated by `{command}` (tools/eval/src/alacs_eval/worlds.py); do not edit by hand. "
+                    f"Each world: {m['loc_per_cell']} five-stop scans per distance and occlusion, and {m['lle_count']} "
+                    f"single LLE frames; seeds: {seeds}. The true calibration; the paper's method on the same frames. "
+                    "The benchmark and its hard cases are what parameters were tuned on; the second world is not "
+                    "(see \"The second world\" above).", ""]
+    L += ["### LLE (default bRCE), mean displacement per central segment (px) and rows found", "",
+          "| | " + " | ".join(f"{s} %" for s in metrics.SEGMENTS) + " |",
+          "| --- |" + " --- |" * len(metrics.SEGMENTS)]
+    for name, w in ws:
+        seg = w["lle"]["segments"]
+        L.append(f"| ours, {name}, mean | " + " | ".join(_f(seg[str(s)]["ours"]["avg"], "{:.2f}") for s in metrics.SEGMENTS) + " |")
+        L.append(f"| ours, {name}, worst | " + " | ".join(_f(seg[str(s)]["ours"]["max"], "{:.2f}") for s in metrics.SEGMENTS) + " |")
+        L.append(f"| ours, {name}, found | " + " | ".join(_pct(seg[str(s)]["ours_cover"]) for s in metrics.SEGMENTS) + " |")
+        L.append(f"| paper, {name}, mean | " + " | ".join(_f(seg[str(s)]["paper"]["avg"], "{:.2f}") for s in metrics.SEGMENTS) + " |")
+        L.append(f"| paper, {name}, found | " + " | ".join(_pct(seg[str(s)]["paper_cover"]) for s in metrics.SEGMENTS) + " |")
+    L += ["", "By light (ours: 50 % segment mean, rows found on the central 80 %, rows whose line reaches full scale in red):", "",
+          "| world | light | n | mean (px) | found | at full scale |", "| --- | --- | --- | --- | --- | --- |"]
+    for name, w in ws:
+        for k, v in w["lle"]["by_lighting"].items():
+            L.append(f"| {name} | {k} | {v['n']} | {_f(v['ours_mean50'], '{:.2f}')} | {_pct(v['ours_cover80'])} | {_pct(v['saturated'])} |")
+    L += ["", "### Localization (five lines), approach-point error mean (mm) and share within 20 mm", "",
+          "| world | method | occlusion | 1.0 m | 1.2 m | 1.4 m | 1.6 m |", "| --- | --- | --- | --- | --- | --- | --- |"]
+    for name, w in ws:
+        for method in ("ours", "paper"):
+            for occ in ("clear", "occluded"):
+                cells = [w["loc"]["cells"][f"{occ} {d}"] for d in evaluate.DISTANCES]
+                key = "approach" if method == "ours" else "paper"
+                L.append(f"| {name} | {method} | {occ} | " + " | ".join(
+                    f"{_f(c[key]['mean'])} ({_pct(c[key]['success'])})" for c in cells) + " |")
+    L += ["", "Ours, centre / diameter error, mean (mm):", "",
+          "| world | occlusion | 1.0 m | 1.2 m | 1.4 m | 1.6 m |", "| --- | --- | --- | --- | --- | --- |"]
+    for name, w in ws:
+        for occ in ("clear", "occluded"):
+            cells = [w["loc"]["cells"][f"{occ} {d}"] for d in evaluate.DISTANCES]
+            L.append(f"| {name} | {occ} | " + " | ".join(f"{_f(c['centre'])} / {_f(c['diameter'])}" for c in cells) + " |")
+    L += ["", "### Honest uncertainty", "",
+          "| | " + " | ".join(n for n, _ in ws) + " |", "| --- |" + " --- |" * len(ws)]
+    cov = [w["loc"]["coverage"] for _, w in ws]
+    L.append("| results (no result) | " + " | ".join(f"{c['results']} ({c['no_result']})" for c in cov) + " |")
+    for label, key, fmt in (("within 2σ", "within_2sigma", _pct), ("within 3σ", "within_3sigma", _pct),
+                            ("within 20 mm (all scans)", "within_20mm", _pct),
+                            ("beyond 20 mm at confidence ≥ 80 %", "confident_misses", str),
+                            ("mean error falls as confidence rises", "confidence_monotone", lambda v: "yes" if v else "no")):
+        L.append(f"| {label} | " + " | ".join(fmt(c.get(key, math.nan)) for c in cov) + " |")
+    L += ["", "Confidence against error (mean, 95th percentile, cases beyond 20 mm):", "",
+          "| world | confidence | n | mean error (mm) | p95 (mm) | beyond 20 mm |", "| --- | --- | --- | --- | --- | --- |"]
+    for (name, _), c in zip(ws, cov):
+        for bn in c.get("confidence_bins", []):
+            L.append(f"| {name} | {bn['lo']:.0f}–{bn['hi']:.0f} % | {bn['n']} | {bn['mean_error']:.1f} | {bn['p95_error']:.1f} | {bn['beyond_20mm']} |")
+    L += ["", "Calibration of σ (reported 1σ binned; RMS error should be near σ, and 2σ should hold ≥ 95 %):", "",
+          "| world | σ bin (mm) | n | median σ | RMS error | within 2σ |", "| --- | --- | --- | --- | --- | --- |"]
+    for (name, _), c in zip(ws, cov):
+        for bn in c.get("sigma_bins", []):
+            hi = "∞" if not math.isfinite(bn["hi"]) else f"{bn['hi']:g}"
+            L.append(f"| {name} | {bn['lo']:g}–{hi} | {bn['n']} | {bn['median_sigma']:.2f} | {bn['rms_error']:.2f} | {_pct(bn['within_2sigma'])} |")
+    if figure:
+        L += ["", f"![error against σ]({figure})"]
+    L += [""]
+    for name, w in ws:
+        L.append(f"- {name}: occluded share {_pct(w['loc']['occlusion_share'][0])}–{_pct(w['loc']['occlusion_share'][1])}, "
+                 f"target shapes {w['loc']['shapes']}, {w['seconds']:.0f} s.")
+    L += ["", END]
+    return "\n".join(L) + "\n"
+
+
+def figure(res: dict[str, Any], path: Path) -> Path:
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    fig, axes = plt.subplots(1, len(WORLDS), figsize=(4.6 * len(WORLDS), 4.2), sharey=True)
+    for ax, (key, spec) in zip(axes, WORLDS.items()):
+        name = spec["title"]
+        pts = np.array(res[key]["loc"]["coverage"].get("scatter", []), float).reshape(-1, 2)
+        if len(pts):
+            ax.loglog(np.maximum(pts[:, 0], 0.05), np.maximum(pts[:, 1], 0.01), ".", ms=3, alpha=0.5, label="results")
+        for bn in res[key]["loc"]["coverage"].get("sigma_bins", []):
+            ax.plot([bn["median_sigma"]], [bn["rms_error"]], "s", color="C3")
+        x = np.logspace(-1.5, 2, 10)
+        ax.plot(x, x, "k-", lw=0.8, label="error = σ")
+        ax.plot(x, 2 * x, "k--", lw=0.8, label="error = 2σ")
+        ax.axhline(20.0, color="C1", lw=0.8, label="20 mm")
+        ax.set_title(name)
+        ax.set_xlabel("reported σ, approach point (mm)")
+        ax.grid(True, which="both", alpha=0.3)
+    axes[0].set_ylabel("error (mm); squares: RMS per σ bin")
+    axes[0].legend(fontsize=8)
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def section_of(doc: Path) -> str | None:
+    """The worlds section of a report, markers included, if it has one."""
+    text = doc.read_text() if doc.exists() else ""
+    if BEGIN not in text or END not in text:
+        return None
+    return BEGIN + text.split(BEGIN, 1)[1].split(END, 1)[0] + END + "\n"
+
+
+def insert(doc: Path, section: str) -> None:
+    """Puts the section into the report, replacing the previous one."""
+    text = doc.read_text() if doc.exists() else ""
+    if BEGIN in text and END in text:
+        head, rest = text.split(BEGIN, 1)
+        tail = rest.split(END, 1)[1]
+        text = head + section.rstrip("\n") + tail
+    else:
+        text = text.rstrip("\n") + "\n\n" + section
+    doc.write_text(text)
