@@ -142,23 +142,19 @@ int runDaemon(const Options& o, const DaemonConfig& cfg) {
       } else if (fd == tfd || fd == eventFd) {
         [[maybe_unused]] ssize_t r = ::read(fd, &count, sizeof count);
         while (std::optional<WorkerEvent> ev = worker->takeEvent()) sensor.onWorkerEvent(*ev, now);
-      } else {
-        // Drain, but bounded per wake-up so a flood cannot starve the timers.
-        ports::CanFrame f;
-        for (int k = 0; k < 256; ++k) {
-          Result<bool> got = platform.can().receive(&f);
-          if (!got) ALACS_LOG_WARN("can", "%s", got.status().toString().c_str());
-          if (!got || !*got) break;
-          sensor.onCanFrame(f, now);
-        }
       }
+      // The CAN socket only wakes the loop: it is drained below, at every wake-up.
     }
+    // Every wake-up (10 ms at most apart) drains the CAN socket and flushes the transmit
+    // queue: the CAN loop's progress, which its deadline watches.
+    sensor.serviceCan(now);
     sensor.tick(now);
     if (platform.restartDue(worker->busy(), now)) {
       exitCode = kExitRestart;
       running = false;
     }
-    // The watchdog is fed only while the worker keeps its deadlines (Sensor::healthy).
+    // The watchdog is fed only while the worker, the frame source and the CAN loop keep
+    // their deadlines (Sensor::healthy).
     if (watchdogUs > 0 && sensor.healthy() && now - lastWatchdog > static_cast<TimeNs>(watchdogUs) * kNsPerUs / 2) {
       notify("WATCHDOG=1");
       lastWatchdog = now;
@@ -172,7 +168,7 @@ int runDaemon(const Options& o, const DaemonConfig& cfg) {
     sleeper.sleepUntil(clock.now() + kNsPerMs);
   }
   (void)laser.off();
-  if (!sensor.healthy()) {
+  if (sensor.workerStuck()) {
     // A stuck worker (a frame read that never returns) cannot be joined: end the process.
     ALACS_LOG_ERROR("main", "scan worker stuck: exiting without joining it; laser off");
     std::_Exit(1);

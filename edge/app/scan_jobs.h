@@ -81,6 +81,9 @@ class ScanJobs {
   // When the worker last showed progress: a job began or ended, a frame came back, a
   // move ended (its clock; 0 before any). The sensor's stall check reads it.
   virtual TimeNs progressNs() const = 0;
+  // When the frame read in flight began (FrameSource::capture, its clock); 0 when none
+  // is. The sensor's frame-source deadline reads it.
+  virtual TimeNs frameReadSinceNs() const = 0;
   // The running scan's progress (any thread).
   virtual ScanProgress progress() const = 0;
   // Settings for the next job (never the running one).

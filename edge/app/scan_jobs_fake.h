@@ -22,6 +22,7 @@ class FakeScanJobs final : public ScanJobs {
   void setHomed(bool homed) { homed_ = homed; }
   void setDroppedFrames(uint32_t n) { dropped_ = n; }
   void setProgressNs(TimeNs t) { progressNs_ = t; }
+  void setFrameReadSinceNs(TimeNs t) { frameReadSinceNs_ = t; }
   void setProgress(const ScanProgress& p) { progress_ = p; }
 
   // Ends the running job with `ev` (its job filled in). A home job that succeeds homes.
@@ -56,6 +57,7 @@ class FakeScanJobs final : public ScanJobs {
   double positionMm() const override { return positionMm_; }
   uint32_t droppedFrames() const override { return dropped_; }
   TimeNs progressNs() const override { return progressNs_; }
+  TimeNs frameReadSinceNs() const override { return frameReadSinceNs_; }
   ScanProgress progress() const override { return progress_; }
   void setLocalizer(const localize::Localizer& l) override { localizer_ = l; }
   void setExposureUs(int64_t us) override { exposureUs_ = us; }
@@ -71,6 +73,7 @@ class FakeScanJobs final : public ScanJobs {
   double positionMm_ = 0.0;
   uint32_t dropped_ = 0;
   TimeNs progressNs_ = 0;
+  TimeNs frameReadSinceNs_ = 0;
   ScanProgress progress_;
 };
 

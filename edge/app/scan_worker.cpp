@@ -298,10 +298,12 @@ Result<ports::CapturedFrame> ScanWorker::exposeStop(size_t stop, const ports::Ca
     }
     const double startMm = positionMm();
     double endMm = startMm;
+    frameReadSinceNs_.store(deps_.clock->now());
     frame = deps_.camera->capture(capture, [this, &endMm] {
       (void)deps_.laser->off();
       endMm = positionMm();
     });
+    frameReadSinceNs_.store(0);
     if (midSlideMm != nullptr) *midSlideMm = 0.5 * (startMm + endMm);
     (void)deps_.laser->off();
     markProgress();

@@ -67,6 +67,7 @@ class ScanWorker final : public ScanJobs {
   // Frames that failed (timeout, corrupt) and were retried or led to a fault.
   uint32_t droppedFrames() const override { return dropped_.load(); }
   TimeNs progressNs() const override { return progressNs_.load(); }
+  TimeNs frameReadSinceNs() const override { return frameReadSinceNs_.load(); }
   ScanProgress progress() const override;
 
  private:
@@ -132,6 +133,7 @@ class ScanWorker final : public ScanJobs {
   std::atomic<uint32_t> dropped_{0};
   std::atomic<TimeNs> progressNs_{0};
   void markProgress() { progressNs_.store(deps_.clock->now()); }
+  std::atomic<TimeNs> frameReadSinceNs_{0};  // the capture in flight began (0: none)
   // ALACS_Progress: written by the worker, read by the loop.
   std::atomic<int> stopsDone_{0};
   std::atomic<int> stopsTotal_{0};

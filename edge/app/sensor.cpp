@@ -70,6 +70,7 @@ Sensor::Sensor(const DaemonConfig& config, const SensorPorts& ports, Result<geom
 void Sensor::start(TimeNs now) {
   (void)ports_.laser->off();
   node_.start(now);
+  canRxNs_ = canTxNs_ = now;
   bootUpSent_ = false;
   // Not calibrated is not a fault state: the sensor still homes and answers.
   state_ = State::kIdle;
@@ -89,6 +90,16 @@ TimeNs Sensor::workerDeadlineNs() const {
   return std::max(homingNs, captureNs) + workerSlackNs_;
 }
 
+TimeNs Sensor::frameDeadlineNs() const {
+  return static_cast<TimeNs>(cfg_.frameTimeoutMs) * kNsPerMs + static_cast<TimeNs>(cfg_.exposureUs) * kNsPerUs +
+         workerSlackNs_;
+}
+
+void Sensor::missDeadline(uint16_t faultBit, const std::string& why) {
+  stallReason_ = why;
+  enterFault(faultBit, Status(Error::kTimeout, why + "; the watchdog is withheld"));
+}
+
 void Sensor::checkWorkerProgress(TimeNs now) {
   if (!ports_.worker->busy()) {
     workerStalled_ = false;
@@ -97,12 +108,62 @@ void Sensor::checkWorkerProgress(TimeNs now) {
   const TimeNs sinceNs = now - std::max(ports_.worker->progressNs(), submittedNs_);
   if (workerStalled_ || sinceNs <= workerDeadlineNs()) return;
   workerStalled_ = true;
-  enterFault(protocol::kFaultInternal,
-             Status(Error::kTimeout, "scan worker showed no progress for " + std::to_string(sinceNs / kNsPerMs) +
-                                         " ms (deadline " + std::to_string(workerDeadlineNs() / kNsPerMs) +
-                                         " ms): a frame or a move is stuck; the watchdog is no longer fed"));
+  missDeadline(protocol::kFaultInternal, "scan worker: no progress for " + std::to_string(sinceNs / kNsPerMs) +
+                                             " ms (deadline " + std::to_string(workerDeadlineNs() / kNsPerMs) +
+                                             " ms): a frame or a move is stuck");
   // The worker may never come back: the ACKed command is answered now, as failed.
   answerNow(protocol::ResultStatus::kFailed, now);
+}
+
+void Sensor::checkFrameRead(TimeNs now) {
+  const TimeNs startNs = ports_.worker->busy() ? ports_.worker->frameReadSinceNs() : 0;
+  if (startNs != stalledReadNs_) stalledReadNs_ = 0;  // the read that missed has returned
+  if (startNs == 0 || stalledReadNs_ != 0 || now - startNs <= frameDeadlineNs()) return;
+  stalledReadNs_ = startNs;
+  missDeadline(protocol::kFaultCameraTimeout, "frame source: a frame read has not returned for " +
+                                                  std::to_string((now - startNs) / kNsPerMs) + " ms (deadline " +
+                                                  std::to_string(frameDeadlineNs() / kNsPerMs) +
+                                                  " ms: camera.frame_timeout_ms + exposure + slack)");
+  // The read may never return, and the worker with it: the owed result is answered now.
+  answerNow(protocol::ResultStatus::kFailed, now);
+}
+
+void Sensor::checkCanLoop(TimeNs now) {
+  if (canRxNs_ < 0) return;  // before start()
+  const bool rxLate = now - canRxNs_ > canLoopDeadlineNs();
+  const bool txLate = now - canTxNs_ > canLoopDeadlineNs();
+  if (!rxLate && !txLate) {
+    canStalled_ = false;
+    return;
+  }
+  if (canStalled_) return;
+  canStalled_ = true;
+  const TimeNs lastNs = rxLate && txLate ? std::min(canRxNs_, canTxNs_) : rxLate ? canRxNs_ : canTxNs_;
+  const char* side = rxLate && txLate ? "receive or transmit" : rxLate ? "receive" : "transmit";
+  std::string why = std::string("CAN loop: no CAN ") + side + " processing for " +
+                    std::to_string((now - lastNs) / kNsPerMs) + " ms (deadline " +
+                    std::to_string(canLoopDeadlineNs() / kNsPerMs) + " ms)";
+  if (rxLate && !canRxError_) why += ": " + canRxError_.toString();
+  missDeadline(protocol::kFaultInternal, why);
+}
+
+void Sensor::serviceCan(TimeNs now) {
+  checkCanLoop(now);
+  ports::CanFrame f;
+  for (int k = 0; k < kMaxFramesPerService; ++k) {
+    Result<bool> got = ports_.can->receive(&f);
+    if (!got) {
+      // Not progress: SocketCAN reports a pending socket error once, so a receive that
+      // keeps failing is a broken socket, which only a new process opens afresh.
+      ALACS_LOG_WARN("can", "%s", got.status().toString().c_str());
+      canRxError_ = got.status();
+      return;
+    }
+    if (!*got) break;
+    onCanFrame(f, now);
+  }
+  canRxNs_ = now;
+  canRxError_ = Status::ok();
 }
 
 bool Sensor::startHoming(TimeNs now) {
@@ -456,11 +517,14 @@ void Sensor::tick(TimeNs now) {
     bootUpSent_ = false;
   }
   if (workerSettingsPending_ && !ports_.worker->busy()) pushWorkerSettings();
+  checkFrameRead(now);
   checkWorkerProgress(now);
+  checkCanLoop(now);
   sendProgress(now);
   node_.setFaults(faults_);
   node_.poll(now, [this] { return statusReport(); });
   flushTx(now);
+  canTxNs_ = now;
   keepHeartbeat(now);
 }
 

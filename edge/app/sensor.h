@@ -63,13 +63,36 @@ class Sensor {
   // cancelled, the laser off. The caller then ticks until txPending() is 0 (bounded).
   void shutdown(TimeNs now);
 
-  // Whether every part has shown progress within its deadline: false once the worker
-  // has been busy without progress beyond workerDeadlineNs() (a FAULT is raised then,
-  // with the reason). The daemon pings the systemd watchdog only while this holds.
-  bool healthy() const { return !workerStalled_; }
+  // The CAN loop's receive side, once per wake-up of the event loop whether or not the
+  // socket has frames: drains the receive queue into onCanFrame(), at most
+  // kMaxFramesPerService frames so that a flood cannot starve the timers. A drain that
+  // ends without an error is the CAN loop's receive progress; tick()'s transmit flush is
+  // its transmit progress (canLoopDeadlineNs()).
+  void serviceCan(TimeNs now);
+  static constexpr int kMaxFramesPerService = 256;
+
+  // Whether every part has shown progress within its own deadline (docs/daemon.md,
+  // "Watchdog"): the worker (busy without progress beyond workerDeadlineNs()), the frame
+  // source (a frame read in flight beyond frameDeadlineNs()) and the CAN loop (no receive
+  // drain or transmit flush within canLoopDeadlineNs()). Each miss raises a FAULT whose
+  // reason names the part (stallReason()); the daemon pings the systemd watchdog only
+  // while this holds.
+  bool healthy() const { return !workerStalled_ && stalledReadNs_ == 0 && !canStalled_; }
+  // The worker thread may never return (no progress, or a frame read that does not end):
+  // it cannot be joined.
+  bool workerStuck() const { return workerStalled_ || stalledReadNs_ != 0; }
+  // The last missed deadline, naming the part ("scan worker", "frame source", "CAN loop");
+  // empty before any.
+  const std::string& stallReason() const { return stallReason_; }
   // The longest the worker may go without progress while busy: the longest single
   // phase (homing, or a capture with its retries) plus `slackNs` (setWorkerSlack).
   TimeNs workerDeadlineNs() const;
+  // The longest one frame read may take: camera.frame_timeout_ms (the source's own
+  // timeout) plus the exposure plus the same slack (a reopen of the camera, a render).
+  TimeNs frameDeadlineNs() const;
+  // The longest the event loop may go without draining the CAN receive queue and
+  // flushing the transmit queue: a STOP waits that long at most.
+  static constexpr TimeNs canLoopDeadlineNs() { return kNsPerS; }
   // Extra time for a platform whose frames take long to make (the simulator renders).
   void setWorkerSlack(TimeNs slackNs) { workerSlackNs_ = slackNs; }
 
@@ -114,6 +137,10 @@ class Sensor {
   void flushTx(TimeNs now);
   void keepHeartbeat(TimeNs now);
   void checkWorkerProgress(TimeNs now);
+  void checkFrameRead(TimeNs now);
+  void checkCanLoop(TimeNs now);
+  // A part missed its deadline: FAULT (`faultBit`) with `why`, kept as stallReason().
+  void missDeadline(uint16_t faultBit, const std::string& why);
   void sendProgress(TimeNs now);
   protocol::ResultReason resultReasonOf(const WorkerEvent& ev) const;
   bool submit(const WorkerJob& job);
@@ -142,6 +169,12 @@ class Sensor {
   TimeNs lastProgressNs_ = 0;
   bool progressSent_ = false;  // a LOCALIZE or SCAN_ALL was ACKed and its result is not out
   bool workerStalled_ = false;
+  TimeNs stalledReadNs_ = 0;  // start of the frame read that missed its deadline (0: none)
+  bool canStalled_ = false;
+  TimeNs canRxNs_ = -1;  // the CAN loop's last receive drain and transmit flush
+  TimeNs canTxNs_ = -1;  // (-1: before start())
+  Status canRxError_;    // the last receive error, for the stall's reason
+  std::string stallReason_;
   TimeNs submittedNs_ = 0;               // the last job's submission
   TimeNs workerSlackNs_ = 2 * kNsPerS;
   uint16_t measCounter_ = 0;

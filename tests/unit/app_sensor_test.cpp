@@ -50,7 +50,11 @@ struct Rig {
                                            app::SensorVersion{1, 2, 3});
   }
   TimeNs now() const { return clock.now(); }
-  void tick() { sensor->tick(now()); }
+  // One wake-up of the daemon's event loop: the CAN socket drained, then the tick.
+  void tick() {
+    sensor->serviceCan(now());
+    sensor->tick(now());
+  }
   void advanceMs(int ms) {
     for (int i = 0; i < ms; ++i) {
       clock.advance(kNsPerMs);
@@ -637,6 +641,103 @@ TEST_CASE("Sensor: a worker without progress beyond its deadline is a fault, ans
   CHECK(r.sensor->healthy());
   CHECK(r.answer(r.simple(Opcode::kClearFault)).result == protocol::AckResult::kAck);
   CHECK(r.sensor->state() == State::kIdle);
+}
+
+TEST_CASE("Sensor: a frame read beyond its deadline is a camera fault naming the frame source, and unhealthy",
+          "[app][sensor]") {
+  Rig r;
+  r.bootIdle();
+  // camera.frame_timeout_ms 150 + the exposure 3 ms + 2 s of slack: well inside the
+  // worker's own deadline (8 s), which alone would see this read only 6 s later.
+  CHECK(r.sensor->frameDeadlineNs() == 2153 * kNsPerMs);
+  r.receive(r.localize(0, 0, 1100));
+  r.worker.setProgressNs(r.now());
+  r.worker.setFrameReadSinceNs(r.now());
+  r.advanceMs(2153);
+  CHECK(r.sensor->healthy());
+  CHECK(r.sensor->state() == State::kScanning);
+  CHECK(r.sensor->stallReason().empty());
+  r.advanceMs(1);
+  CHECK(!r.sensor->healthy());
+  CHECK(r.sensor->workerStuck());
+  CHECK(r.sensor->state() == State::kFault);
+  CHECK(r.sensor->stallReason() ==
+        "frame source: a frame read has not returned for 2154 ms (deadline 2153 ms: camera.frame_timeout_ms + "
+        "exposure + slack)");
+  CHECK(r.worker.cancelPending());
+  CHECK(r.emcyCodes() ==
+        std::vector<uint16_t>{static_cast<uint16_t>(protocol::emcyErrorCode(protocol::kFaultCameraTimeout))});
+  auto res = r.results();
+  REQUIRE(res.size() == 1);  // answered at once: the read may never return
+  CHECK(res[0].result_status == static_cast<uint8_t>(protocol::ResultStatus::kFailed));
+  CHECK(res[0].result_reason == static_cast<uint8_t>(protocol::ResultReason::kCameraFault));
+  // The read returns (cancelled): the watchdog may be fed again; the fault stays latched.
+  r.worker.setFrameReadSinceNs(0);
+  r.tick();
+  CHECK(r.sensor->healthy());
+  CHECK(r.sensor->state() == State::kFault);
+  r.finishCancelled();
+  CHECK(r.results().size() == 1);
+  CHECK(r.answer(r.simple(Opcode::kClearFault)).result == protocol::AckResult::kAck);
+  CHECK(r.sensor->state() == State::kIdle);
+  // Reads that each return within the deadline keep a long scan healthy.
+  r.receive(r.simple(Opcode::kScanAll));
+  for (int i = 0; i < 10; ++i) {
+    r.worker.setFrameReadSinceNs(r.now());
+    r.worker.setProgressNs(r.now());
+    r.advanceMs(2000);
+  }
+  CHECK(r.sensor->healthy());
+  CHECK(r.sensor->state() == State::kScanning);
+}
+
+TEST_CASE("Sensor: an event loop that stops servicing CAN beyond its deadline is a fault naming the CAN loop",
+          "[app][sensor]") {
+  Rig r;
+  r.bootIdle();
+  CHECK(app::Sensor::canLoopDeadlineNs() == 1000 * kNsPerMs);
+  SECTION("the loop is away (frozen, or blocked in a call) beyond the deadline") {
+    r.clock.advance(1000 * kNsPerMs);  // exactly the deadline: still within it
+    r.tick();
+    CHECK(r.sensor->healthy());
+    CHECK(r.sensor->state() == State::kIdle);
+    r.clock.advance(1001 * kNsPerMs);
+    r.sensor->serviceCan(r.now());  // the first wake-up after it: the watchdog is withheld
+    CHECK(!r.sensor->healthy());
+    CHECK(!r.sensor->workerStuck());
+    CHECK(r.sensor->state() == State::kFault);
+    CHECK(r.sensor->stallReason() == "CAN loop: no CAN receive or transmit processing for 1001 ms (deadline 1000 ms)");
+    r.sensor->tick(r.now());
+    CHECK(!r.sensor->healthy());
+    CHECK(r.emcyCodes() ==
+          std::vector<uint16_t>{static_cast<uint16_t>(protocol::emcyErrorCode(protocol::kFaultInternal))});
+    // The next wake-up within the deadline: healthy again; the fault stays latched.
+    r.advanceMs(10);
+    CHECK(r.sensor->healthy());
+    CHECK(r.sensor->state() == State::kFault);
+    CHECK(r.answer(r.simple(Opcode::kClearFault)).result == protocol::AckResult::kAck);
+    CHECK(r.sensor->state() == State::kIdle);
+  }
+  SECTION("the loop ticks but no longer drains the receive queue") {
+    for (int i = 0; i < 100; ++i) {
+      r.clock.advance(10 * kNsPerMs);
+      r.sensor->tick(r.now());
+    }
+    CHECK(r.sensor->healthy());  // 1000 ms: within the deadline
+    r.clock.advance(1 * kNsPerMs);
+    r.sensor->tick(r.now());
+    CHECK(!r.sensor->healthy());
+    CHECK(r.sensor->state() == State::kFault);
+    CHECK(r.sensor->stallReason() == "CAN loop: no CAN receive processing for 1001 ms (deadline 1000 ms)");
+  }
+  SECTION("a bus that refuses every frame is the bus's state, not a stalled loop") {
+    r.can.setDown(true);
+    r.receive(r.simple(Opcode::kGetVersion));  // an answer that cannot go out
+    r.advanceMs(5000);
+    CHECK(r.sensor->healthy());
+    CHECK(r.sensor->stallReason().empty());
+    CHECK(r.sensor->state() == State::kIdle);
+  }
 }
 
 TEST_CASE("Sensor: progress within the deadline keeps a long scan healthy", "[app][sensor]") {

@@ -35,9 +35,11 @@ class DarkCamera final : public ports::FrameSource {
     view_ = {frame_.data(), widthPx, heightPx, static_cast<size_t>(widthPx) * 3U, image::PixelFormat::kBgr888};
   }
   const char* name() const override { return "dark"; }
+  std::function<void()> onCapture;  // called on the worker thread as each capture begins
 
  private:
   Result<ports::CapturedFrame> doCapture(const ports::CaptureRequest& r, const std::function<void()>& end) override {
+    if (onCapture) onCapture();
     const TimeNs startNs = clock_.now();
     sleeper_.sleepUntil(startNs + r.exposureUs * kNsPerUs);
     if (end) end();
@@ -223,6 +225,39 @@ TEST_CASE("A continuous scan's result is out while the slide brakes; a job sent 
   CHECK(rig.slide.ignoredSteps() == 0);
   CHECK(worker.homed());
   CHECK(!worker.takeEvent());  // no second event: the braking completed
+}
+
+TEST_CASE("The worker shows when the frame read in flight began, for the frame source's deadline", "[app][worker]") {
+  Rig rig(2.0);
+  const localize::Localizer loc(sim::defaultScene().truth, image::LleParams{}, localize::ScanParams{});
+  app::ScanWorker worker(rig.deps, loc, rig.efd);
+  worker.submit(jobOf(app::WorkerJob::Kind::kHome));
+  std::optional<app::WorkerEvent> ev = rig.next(worker);
+  REQUIRE(ev);
+  REQUIRE(ev->status.isOk());
+  CHECK(worker.frameReadSinceNs() == 0);
+  struct Seen {
+    TimeNs sinceNs;  // what the sensor would read during the capture
+    TimeNs nowNs;    // when the capture began
+  };
+  std::vector<Seen> seen;
+  rig.camera.onCapture = [&] { seen.push_back({worker.frameReadSinceNs(), rig.time.now()}); };
+  app::WorkerJob scan = jobOf(app::WorkerJob::Kind::kLocalize);
+  scan.localize.mode = protocol::ScanMode::kStopAndGo;
+  scan.plan.stopsMm = {10.0, 20.0};
+  scan.plan.roi = {0, 0, 32, 32};
+  worker.submit(scan);
+  ev = rig.next(worker);
+  REQUIRE(ev);
+  CHECK(ev->status.isOk());
+  REQUIRE(seen.size() >= 2);  // one read per stop (and per stop of a second pass, if any)
+  REQUIRE(seen.size() == ev->exposures.size());
+  for (const Seen& s : seen) {
+    CHECK(s.sinceNs > 0);
+    CHECK(s.sinceNs == s.nowNs);
+  }
+  CHECK(seen[1].nowNs > seen[0].nowNs);
+  CHECK(worker.frameReadSinceNs() == 0);  // none in flight once the reads returned
 }
 
 TEST_CASE("One job waits behind the running one; cancel() ends both, and a job sent afterwards runs", "[app][worker]") {
