@@ -27,7 +27,7 @@ class SimPlatform final : public Platform {
   ScanObserver* observer() override { return timeline_.get(); }
   TimeNs workerSlackNs() const override { return 60 * kNsPerS; }
 
-  // Everything but the camera: slide, laser, switches, optional bench GPIO, CAN.
+  // Everything but the camera and the CAN bus: slide, laser, switches, optional bench GPIO.
   Status openCommon(const DaemonConfig& cfg, const SimOptions& opts, const Clock& clock) {
     if (!opts.fault.empty() && opts.fault != "camera-timeout" && opts.fault != "camera-corrupt" &&
         opts.fault != "home-stuck")
@@ -56,7 +56,7 @@ class SimPlatform final : public Platform {
     }
     lines_.home = opts.fault == "home-stuck" ? static_cast<ports::DigitalIn*>(&stuckOpenHome_) : &slide_->homeSwitch();
     if (!opts.debugDir.empty()) timeline_ = makeLaserTimelineWriter(opts.debugDir, *laser_, cfg.laserMaxOnMs);
-    return openCan(cfg);
+    return Status::ok();
   }
 
   Status openRenderedCamera(const sim::SimScene& scene, const Clock& clock, Sleeper& sleeper) {
@@ -85,6 +85,7 @@ class SimPlatform final : public Platform {
     faulty_->setFault(fault == "camera-timeout" ? ports::CameraFault::kTimeout : ports::CameraFault::kCorrupt);
   }
 
+  using Platform::openCan;
   using Platform::setCalibration;
   const replay::ScanManifest& replayManifest() const { return replay_->manifest(); }
 
@@ -143,6 +144,7 @@ Result<std::unique_ptr<Platform>> openSimPlatform(const DaemonConfig& cfg, const
   }
   if (Status s = p->openRenderedCamera(scene, clock, sleeper); !s) return s;
   p->injectCameraFault(opts.fault, clock, sleeper);
+  if (Status s = p->openCan(cfg); !s) return s;
   return std::unique_ptr<Platform>(std::move(p));
 }
 
@@ -151,7 +153,8 @@ Result<std::unique_ptr<Platform>> openReplayPlatform(const DaemonConfig& cfg, co
   auto p = std::make_unique<SimPlatform>();
   if (Status s = p->openCommon(cfg, opts, clock); !s) return s;
   // The manifest first (nothing of a frame is allocated yet), then the calibration it names,
-  // inside the scan directory (no symlink out of it), unless --calibration gives one.
+  // inside the scan directory (no symlink out of it), unless --calibration gives one; the
+  // CAN bus last, once the scan is known to be usable.
   if (Status s = p->openReplayCamera(dir, clock); !s) return s;
   const replay::ScanManifest& m = p->replayManifest();
   p->setCalibration(opts.calibrationPath.empty() ? replay::loadScanCalibration(dir, m)
@@ -165,6 +168,7 @@ Result<std::unique_ptr<Platform>> openReplayPlatform(const DaemonConfig& cfg, co
                                         std::to_string(cal->camera.widthPx) + "x" +
                                         std::to_string(cal->camera.heightPx));
   p->injectCameraFault(opts.fault, clock, sleeper);
+  if (Status s = p->openCan(cfg); !s) return s;
   return std::unique_ptr<Platform>(std::move(p));
 }
 

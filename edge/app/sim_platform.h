@@ -18,6 +18,8 @@ namespace alacs::app {
 Result<std::unique_ptr<Platform>> openSimPlatform(const DaemonConfig& cfg, const SimOptions& opts, const Clock& clock,
                                                   Sleeper& sleeper);
 // The camera replays `dir`; its calibration.json unless opts.calibrationPath is given.
+// Errors: the scan directory, frames of another size than the calibration's (refused
+// before any frame buffer and before the CAN bus is opened), the GPIO chip, CAN.
 Result<std::unique_ptr<Platform>> openReplayPlatform(const DaemonConfig& cfg, const std::string& dir,
                                                      const SimOptions& opts, const Clock& clock, Sleeper& sleeper);
 
