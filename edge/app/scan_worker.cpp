@@ -10,6 +10,7 @@
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
+#include <cstring>
 #include <opencv2/imgproc.hpp>
 
 #include "common/log.h"
@@ -95,18 +96,41 @@ void ScanWorker::setExposureUs(int64_t us) {
   deps_.capture.exposureUs = us;
 }
 
-void ScanWorker::run() {
-  // Step pulses are timed by this thread (tools/jitter measures it): real-time priority
-  // when the system allows it (on the board), else at least no timer slack, whose 50 us
-  // default is otherwise the median lateness of every edge.
+namespace {
+// Step pulses are timed by the worker thread (tools/jitter measures it). Real-time
+// scheduling comes from the service (CPUSchedulingPolicy=fifo: systemd sets it before it
+// applies the unit's system-call filter, and every thread inherits it) or from this
+// thread asking for `priority`, which the shipped unit refuses (SystemCallFilter=~@resources
+// holds sched_setscheduler; RestrictRealtime=yes): then the log says so and what works.
+// Otherwise at least no timer slack, whose 50 us default is the median lateness of every edge.
+void setUpStepTiming(int priority) {
   sched_param sp{};
-  sp.sched_priority = deps_.realtimePriority;
-  if (deps_.realtimePriority <= 0 || pthread_setschedparam(pthread_self(), SCHED_FIFO, &sp) != 0) {
-    prctl(PR_SET_TIMERSLACK, 1UL, 0UL, 0UL, 0UL);
-    ALACS_LOG_INFO("motion", "step timing: normal scheduling, timer slack 1 ns");
-  } else {
-    ALACS_LOG_INFO("motion", "step timing: SCHED_FIFO priority %d", deps_.realtimePriority);
+  int policy = SCHED_OTHER;
+  if (pthread_getschedparam(pthread_self(), &policy, &sp) == 0 && (policy == SCHED_FIFO || policy == SCHED_RR)) {
+    ALACS_LOG_INFO("motion", "step timing: %s priority %d, inherited from the service (CPUSchedulingPolicy)",
+                   policy == SCHED_FIFO ? "SCHED_FIFO" : "SCHED_RR", sp.sched_priority);
+    return;
   }
+  if (priority > 0) {
+    sp.sched_priority = priority;
+    const int err = pthread_setschedparam(pthread_self(), SCHED_FIFO, &sp);
+    if (err == 0) {
+      ALACS_LOG_INFO("motion", "step timing: SCHED_FIFO priority %d (motion.realtime_priority)", priority);
+      return;
+    }
+    ALACS_LOG_WARN("motion",
+                   "step timing: motion.realtime_priority %d refused (%s): a process cannot take SCHED_FIFO under "
+                   "the shipped unit (SystemCallFilter=~@resources, RestrictRealtime=yes); give the service "
+                   "CPUSchedulingPolicy=fifo in a drop-in instead (docs/daemon.md, \"Step timing\")",
+                   priority, std::strerror(err));
+  }
+  prctl(PR_SET_TIMERSLACK, 1UL, 0UL, 0UL, 0UL);
+  ALACS_LOG_INFO("motion", "step timing: normal scheduling, timer slack 1 ns");
+}
+}  // namespace
+
+void ScanWorker::run() {
+  setUpStepTiming(deps_.realtimePriority);
   while (true) {
     WorkerJob job;
     {
