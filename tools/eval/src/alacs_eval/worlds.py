@@ -112,6 +112,19 @@ def _saturated_share(scan: Scan, frame, truth: np.ndarray) -> float:
     return sat / len(vis)
 
 
+def _line_alone(raw: dict, truth: np.ndarray) -> float:
+    """Share of the target's visible truth rows that the LLE's own line (its inlier rows)
+    puts within 2 px of the true column."""
+    vis = metrics.visible_rows(truth)
+    frames = raw.get("frames", [])
+    if len(vis) == 0 or not frames:
+        return 0.0
+    cols = {int(round(r)): c for r, c, inlier in frames[0].get("rows", []) if inlier}
+    hit = sum(1 for r, c in zip(vis["row"], vis["column"])
+              if int(round(r)) in cols and abs(cols[int(round(r))] - c) <= 2.0)
+    return hit / len(vis)
+
+
 def _lle(cfg: Config, world: str, cases: list[dict]) -> tuple[dict[str, Any], list[dict]]:
     dirs = [c["dir"] for c in cases]
     truths, saturated = {}, {}
@@ -130,6 +143,12 @@ def _lle(cfg: Config, world: str, cases: list[dict]) -> tuple[dict[str, Any], li
             paper[r["scan"]] = r
     key = f"{step},{th}"
     out: dict[str, Any] = {"cases": len(dirs), "segments": {}}
+    # The LLE alone (as `alacs_lle` reports it, before the localizer's 3D gate): is its
+    # `line` the target's? It is when it covers at least half of the target's visible rows
+    # within 2 px.
+    alone = [_line_alone(raw.get(d, {}), truths[d]) for d in dirs]
+    out["alone"] = {"target_line": float(np.mean([a >= 0.5 for a in alone])) if alone else math.nan,
+                    "rows_matched": float(np.mean(alone)) if alone else math.nan}
     for s in metrics.SEGMENTS:
         o = metrics.summarize(ours[d]["disp"][s] for d in dirs)
         p = metrics.summarize(paper[d]["combos"][key]["disp"][str(s)] if str(s) in paper[d]["combos"][key]["disp"]
@@ -318,6 +337,11 @@ def markdown(res: dict[str, Any], figure: str | None, command: str) -> str:
         L.append(f"| ours, {name}, found | " + " | ".join(_pct(seg[str(s)]["ours_cover"]) for s in metrics.SEGMENTS) + " |")
         L.append(f"| paper, {name}, mean | " + " | ".join(_f(seg[str(s)]["paper"]["avg"], "{:.2f}") for s in metrics.SEGMENTS) + " |")
         L.append(f"| paper, {name}, found | " + " | ".join(_pct(seg[str(s)]["paper_cover"]) for s in metrics.SEGMENTS) + " |")
+    L += ["", "The LLE alone, before the localizer's 3D gate (what `alacs_lle` reports): share of frames whose "
+          "`line` is the target's (at least half of its visible rows within 2 px), and the mean share of the "
+          "target's rows it matches:", "", "| | " + " | ".join(n for n, _ in ws) + " |", "| --- |" + " --- |" * len(ws),
+          "| line is the target's | " + " | ".join(_pct(w["lle"].get("alone", {}).get("target_line", math.nan)) for _, w in ws) + " |",
+          "| rows matched | " + " | ".join(_pct(w["lle"].get("alone", {}).get("rows_matched", math.nan)) for _, w in ws) + " |"]
     L += ["", "By light (ours: 50 % segment mean, rows found on the central 80 %, rows whose line reaches full scale in red):", "",
           "| world | light | n | mean (px) | found | at full scale |", "| --- | --- | --- | --- | --- | --- |"]
     for name, w in ws:
