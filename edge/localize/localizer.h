@@ -142,9 +142,9 @@ struct AppleEstimate {
   // as AMBIGUOUS with the reason (docs/can-protocol.md).
   enum class Doubt { kNone, kFarFromRough, kTwoSurfaces };
   Doubt doubt = Doubt::kNone;
-  double targetPct = 100.0;      // chance that the fitted object is the target
-  double fitSigmaMm = 0.0;       // σ of the approach point from the fit alone (before the mixture)
-  double rivalShare = 0.0;       // rival score / (own + rival) from the sphere fit (0: no rival)
+  double targetPct = 100.0;  // chance that the fitted object is the target
+  double fitSigmaMm = 0.0;   // σ of the approach point from the fit alone (before the mixture)
+  double rivalShare = 0.0;   // rival score / (own + rival) from the sphere fit (0: no rival)
   Eigen::Vector3d rivalCenterMm = Eigen::Vector3d::Zero();
 };
 

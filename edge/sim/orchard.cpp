@@ -307,30 +307,58 @@ struct HardSettings {
   double stemTiltDeg;
   int maxNeighbours;
   double neighbourGapMm[2];
-  double neighbourMinDirZ;     // -0.35: a little in front of the target; 0: beside or behind
-  double neighbourHideShare;   // what neighbours may hide of the target
-  double bands[4][2];          // hidden share bands of the occluded cases
-  double leafGapMm[2];         // in front of the target's skin
+  double neighbourMinDirZ;    // -0.35: a little in front of the target; 0: beside or behind
+  double neighbourHideShare;  // what neighbours may hide of the target
+  double bands[4][2];         // hidden share bands of the occluded cases
+  double leafGapMm[2];        // in front of the target's skin
   int maxLeaves;
   double leafLengthMm[2];
   double laserMw[2];
-  double backgroundMm[2];      // behind the target's centre
+  double backgroundMm[2];  // behind the target's centre
   double sunLux[2];
-  double sunExposure[2];       // × the auto exposure, in sun (and direct light when fixedInDirect)
+  double sunExposure[2];  // × the auto exposure, in sun (and direct light when fixedInDirect)
   bool fixedInDirect;
   uint64_t salt;
 };
 
-constexpr HardSettings kHoldoutSettings{{1.0, 1.0}, {0.78, 0.95}, {1.02, 1.15}, {30.0, 50.0}, 60.0,
-                                        4, {0.0, 3.0}, -0.35, 0.12,
-                                        {{0.25, 0.40}, {0.45, 0.60}, {0.65, 0.80}, {0.80, 0.95}}, {10.0, 60.0}, 5,
-                                        {60.0, 130.0}, {8.0, 30.0}, {150.0, 1500.0}, {30000.0, 90000.0},
-                                        {1.6, 2.6}, true, 0x7B0D5EEDULL};
-constexpr HardSettings kTuningHardSettings{{0.97, 1.03}, {0.80, 0.97}, {1.0, 1.10}, {31.0, 49.0}, 45.0,
-                                           3, {0.5, 8.0}, 0.0, 0.06,
-                                           {{0.30, 0.45}, {0.45, 0.60}, {0.60, 0.75}, {0.70, 0.88}}, {20.0, 100.0}, 4,
-                                           {55.0, 115.0}, {10.0, 25.0}, {250.0, 1200.0}, {25000.0, 70000.0},
-                                           {1.3, 2.2}, false, 0x5EED4A4DULL};
+constexpr HardSettings kHoldoutSettings{.sphere = {1.0, 1.0},
+                                        .oblate = {0.78, 0.95},
+                                        .prolate = {1.02, 1.15},
+                                        .radiusMm = {30.0, 50.0},
+                                        .stemTiltDeg = 60.0,
+                                        .maxNeighbours = 4,
+                                        .neighbourGapMm = {0.0, 3.0},
+                                        .neighbourMinDirZ = -0.35,
+                                        .neighbourHideShare = 0.12,
+                                        .bands = {{0.25, 0.40}, {0.45, 0.60}, {0.65, 0.80}, {0.80, 0.95}},
+                                        .leafGapMm = {10.0, 60.0},
+                                        .maxLeaves = 5,
+                                        .leafLengthMm = {60.0, 130.0},
+                                        .laserMw = {8.0, 30.0},
+                                        .backgroundMm = {150.0, 1500.0},
+                                        .sunLux = {30000.0, 90000.0},
+                                        .sunExposure = {1.6, 2.6},
+                                        .fixedInDirect = true,
+                                        .salt = 0x7B0D5EEDULL};
+constexpr HardSettings kTuningHardSettings{.sphere = {0.97, 1.03},
+                                           .oblate = {0.80, 0.97},
+                                           .prolate = {1.0, 1.10},
+                                           .radiusMm = {31.0, 49.0},
+                                           .stemTiltDeg = 45.0,
+                                           .maxNeighbours = 3,
+                                           .neighbourGapMm = {0.5, 8.0},
+                                           .neighbourMinDirZ = 0.0,
+                                           .neighbourHideShare = 0.06,
+                                           .bands = {{0.30, 0.45}, {0.45, 0.60}, {0.60, 0.75}, {0.70, 0.88}},
+                                           .leafGapMm = {20.0, 100.0},
+                                           .maxLeaves = 4,
+                                           .leafLengthMm = {55.0, 115.0},
+                                           .laserMw = {10.0, 25.0},
+                                           .backgroundMm = {250.0, 1200.0},
+                                           .sunLux = {25000.0, 70000.0},
+                                           .sunExposure = {1.3, 2.2},
+                                           .fixedInDirect = false,
+                                           .salt = 0x5EED4A4DULL};
 
 const HardSettings* hardSettings(World w) {
   if (w == World::kHoldout) return &kHoldoutSettings;
@@ -347,7 +375,8 @@ SimApple hardApple(const HardSettings& h, CaseRng& rng, int id, std::string* sha
   if (shape != nullptr) *shape = kind == 0 ? "sphere" : kind == 1 ? "oblate" : "prolate";
   const double tiltRad = rng.uniform(0.0, h.stemTiltDeg) * M_PI / 180.0;
   const double spinRad = rng.uniform(0.0, 2.0 * M_PI);
-  a.stemAxis = Eigen::Vector3d(std::sin(tiltRad) * std::cos(spinRad), -std::cos(tiltRad), std::sin(tiltRad) * std::sin(spinRad));
+  a.stemAxis =
+      Eigen::Vector3d(std::sin(tiltRad) * std::cos(spinRad), -std::cos(tiltRad), std::sin(tiltRad) * std::sin(spinRad));
   a.skinRgb = Eigen::Vector3d(rng.uniform(0.30, 0.60), rng.uniform(0.04, 0.12), rng.uniform(0.03, 0.08));
   return a;
 }
@@ -360,7 +389,8 @@ bool leafCutsApple(const SimLeaf& l, const std::vector<SimApple>& apples) {
   for (const auto& ap : apples) {
     if ((l.centerMm - ap.centerMm).norm() > appleBoundMm(ap) + 0.5 * l.lengthMm + 3.0) continue;
     const Eigen::Matrix3d toLocal = appleFrame(ap).transpose();
-    const Eigen::Vector3d inv(1.0 / (ap.radiusMm + 2.0), 1.0 / (ap.radiusMm + 2.0), 1.0 / (ap.radiusMm * ap.aspect + 2.0));
+    const Eigen::Vector3d inv(1.0 / (ap.radiusMm + 2.0), 1.0 / (ap.radiusMm + 2.0),
+                              1.0 / (ap.radiusMm * ap.aspect + 2.0));
     for (int i = -8; i <= 8; ++i) {
       const double u = 0.5 * l.lengthMm * i / 8.0;
       const double half = 0.5 * l.widthMm * (1.0 - (2.0 * u / l.lengthMm) * (2.0 * u / l.lengthMm));
@@ -382,10 +412,11 @@ void addHardNeighbours(const HardSettings& h, SimScene& s, const SimApple& targe
       Eigen::Vector3d dir = rng.unitVector();
       dir.z() = h.neighbourMinDirZ < 0.0 ? std::max(dir.z(), h.neighbourMinDirZ) : std::abs(dir.z()) * 0.8;
       dir.normalize();
-      a.centerMm = target.centerMm +
-                   dir * (appleBoundMm(target) + appleBoundMm(a) + rng.uniform(h.neighbourGapMm[0], h.neighbourGapMm[1]));
+      a.centerMm = target.centerMm + dir * (appleBoundMm(target) + appleBoundMm(a) +
+                                            rng.uniform(h.neighbourGapMm[0], h.neighbourGapMm[1]));
       bool ok = a.centerMm.z() + appleBoundMm(a) < s.background.depthMm;
-      for (const auto& b : s.apples) ok = ok && (a.centerMm - b.centerMm).norm() > appleBoundMm(a) + appleBoundMm(b) - 0.5;
+      for (const auto& b : s.apples)
+        ok = ok && (a.centerMm - b.centerMm).norm() > appleBoundMm(a) + appleBoundMm(b) - 0.5;
       if (!ok) continue;
       SimScene trial = s;
       trial.apples.push_back(a);
@@ -442,10 +473,11 @@ void hardConditions(const HardSettings& h, SimScene& s, const CaseSpec& spec, co
 // sunlit skin comes near full scale (the daemon does not meter the scene).
 int64_t hardExposureUs(const HardSettings& h, const SimScene& s, const CaseSpec& spec, CaseRng& rng) {
   const int64_t autoUs = autoExposureUs(s);
-  const bool fixed = spec.lighting == LightingKind::kFullSun || (h.fixedInDirect && spec.lighting == LightingKind::kDirect);
+  const bool fixed =
+      spec.lighting == LightingKind::kFullSun || (h.fixedInDirect && spec.lighting == LightingKind::kDirect);
   if (!fixed) return autoUs;
-  return std::clamp<int64_t>(std::llround(static_cast<double>(autoUs) * rng.uniform(h.sunExposure[0], h.sunExposure[1])),
-                             20, 3000);
+  return std::clamp<int64_t>(
+      std::llround(static_cast<double>(autoUs) * rng.uniform(h.sunExposure[0], h.sunExposure[1])), 20, 3000);
 }
 
 }  // namespace

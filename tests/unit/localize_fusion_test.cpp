@@ -106,6 +106,17 @@ TEST_CASE("Sphere fusion of five lines: centre, diameter, approach point, honest
   CHECK(est->occlusionPct < 10.0);
   // The approach normal points from the fruit towards the sensor.
   CHECK(est->approachNormal.dot(-approachTruth.normalized()) > 0.999);
+  // Where the rough position says: the target beyond doubt, σ the fit's own, and with the
+  // doubt model off the same numbers.
+  CHECK(est->doubt == localize::AppleEstimate::Doubt::kNone);
+  CHECK(est->targetPct > 95.0);
+  CHECK(est->sigmaMm == Approx(est->fitSigmaMm));
+  localize::ScanParams off = k.scan;
+  off.otherObjectPrior = 0.0;
+  auto plain = localize::Localizer(k.cal, image::LleParams{}, off).estimate(*plan, lines);
+  REQUIRE(plain.isOk());
+  CHECK(plain->sigmaMm == Approx(est->sigmaMm));
+  CHECK(plain->confidencePct == Approx(est->confidencePct).epsilon(0.05));
 }
 
 TEST_CASE("Leaves in front of the fruit: the robust fit keeps to the skin", "[localize]") {
@@ -442,30 +453,6 @@ TEST_CASE("The widened search takes no flat surface for a fruit", "[localize][wi
   }
   auto est = loc.estimate(*plan, lines);
   CHECK_FALSE((est.isOk() && est->sphereFit));
-}
-
-TEST_CASE("Honest uncertainty: a fit where the rough position says is the target, σ the fit's own",
-          "[localize][doubt]") {
-  Case k;
-  std::mt19937 rng(41);
-  localize::Localizer loc(k.cal, image::LleParams{}, k.scan);
-  auto plan = loc.plan(k.center + Eigen::Vector3d(6, -5, 9), 200.0);
-  REQUIRE(plan.isOk());
-  std::vector<localize::LineObservation> lines;
-  for (double s : plan->stopsMm) lines.push_back(lineOf(k.cal, k.center, k.radius, s, 0.4, {}, rng));
-  auto est = loc.estimate(*plan, lines);
-  REQUIRE(est.isOk());
-  REQUIRE(est->sphereFit);
-  CHECK(est->doubt == localize::AppleEstimate::Doubt::kNone);
-  CHECK(est->targetPct > 95.0);
-  CHECK(est->sigmaMm == Approx(est->fitSigmaMm));
-  // Off: the fit's σ and confidence alone, the same numbers here.
-  localize::ScanParams off = k.scan;
-  off.otherObjectPrior = 0.0;
-  auto plain = localize::Localizer(k.cal, image::LleParams{}, off).estimate(*plan, lines);
-  REQUIRE(plain.isOk());
-  CHECK(plain->sigmaMm == Approx(est->sigmaMm));
-  CHECK(plain->confidencePct == Approx(est->confidencePct).epsilon(0.05));
 }
 
 TEST_CASE("Honest uncertainty: two fruit that explain the lines alike are two surfaces", "[localize][doubt]") {

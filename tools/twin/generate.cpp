@@ -79,7 +79,8 @@ int generateMain(const Args& args) {
   if (lightingArg == "outdoor") {
     lights = {sim::LightingKind::kOvercast, sim::LightingKind::kDirect};
   } else if (lightingArg == "all") {
-    lights = {sim::LightingKind::kLab, sim::LightingKind::kOvercast, sim::LightingKind::kDirect, sim::LightingKind::kFullSun};
+    lights = {sim::LightingKind::kLab, sim::LightingKind::kOvercast, sim::LightingKind::kDirect,
+              sim::LightingKind::kFullSun};
   } else {
     Result<sim::LightingKind> l = sim::parseLighting(lightingArg);
     if (!l) {
@@ -181,25 +182,26 @@ int generateMain(const Args& args) {
           if (Status s = sim::exportScan(scene, rays, dir, info, frames, opt); !s)
             return Status(s.code(), job.name + ": " + s.reason());
         }
-        const tools::Json record{{"case", job.name},
-                               {"dir", dir},
-                               {"set", set},
-                               {"distance_mm", tools::jsonNumber(job.spec.distanceMm, "%.0f")},
-                               {"occluded", job.spec.occluded ? 1 : 0},
-                               {"lighting", sim::lightingName(job.spec.lighting)},
-                               {"lux", tools::jsonNumber(oc->lux, "%.0f")},
-                               {"occlusion_share", tools::jsonNumber(oc->occlusionShare, "%.4f")},
-                               {"exposure_us", static_cast<long long>(scene.sensor.exposureUs)},
-                               {"bandpass_nm", tools::jsonNumber(scene.sensor.bandpassFwhmNm, "%.0f")},
-                               {"diameter_mm", tools::jsonNumber(2.0 * target.radiusMm, "%.2f")},
-                               {"world", sim::worldName(job.spec.world)},
-                               {"shape", oc->shape},
-                               {"aspect", tools::jsonNumber(target.aspect, "%.3f")},
-                               {"laser_mw", tools::jsonNumber(scene.laser.powerMw, "%.1f")},
-                               {"background_mm", tools::jsonNumber(scene.background.depthMm - target.centerMm.z(), "%.0f")},
-                               {"neighbours", scene.apples.size() - 1},
-                               {"leaves", scene.leaves.size()},
-                               {"seed", static_cast<unsigned long long>(job.seed)}};
+        const tools::Json record{
+            {"case", job.name},
+            {"dir", dir},
+            {"set", set},
+            {"distance_mm", tools::jsonNumber(job.spec.distanceMm, "%.0f")},
+            {"occluded", job.spec.occluded ? 1 : 0},
+            {"lighting", sim::lightingName(job.spec.lighting)},
+            {"lux", tools::jsonNumber(oc->lux, "%.0f")},
+            {"occlusion_share", tools::jsonNumber(oc->occlusionShare, "%.4f")},
+            {"exposure_us", static_cast<long long>(scene.sensor.exposureUs)},
+            {"bandpass_nm", tools::jsonNumber(scene.sensor.bandpassFwhmNm, "%.0f")},
+            {"diameter_mm", tools::jsonNumber(2.0 * target.radiusMm, "%.2f")},
+            {"world", sim::worldName(job.spec.world)},
+            {"shape", oc->shape},
+            {"aspect", tools::jsonNumber(target.aspect, "%.3f")},
+            {"laser_mw", tools::jsonNumber(scene.laser.powerMw, "%.1f")},
+            {"background_mm", tools::jsonNumber(scene.background.depthMm - target.centerMm.z(), "%.0f")},
+            {"neighbours", scene.apples.size() - 1},
+            {"leaves", scene.leaves.size()},
+            {"seed", static_cast<unsigned long long>(job.seed)}};
         lines[static_cast<size_t>(i)] = tools::jsonText(record);
         return Status::ok();
       },

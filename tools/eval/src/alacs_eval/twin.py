@@ -50,10 +50,10 @@ GENERATOR_SOURCES = ("edge/sim", "edge/replay", "tools/twin/generate.cpp", "tool
                      "edge/geometry/calibration.cpp", "edge/geometry/calibration.h", "edge/geometry/triangulation.cpp")
 
 
-def generator_version() -> str:
+def generator_version(sources: tuple[str, ...] = GENERATOR_SOURCES) -> str:
     """A hash of the sources that decide what the twin generates (scenes, renders, plans)."""
     h = hashlib.sha256()
-    for rel in GENERATOR_SOURCES:
+    for rel in sources:
         p = ROOT / rel
         for f in sorted(p.rglob("*") if p.is_dir() else [p]):
             if f.is_file() and f.suffix in (".cpp", ".h", ".txt"):

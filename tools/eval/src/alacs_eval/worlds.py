@@ -38,12 +38,7 @@ CONFIDENCE_BINS = (0.0, 20.0, 50.0, 80.0, 90.0, 100.01)
 
 
 @dataclasses.dataclass
-class Config:
-    work: Path
-    twin: Path
-    jobs: int = 2
-    small: bool = False
-    quiet: bool = False
+class Config(evaluate.Config):
     other_object_prior: float | None = None  # None: the localizer's default
 
     @property
@@ -64,15 +59,7 @@ WORLD_SOURCES = ("edge/sim", "edge/replay", "tools/twin/generate.cpp", "tools/tw
 
 
 def _generator_version() -> str:
-    import hashlib
-    h = hashlib.sha256()
-    for rel in WORLD_SOURCES:
-        p = twin.ROOT / rel
-        for f in sorted(p.rglob("*") if p.is_dir() else [p]):
-            if f.is_file() and f.suffix in (".cpp", ".h", ".txt"):
-                h.update(str(f.relative_to(twin.ROOT)).encode())
-                h.update(f.read_bytes())
-    return h.hexdigest()[:16]
+    return twin.generator_version(WORLD_SOURCES)
 
 
 def _generate(cfg: Config, world: str, set_name: str, count: int, total: int) -> list[dict]:
