@@ -72,6 +72,8 @@ Status configFromJson(const Json& json, DaemonConfig& c) {
     s->number("gate_mm", c.scan.gateMm, Need::kOptional, 10, 500);
     s->number("search_mm", c.scan.searchMm, Need::kOptional, 0, 1000);
     s->number("outside_gate_confidence_pct", c.scan.outsideGateConfidencePct, Need::kOptional, 0, 100);
+    s->number("rough_sigma_mm", c.scan.roughSigmaMm, Need::kOptional, 0, 500);
+    s->number("other_object_prior", c.scan.otherObjectPrior, Need::kOptional, 0, 0.99);
     s->integer("follow_up_min_lines", c.scan.followUpMinLines, Need::kOptional, 1, 15);
     s->number("follow_up_diameter_sigma_mm", c.scan.followUpDiameterSigmaMm, Need::kOptional, 0, 100);
     s->integer("follow_up_max_stops", c.scan.followUpMaxStops, Need::kOptional, 0, 16);
@@ -130,6 +132,8 @@ OrderedJson configToJson(const DaemonConfig& c) {
                {"gate_mm", c.scan.gateMm},
                {"search_mm", c.scan.searchMm},
                {"outside_gate_confidence_pct", c.scan.outsideGateConfidencePct},
+               {"rough_sigma_mm", c.scan.roughSigmaMm},
+               {"other_object_prior", c.scan.otherObjectPrior},
                {"follow_up_min_lines", c.scan.followUpMinLines},
                {"follow_up_diameter_sigma_mm", c.scan.followUpDiameterSigmaMm},
                {"follow_up_max_stops", c.scan.followUpMaxStops}};

@@ -79,6 +79,16 @@ def test_home_switch_reaches_the_status_frame(tmp_path, alacsd):
                 if m is not None and m.arbitration_id == ac.frame_id(ac.MSG_STATUS):
                     return ac.decode(node, m, choices=False)
             raise AssertionError("no status frame")
+        # The node's start (the simulator builds its scene first) takes seconds in a loaded
+        # bench: wait for its boot-up frame, then give the status frames their period.
+        import time
+        end = time.monotonic() + 60.0
+        while time.monotonic() < end:
+            m = bus.recv(0.5)
+            if m is not None and m.arbitration_id == 0x700 + 0x10 and bytes(m.data[:1]) == b"\x00":
+                break
+        else:
+            raise AssertionError("no boot-up frame within 60 s")
         assert status()["HomeSwitch"] == 0
         gpio_sim.drive_input("HOME", 1)
         status()  # one period to pass
