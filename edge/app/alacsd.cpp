@@ -63,7 +63,7 @@ Result<std::unique_ptr<Platform>> openPlatform(const Options& o, const DaemonCon
 }
 
 // The event loop. Returns the process's exit code.
-int runDaemon(const Options& o, const DaemonConfig& cfg) {
+int runDaemon(const Options& o, const DaemonConfig& cfg, const std::string& configRefusal) {
   // Block the signals before any thread starts, so that only the signalfd sees them.
   sigset_t mask;
   sigemptyset(&mask);
@@ -97,6 +97,7 @@ int runDaemon(const Options& o, const DaemonConfig& cfg) {
                                         recording ? *recording : platform.camera(), o.simOpts.debugDir);
   worker = std::make_unique<ScanWorker>(deps, eventFd);
   Sensor sensor(cfg, {&platform.can(), worker.get(), &laser, platform.statusHomeSwitch(), &observer}, platform.calibration(), kVersion);
+  if (!configRefusal.empty()) sensor.refuseConfig(configRefusal);
   sensor.setWorkerSlack(platform.workerSlackNs());
 
   const int sfd = signalfd(-1, &mask, SFD_NONBLOCK | SFD_CLOEXEC);
@@ -197,21 +198,32 @@ int main(int argc, char** argv) {
   log::Level level = log::Level::kInfo;
   (void)log::parseLevel(o.level.c_str(), &level);
   log::setLevel(level);
+  const auto withOptions = [&o](app::DaemonConfig c) -> Result<app::DaemonConfig> {
+    if (!o.canInterface.empty()) c.canInterface = o.canInterface;
+    if (o.nodeId > 0) c.nodeId = o.nodeId;
+    if (!o.gpioChip.empty()) c.gpioChip = o.gpioChip;
+    if (Status s = app::validateConfig(c); !s) return s;
+    return c;
+  };
   Result<app::DaemonConfig> cfg = o.configPath.empty() ? app::DaemonConfig{} : app::loadConfig(o.configPath);
-  if (cfg) {
-    if (!o.canInterface.empty()) cfg->canInterface = o.canInterface;
-    if (o.nodeId > 0) cfg->nodeId = o.nodeId;
-    if (!o.gpioChip.empty()) cfg->gpioChip = o.gpioChip;
-    if (Status s = app::validateConfig(*cfg); !s) cfg = s;
-  }
+  if (cfg) cfg = withOptions(*cfg);
+  // A refused configuration file does not end the daemon (a restart loop would only hide
+  // the reason from the bus): it runs on the built-in defaults with the command line's
+  // CAN interface, node id and GPIO chip, and reports CONFIG_INVALID (docs/daemon.md).
+  std::string configRefusal;
   if (!cfg) {
-    std::fprintf(stderr, "alacsd: %s\n", cfg.status().toString().c_str());
-    return 2;
+    configRefusal = cfg.status().toString();
+    std::fprintf(stderr, "alacsd: %s; running on the built-in defaults\n", configRefusal.c_str());
+    cfg = withOptions(app::DaemonConfig{});
+    if (!cfg) {
+      std::fprintf(stderr, "alacsd: %s\n", cfg.status().toString().c_str());
+      return 2;
+    }
   }
   if (laserOff) {
     const Status s = app::driveLaserOff(*cfg);
     std::fprintf(stderr, "alacsd: laser off: %s\n", s.toString().c_str());
     return s ? 0 : 1;
   }
-  return app::runDaemon(o, *cfg);
+  return app::runDaemon(o, *cfg, configRefusal);
 }

@@ -67,14 +67,22 @@ Sensor::Sensor(const DaemonConfig& config, const SensorPorts& ports, Result<geom
   pushWorkerSettings();
 }
 
+void Sensor::refuseConfig(std::string reason) {
+  configFileRefusal_ = std::move(reason);
+  faults_ |= protocol::kFaultConfigInvalid;
+  ALACS_LOG_ERROR("config", "%s: running on the built-in defaults; HOME and scans are refused until it is fixed",
+                  configFileRefusal_.c_str());
+}
+
 void Sensor::start(TimeNs now) {
   (void)ports_.laser->off();
   node_.start(now);
   canRxNs_ = canTxNs_ = now;
   bootUpSent_ = false;
-  // Not calibrated is not a fault state: the sensor still homes and answers.
+  // Not calibrated is not a fault state: the sensor still homes and answers. A refused
+  // configuration file leaves the slide where it is: the defaults need not fit it.
   state_ = State::kIdle;
-  (void)startHoming(now);  // the worker's queue is empty at start
+  if (configFileRefusal_.empty()) (void)startHoming(now);  // the worker's queue is empty at start
   node_.setFaults(faults_);
 }
 
@@ -222,7 +230,7 @@ void Sensor::onClearFault(const protocol::Command& c) {
   if ((state_ == State::kFault || state_ == State::kStopped) && ports_.worker->busy())
     return node_.nack(c.opcode, c.counter, NackReason::kBusy);
   if (state_ == State::kFault || state_ == State::kStopped) {
-    faults_ &= static_cast<uint16_t>(protocol::kFaultNotCalibrated);
+    faults_ &= static_cast<uint16_t>(protocol::kFaultNotCalibrated | protocol::kFaultConfigInvalid);
     ports_.laser->reset();
     state_ = State::kIdle;
   }
@@ -231,14 +239,16 @@ void Sensor::onClearFault(const protocol::Command& c) {
 }
 
 void Sensor::onHome(const protocol::Command& c, TimeNs now) {
-  if (state_ == State::kFault || state_ == State::kStopped) return node_.nack(c.opcode, c.counter, NackReason::kFaultActive);
+  if (state_ == State::kFault || state_ == State::kStopped || !configFileRefusal_.empty())
+    return node_.nack(c.opcode, c.counter, NackReason::kFaultActive);
   if (ports_.worker->busy() || !startHoming(now)) return node_.nack(c.opcode, c.counter, NackReason::kBusy);
   node_.ack(c, protocol::AckResult::kAck);
   active_ = ActiveCommand{c, WorkerJob::Kind::kHome, now};
 }
 
 NackReason Sensor::scanRefusal() const {
-  if (state_ == State::kFault || state_ == State::kStopped) return NackReason::kFaultActive;
+  if (state_ == State::kFault || state_ == State::kStopped || !configFileRefusal_.empty())
+    return NackReason::kFaultActive;
   if (ports_.worker->busy() || state_ != State::kIdle) return NackReason::kBusy;
   if (!calibration_) return NackReason::kNotCalibrated;
   if (!ports_.worker->homed()) return NackReason::kNotHomed;

@@ -105,6 +105,12 @@ class Sensor {
   const DaemonConfig& config() const { return cfg_; }
   bool calibrated() const { return calibration_.has_value(); }
   const std::string& calibrationRefusal() const { return calibrationRefusal_; }
+  // The configuration file was refused (alacsd runs on the built-in defaults): the sensor
+  // stays up and answers, CONFIG_INVALID is latched in its faults (CLEAR_FAULT keeps it),
+  // and HOME, LOCALIZE and SCAN_ALL are NACKed FAULT_ACTIVE, since the defaults need not
+  // match the slide. Call before start().
+  void refuseConfig(std::string reason);
+  const std::string& configFileRefusal() const { return configFileRefusal_; }
   uint32_t lastLatencyMs() const { return lastLatencyMs_; }
 
  private:
@@ -151,6 +157,7 @@ class Sensor {
   protocol::CanNode node_;
   std::optional<geometry::Calibration> calibration_;
   std::string calibrationRefusal_;
+  std::string configFileRefusal_;
   protocol::State state_ = protocol::State::kBoot;
   uint16_t faults_ = 0;
   std::optional<ActiveCommand> active_;

@@ -112,10 +112,19 @@ def test_camera_fault_after_retries(tmp_path, alacsd, fault, bit, reason):
 
 
 def test_bad_configuration_is_refused_with_the_key(tmp_path, alacsd):
-    import subprocess
-    bad = tmp_path / "bad.json"
-    bad.write_text('{"scan": {"stops": 40}}')
-    out = subprocess.run([str(alacsd), "--sim", "--config", str(bad)], capture_output=True, text=True, timeout=10)
-    assert out.returncode == 2
-    assert "scan.stops" in out.stderr
+    """A refused configuration file leaves alacsd up on its defaults (issue 19): the log
+    names the key, the status says CONFIG_INVALID, and HOME and LOCALIZE are NACKed
+    FAULT_ACTIVE (the defaults need not fit the slide, so nothing moves)."""
+    from sensor import Sensor
+    sensor = Sensor(alacsd, tmp_path, config={"scan": {"stops": 40}})
+    try:
+        st = sensor.status(lambda s: s["FaultConfigInvalid"] == 1, 30)
+        assert st is not None, "no status with FaultConfigInvalid"
+        sensor.localize()
+        ack = sensor.ack("LOCALIZE")
+        assert ack is not None and (str(ack["AckResult"]), str(ack["NackReason"])) == ("NACK", "FAULT_ACTIVE"), ack
+        assert sensor.proc.poll() is None, "alacsd ended"
+    finally:
+        assert sensor.stop() == 0, sensor.log
+    assert "scan.stops" in sensor.log, sensor.log
     _safe_outputs()

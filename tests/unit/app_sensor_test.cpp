@@ -323,6 +323,25 @@ TEST_CASE("Sensor: each NACK reason, with the frame that earns it", "[app][senso
     CHECK(r.lastStatus().calibrated == 0);
     CHECK(r.lastStatus().fault_not_calibrated == 1);
   }
+  SECTION("a refused configuration file: up on the defaults, CONFIG_INVALID, no motion") {
+    Rig r;
+    r.sensor->refuseConfig("alacsd.json: laser.max_on_ms: wrong type (a number is needed)");
+    r.boot();
+    CHECK(r.worker.submitted().empty());  // not even the boot's HOME
+    CHECK(r.answer(r.simple(Opcode::kHome)).reason == NackReason::kFaultActive);
+    CHECK(r.answer(r.localize(0, 0, 1100)).reason == NackReason::kFaultActive);
+    CHECK(r.answer(r.simple(Opcode::kScanAll)).reason == NackReason::kFaultActive);
+    CHECK(r.answer(r.simple(Opcode::kGetVersion)).result == protocol::AckResult::kAck);  // it answers
+    r.advanceMs(100);
+    CHECK(r.lastStatus().fault_config_invalid == 1);
+    // CLEAR_FAULT does not clear it: only a good file (and a restart) does.
+    CHECK(r.answer(r.simple(Opcode::kClearFault)).result == protocol::AckResult::kAck);
+    r.advanceMs(100);
+    CHECK(r.lastStatus().fault_config_invalid == 1);
+    CHECK(r.answer(r.localize(0, 0, 1100)).reason == NackReason::kFaultActive);
+    CHECK(r.worker.submitted().empty());
+    CHECK(r.sensor->configFileRefusal().find("laser.max_on_ms") != std::string::npos);
+  }
   SECTION("NOT_HOMED: homing failed") {
     Rig r;
     r.boot();

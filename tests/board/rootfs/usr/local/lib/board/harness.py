@@ -485,9 +485,9 @@ def corrupt_calibration_stays_up_nacks_and_says_why() -> str:
 
 
 @test
-def corrupt_config_refused_with_the_key() -> str:
-    # docs/daemon.md: a bad configuration exits 2 naming the key (the service does not stay
-    # up on it: Restart=on-failure retries until StartLimitBurst).
+def corrupt_config_stays_up_nacks_and_says_why() -> str:
+    # docs/daemon.md: a refused configuration file leaves alacsd up on its built-in defaults,
+    # CONFIG_INVALID in its status, HOME and scans NACKed FAULT_ACTIVE, the key in the journal.
     path = "/etc/alacs/alacsd.json"
     good = open(path).read()
     cfg = json.loads(good)
@@ -496,23 +496,24 @@ def corrupt_config_refused_with_the_key() -> str:
     try:
         with open(path, "w") as f:
             json.dump(cfg, f)
-        sh("systemctl", "reset-failed", UNIT)
-        sh("systemctl", "restart", UNIT, timeout=180)
-        end = time.monotonic() + 60
-        while unit_prop("ExecMainStatus") != "2":
-            assert time.monotonic() < end, f"ExecMainStatus {unit_prop('ExecMainStatus')}"
-            time.sleep(0.2)
+        clean_restart()
+        st = wait_status(lambda s: s["FaultConfigInvalid"] == 1, 30)
+        assert st is not None, "no status with FaultConfigInvalid"
+        start = send("LOCALIZE", LocalizeMode="STOP_AND_GO", TargetId=1, RoughX=0, RoughY=0, RoughZ=1200)
+        ack = wait_ack("LOCALIZE", start)
+        assert ack is not None, "no ack to LOCALIZE"
+        assert (str(ack["AckResult"]), str(ack["NackReason"])) == ("NACK", "FAULT_ACTIVE"), ack
+        time.sleep(2)
+        assert unit_prop("ActiveState") == "active" and int(unit_prop("MainPID")) > 0
+        assert laser() == 0
         log = journal_since(cursor)
         assert "scan.stops" in log, log[-2000:]
-        assert laser() == 0
-        active = unit_prop("ActiveState")
         line = next(ln for ln in log.splitlines() if "scan.stops" in ln)
     finally:
         with open(path, "w") as f:
             f.write(good)
         clean_restart()
-    report("info", "corrupt_config_service_state", f"{active} (exit 2, restarted by Restart=on-failure): a bad config does not leave the service up")
-    return f"exit 2 naming the key; journal: {line.strip()[:160]}"
+    return f"active, Status FaultConfigInvalid=1, LOCALIZE NACK FAULT_ACTIVE; journal: {line.strip()[:160]}"
 
 
 @test
