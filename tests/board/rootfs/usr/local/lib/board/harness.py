@@ -496,8 +496,10 @@ def corrupt_config_stays_up_nacks_and_says_why() -> str:
     try:
         with open(path, "w") as f:
             json.dump(cfg, f)
-        clean_restart()
-        st = wait_status(lambda s: s["FaultConfigInvalid"] == 1, 30)
+        # Not clean_restart(): that waits for an idle, homed sensor, and this one must not home.
+        sh("systemctl", "reset-failed", UNIT)
+        sh("systemctl", "restart", UNIT, check=True, timeout=180)
+        st = wait_status(lambda s: s["FaultConfigInvalid"] == 1, 60)
         assert st is not None, "no status with FaultConfigInvalid"
         start = send("LOCALIZE", LocalizeMode="STOP_AND_GO", TargetId=1, RoughX=0, RoughY=0, RoughZ=1200)
         ack = wait_ack("LOCALIZE", start)
