@@ -25,13 +25,13 @@ double withinProbability(double x, double sigma3d) {
 // The chance that an object whose centre lies dMm from the rough position is the target:
 // under "the target" the distance follows the rough position's error (Maxwell, sigmaMm per
 // axis); under "another object" it is uniform in the ball of radius ballMm; `otherPrior`
-// is the prior share of the latter.
+// is the prior share of the latter. Both densities carry d² (the shell's area), which
+// cancels in their ratio and is left out of both.
 double targetProbability(double dMm, double sigmaMm, double ballMm, double otherPrior) {
   if (!(sigmaMm > 0.0) || !(otherPrior > 0.0)) return 1.0;
   const double ball = std::max(ballMm, dMm + 1.0);
-  const double logTarget = 0.5 * std::log(2.0 / M_PI) + 2.0 * std::log(std::max(dMm, 1e-3)) - 3.0 * std::log(sigmaMm) -
-                           0.5 * dMm * dMm / (sigmaMm * sigmaMm);
-  const double logOther = std::log(3.0) + 2.0 * std::log(std::max(dMm, 1e-3)) - 3.0 * std::log(ball);
+  const double logTarget = 0.5 * std::log(2.0 / M_PI) - 3.0 * std::log(sigmaMm) - 0.5 * dMm * dMm / (sigmaMm * sigmaMm);
+  const double logOther = std::log(3.0) - 3.0 * std::log(ball);
   const double a = std::log1p(-otherPrior) + logTarget;
   const double b = std::log(otherPrior) + logOther;
   return 1.0 / (1.0 + std::exp(std::clamp(b - a, -700.0, 700.0)));
@@ -305,7 +305,7 @@ Result<AppleEstimate> Localizer::estimateSingleLine(const ScanPlan& plan, const 
   // That geometry alone gives a few millimetres; what one line misses in practice is
   // larger: on the benchmark world the single-line estimate's error is 13-16 mm mean
   // (docs/evaluation.md, "Single line"), so its σ is never below that.
-  est.sigmaMm = std::max({kSingleLineSigmaMm, 0.5 * scan_.stopSpacingMm});
+  est.sigmaMm = std::max(kSingleLineSigmaMm, 0.5 * scan_.stopSpacingMm);
   est.centerSigmaMm = std::hypot(est.sigmaMm, scan_.priorRadiusSigmaMm);
   est.diameterSigmaMm = 2.0 * scan_.priorRadiusSigmaMm;
   est.linesUsed = 1;

@@ -63,9 +63,9 @@ def generator_version(sources: tuple[str, ...] = GENERATOR_SOURCES) -> str:
 
 
 def generate(twin: Path, out: Path, set_name: str, args: dict[str, str], total: int, desc: str,
-             quiet: bool = False) -> list[dict]:
+             quiet: bool = False, sources: tuple[str, ...] = GENERATOR_SOURCES) -> list[dict]:
     """A benchmark set, regenerated only when its arguments or the generator's sources changed."""
-    signature = {"set": set_name, **args, "generator": generator_version()}
+    signature = {"set": set_name, **args, "generator": generator_version(sources)}
     sig_file, index = out / "args.json", out / "set.jsonl"
     if sig_file.exists() and index.exists():
         if json.loads(sig_file.read_text()) == signature:

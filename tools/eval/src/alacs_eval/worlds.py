@@ -14,7 +14,6 @@ import dataclasses
 import json
 import math
 import multiprocessing
-import shutil
 import time
 from pathlib import Path
 from typing import Any
@@ -58,27 +57,10 @@ WORLD_SOURCES = ("edge/sim", "edge/replay", "tools/twin/generate.cpp", "tools/tw
                  "tools/twin/twin.h", "edge/geometry/calibration.cpp", "edge/geometry/calibration.h")
 
 
-def _generator_version() -> str:
-    return twin.generator_version(WORLD_SOURCES)
-
-
 def _generate(cfg: Config, world: str, set_name: str, count: int, total: int) -> list[dict]:
-    out = cfg.work / world / set_name
-    seed = WORLDS[world]["seed"]
-    signature = {"world": world, "set": set_name, "count": count, "seed": seed, "generator": _generator_version()}
-    sig_file, index = out / "args.json", out / "set.jsonl"
-    if sig_file.exists() and index.exists() and json.loads(sig_file.read_text()) == signature:
-        cases = [json.loads(line) for line in index.read_text().splitlines() if line.strip()]
-        if len(cases) == total:
-            return cases
-    if out.exists():
-        shutil.rmtree(out)
-    out.mkdir(parents=True)
-    cmd = [str(cfg.twin), "generate", "--set", set_name, "--world", world, "--out", str(out), "--count", str(count),
-           "--seed", str(seed), "--jobs", str(cfg.jobs)]
-    twin.run_lines(cmd, total, f"{world}: generating {set_name}", cfg.quiet)
-    sig_file.write_text(json.dumps(signature))
-    return [json.loads(line) for line in index.read_text().splitlines() if line.strip()]
+    args = {"world": world, "count": count, "seed": WORLDS[world]["seed"], "jobs": cfg.jobs}
+    return twin.generate(cfg.twin, cfg.work / world / set_name, set_name, args, total,
+                         f"{world}: generating {set_name}", cfg.quiet, sources=WORLD_SOURCES)
 
 
 def _saturated_share(scan: Scan, frame, truth: np.ndarray) -> float:
