@@ -2,8 +2,10 @@
 
 #include <Eigen/Geometry>
 #include <algorithm>
+#include <bit>
 #include <cmath>
 #include <cstdio>
+#include <random>
 
 #include "sim/truth.h"
 
@@ -318,6 +320,8 @@ struct HardSettings {
   double sunLux[2];
   double sunExposure[2];  // × the auto exposure, in sun (and direct light when fixedInDirect)
   bool fixedInDirect;
+  double lumpyShare;        // of the fruit (targets and neighbours) that are lumpy
+  double lumpAmplitude[2];  // their SimApple::lumpAmplitude
   uint64_t salt;
 };
 
@@ -339,6 +343,8 @@ constexpr HardSettings kHoldoutSettings{.sphere = {1.0, 1.0},
                                         .sunLux = {30000.0, 90000.0},
                                         .sunExposure = {1.6, 2.6},
                                         .fixedInDirect = true,
+                                        .lumpyShare = 0.4,
+                                        .lumpAmplitude = {0.02, 0.07},
                                         .salt = 0x7B0D5EEDULL};
 constexpr HardSettings kTuningHardSettings{.sphere = {0.97, 1.03},
                                            .oblate = {0.80, 0.97},
@@ -358,12 +364,26 @@ constexpr HardSettings kTuningHardSettings{.sphere = {0.97, 1.03},
                                            .sunLux = {25000.0, 70000.0},
                                            .sunExposure = {1.3, 2.2},
                                            .fixedInDirect = false,
+                                           .lumpyShare = 0.3,
+                                           .lumpAmplitude = {0.015, 0.05},
                                            .salt = 0x5EED4A4DULL};
 
 const HardSettings* hardSettings(World w) {
   if (w == World::kHoldout) return &kHoldoutSettings;
   if (w == World::kBenchmarkHard) return &kTuningHardSettings;
   return nullptr;
+}
+
+// Lumps from a stream of their own, keyed by what the case stream already drew for the
+// apple: the rest of the world is drawn as it was without them.
+void addLumps(const HardSettings& h, SimApple& a) {
+  const auto bits = [](double v) { return std::bit_cast<uint64_t>(v); };
+  std::mt19937_64 lumpRng(h.salt ^ bits(a.radiusMm) ^ (bits(a.aspect) * 0x9E3779B97F4A7C15ULL) ^
+                          (bits(a.skinRgb.x()) * 0xBF58476D1CE4E5B9ULL) ^ static_cast<uint64_t>(a.id));
+  std::uniform_real_distribution<double> unit(0.0, 1.0);
+  if (unit(lumpRng) >= h.lumpyShare) return;
+  a.lumpAmplitude = h.lumpAmplitude[0] + (h.lumpAmplitude[1] - h.lumpAmplitude[0]) * unit(lumpRng);
+  a.lumpSeed = lumpRng();
 }
 
 SimApple hardApple(const HardSettings& h, CaseRng& rng, int id, std::string* shape) {
@@ -378,6 +398,8 @@ SimApple hardApple(const HardSettings& h, CaseRng& rng, int id, std::string* sha
   a.stemAxis =
       Eigen::Vector3d(std::sin(tiltRad) * std::cos(spinRad), -std::cos(tiltRad), std::sin(tiltRad) * std::sin(spinRad));
   a.skinRgb = Eigen::Vector3d(rng.uniform(0.30, 0.60), rng.uniform(0.04, 0.12), rng.uniform(0.03, 0.08));
+  addLumps(h, a);
+  if (shape != nullptr && a.lumpAmplitude > 0.0) *shape += ", lumpy";
   return a;
 }
 
@@ -389,8 +411,9 @@ bool leafCutsApple(const SimLeaf& l, const std::vector<SimApple>& apples) {
   for (const auto& ap : apples) {
     if ((l.centerMm - ap.centerMm).norm() > appleBoundMm(ap) + 0.5 * l.lengthMm + 3.0) continue;
     const Eigen::Matrix3d toLocal = appleFrame(ap).transpose();
-    const Eigen::Vector3d inv(1.0 / (ap.radiusMm + 2.0), 1.0 / (ap.radiusMm + 2.0),
-                              1.0 / (ap.radiusMm * ap.aspect + 2.0));
+    const double grow = 1.0 + ap.lumpAmplitude;  // a lumpy apple's highest lump
+    const Eigen::Vector3d inv(1.0 / (ap.radiusMm * grow + 2.0), 1.0 / (ap.radiusMm * grow + 2.0),
+                              1.0 / (ap.radiusMm * ap.aspect * grow + 2.0));
     for (int i = -8; i <= 8; ++i) {
       const double u = 0.5 * l.lengthMm * i / 8.0;
       const double half = 0.5 * l.widthMm * (1.0 - (2.0 * u / l.lengthMm) * (2.0 * u / l.lengthMm));

@@ -50,7 +50,7 @@ struct OrchardCase {
   double occlusionShare = 0.0;    // measured share of the target hidden from the camera
   double slideCentreMm = 0.0;     // slide position whose plane passes through the target's centre
   double lux = 0.0;               // total illuminance of the condition
-  std::string shape;              // the target's: sphere, oblate or prolate
+  std::string shape;              // the target's: sphere, oblate or prolate (", lumpy" added)
   std::string description;
 };
 

@@ -36,6 +36,7 @@ SceneGeometry::SceneGeometry(const SimScene& scene) : scene_(scene) {
     objects_.push_back(o);
     appleToLocal_.push_back(appleFrame(a).transpose());
     appleInvAxes_.emplace_back(1.0 / a.radiusMm, 1.0 / a.radiusMm, 1.0 / (a.radiusMm * a.aspect));
+    appleShapes_.emplace_back(a);
   }
   for (size_t i = 0; i < scene.leaves.size(); ++i) {
     const auto& l = scene.leaves[i];
@@ -83,6 +84,15 @@ bool SceneGeometry::intersectObject(int object, const Eigen::Vector3d& origin, c
       const Eigen::Vector3d& inv = appleInvAxes_[i];
       const Eigen::Vector3d ol = (appleToLocal_[i] * (origin - a.centerMm)).cwiseProduct(inv);
       const Eigen::Vector3d dl = (appleToLocal_[i] * dir).cwiseProduct(inv);
+      const AppleShape& shape = appleShapes_[i];
+      if (shape.lumpy()) {
+        double t = 0.0;
+        if (!shape.intersectScaled(ol, dl, tMin, tMax, &t)) return false;
+        hit->t = t;
+        hit->normal = shape.normal(origin + t * dir);
+        if (hit->normal.dot(dir) > 0.0) hit->normal = -hit->normal;
+        break;
+      }
       const double qa = dl.squaredNorm();
       const double b = ol.dot(dl);
       const double c = ol.squaredNorm() - 1.0;

@@ -56,6 +56,7 @@ class SceneGeometry {
   std::vector<Eigen::Vector3d> leafSide_;  // normal × axis, per leaf
   std::vector<Eigen::Matrix3d> appleToLocal_;  // per apple: Rᵀ, then scaled by appleInvAxes_
   std::vector<Eigen::Vector3d> appleInvAxes_;  // 1/a, 1/a, 1/c
+  std::vector<AppleShape> appleShapes_;        // per apple: the lumpy ones are marched
 };
 
 }  // namespace alacs::sim

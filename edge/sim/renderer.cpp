@@ -109,7 +109,8 @@ Surface objectSurface(const SimScene& s, const Hit& hit, const Eigen::Vector3d& 
   switch (hit.kind) {
     case SurfaceKind::kApple: {
       const SimApple& a = s.apples[static_cast<size_t>(hit.index)];
-      const Eigen::Vector3d outward = appleNormal(a, p);
+      // A lumpy apple's outward normal is the hit's (seen from outside), already marched.
+      const Eigen::Vector3d outward = a.lumpAmplitude > 0.0 ? nrm : appleNormal(a, p);
       const double blush = skinBlushMask(a, outward);
       const double fine = 0.9 + 0.2 * fbm((p.x() + 0.7 * p.z()) / 3.0, p.y() / 3.0, 17 + static_cast<uint64_t>(a.id));
       surf.albedo = (blush * a.skinRgb + (1.0 - blush) * a.groundRgb) * fine;

@@ -6,6 +6,7 @@
 #include <cmath>
 #include <cstdio>
 #include <fstream>
+#include <random>
 
 #include "common/json_file.h"
 
@@ -29,6 +30,8 @@ Status SimScene::validate() const {
     if (!(a.blush >= 0.0 && a.blush <= 1.0)) return fieldError(f + ".blush", "must be in 0..1");
     if (!(a.blushAxis.norm() > 1e-6)) return fieldError(f + ".blush_axis", "must not be zero");
     if (!(a.aspect >= 0.5 && a.aspect <= 1.5)) return fieldError(f + ".aspect", "must be in 0.5..1.5");
+    if (!(a.lumpAmplitude >= 0.0 && a.lumpAmplitude <= 0.15))
+      return fieldError(f + ".lump_amplitude", "must be in 0..0.15");
     if (std::abs(a.stemAxis.norm() - 1.0) > 1e-6) return fieldError(f + ".stem_axis", "must be a unit vector");
     for (int c = 0; c < 3; ++c)
       if (!(a.skinRgb(c) >= 0.0 && a.skinRgb(c) <= 1.0 && a.groundRgb(c) >= 0.0 && a.groundRgb(c) <= 1.0))
@@ -155,7 +158,126 @@ Eigen::Matrix3d appleFrame(const SimApple& apple) {
   return r;
 }
 
+AppleShape::AppleShape(const SimApple& apple)
+    : center_(apple.centerMm),
+      frame_(appleFrame(apple)),
+      axes_(apple.radiusMm, apple.radiusMm, apple.radiusMm * apple.aspect),
+      amplitude_(apple.lumpAmplitude) {
+  if (!lumpy()) return;
+  // The pattern's own generator (not the scene's), so that a seed always means one shape.
+  std::mt19937_64 rng(apple.lumpSeed);
+  std::uniform_real_distribution<double> unit(0.0, 1.0);
+  ridgePhase_ = 2.0 * M_PI * unit(rng);
+  for (int k = 0; k < kBumps; ++k) {
+    const double z = 2.0 * unit(rng) - 1.0;
+    const double phi = 2.0 * M_PI * unit(rng);
+    const double rxy = std::sqrt(std::max(0.0, 1.0 - z * z));
+    bumpDir_[static_cast<size_t>(k)] = Eigen::Vector3d(rxy * std::cos(phi), rxy * std::sin(phi), z);
+    bumpSign_[static_cast<size_t>(k)] = (k % 2 == 0 ? 1.0 : -1.0) * (0.6 + 0.4 * unit(rng));
+  }
+}
+
+double AppleShape::radialFactor(const Eigen::Vector3d& w) const {
+  if (!lumpy()) return 1.0;
+  // Five ridges round the stem (z), strongest at the equator: cos(5φ)·sin²θ.
+  const double sin2 = std::max(0.0, 1.0 - w.z() * w.z());
+  const double phi = std::atan2(w.y(), w.x());
+  double h = 0.5 * std::cos(5.0 * phi + ridgePhase_) * sin2;
+  // Bumps and dents about 20° across: exp(κ(cos γ - 1)), κ = 10.
+  for (int k = 0; k < kBumps; ++k)
+    h += 0.5 * bumpSign_[static_cast<size_t>(k)] * std::exp(10.0 * (w.dot(bumpDir_[static_cast<size_t>(k)]) - 1.0));
+  return 1.0 + amplitude_ * std::tanh(h);  // |tanh| < 1 keeps the bound
+}
+
+Eigen::Vector3d AppleShape::toScaled(const Eigen::Vector3d& p) const {
+  return (frame_.transpose() * (p - center_)).cwiseQuotient(axes_);
+}
+
+Eigen::Vector3d AppleShape::fromScaled(const Eigen::Vector3d& u) const {
+  return center_ + frame_ * u.cwiseProduct(axes_);
+}
+
+Eigen::Vector3d AppleShape::normal(const Eigen::Vector3d& p) const {
+  const Eigen::Vector3d u = toScaled(p);
+  Eigen::Vector3d grad = u;  // the ellipsoid: ∇|u| ∝ u
+  if (lumpy()) {
+    // F(u) = |u| - radialFactor(û), by central differences (h is smooth; 1e-6 of the unit radius).
+    const auto f = [&](const Eigen::Vector3d& x) { return x.norm() - radialFactor(x.normalized()); };
+    constexpr double kStep = 1e-6;
+    for (int i = 0; i < 3; ++i) {
+      Eigen::Vector3d a = u;
+      Eigen::Vector3d b = u;
+      a(i) += kStep;
+      b(i) -= kStep;
+      grad(i) = (f(a) - f(b)) / (2.0 * kStep);
+    }
+  }
+  // p = c + R·S·u: ∇ₚF = R·S⁻¹·∇ᵤF.
+  return (frame_ * grad.cwiseQuotient(axes_)).normalized();
+}
+
+namespace {
+// Entry and exit of origin + t·dir through the sphere |u| = radius; false if it misses.
+bool sphereSpan(const Eigen::Vector3d& ol, const Eigen::Vector3d& dl, double radius, double* t0, double* t1) {
+  const double qa = dl.squaredNorm();
+  const double b = ol.dot(dl);
+  const double disc = b * b - qa * (ol.squaredNorm() - radius * radius);
+  if (disc < 0.0) return false;
+  const double s = std::sqrt(disc);
+  *t0 = (-b - s) / qa;
+  *t1 = (-b + s) / qa;
+  return true;
+}
+}  // namespace
+
+bool AppleShape::intersectScaled(const Eigen::Vector3d& ol, const Eigen::Vector3d& dl, double tMin, double tMax,
+                                 double* t) const {
+  double t0 = 0.0;
+  double t1 = 0.0;
+  if (!sphereSpan(ol, dl, 1.0 + amplitude_, &t0, &t1)) return false;
+  if (!lumpy()) {
+    *t = t0 > tMin ? t0 : t1;
+    return *t > tMin && *t < tMax;
+  }
+  // The first sign change of G(t) = |u(t)| - radialFactor(û(t)) between the bounding
+  // spheres, found by marching (32 steps over the span, finer than the pattern's 20°
+  // features at any distance) and refined by bisection.
+  const double lo = std::max(t0, tMin);
+  const double hi = std::min(t1, tMax);
+  if (!(lo < hi)) return false;
+  const auto g = [&](double s) {
+    const Eigen::Vector3d u = ol + s * dl;
+    const double n = u.norm();
+    return n < 1e-12 ? -1.0 : n - radialFactor(u / n);
+  };
+  constexpr int kSteps = 32;
+  double a = lo;
+  double ga = g(a);
+  for (int k = 1; k <= kSteps; ++k) {
+    double b = lo + (hi - lo) * k / kSteps;
+    const double gb = g(b);
+    if ((ga < 0.0) != (gb < 0.0)) {
+      for (int it = 0; it < 60; ++it) {
+        const double m = 0.5 * (a + b);
+        const double gm = g(m);
+        if ((gm < 0.0) == (ga < 0.0)) {
+          a = m;
+          ga = gm;
+        } else {
+          b = m;
+        }
+      }
+      *t = 0.5 * (a + b);
+      return *t > tMin && *t < tMax;
+    }
+    a = b;
+    ga = gb;
+  }
+  return false;
+}
+
 Eigen::Vector3d appleNormal(const SimApple& apple, const Eigen::Vector3d& p) {
+  if (apple.lumpAmplitude > 0.0) return AppleShape(apple).normal(p);
   const Eigen::Matrix3d r = appleFrame(apple);
   const Eigen::Vector3d l = r.transpose() * (p - apple.centerMm);
   const double a2 = apple.radiusMm * apple.radiusMm;
@@ -169,8 +291,9 @@ Eigen::Vector3d approachPoint(const SimApple& apple) {
   const Eigen::Matrix3d r = appleFrame(apple);
   const Eigen::Vector3d inv(1.0 / apple.radiusMm, 1.0 / apple.radiusMm, 1.0 / (apple.radiusMm * apple.aspect));
   const Eigen::Vector3d d = (r.transpose() * dir).cwiseProduct(inv);
-  // From the centre back along the sight line: |s·d| = 1.
-  return apple.centerMm - dir / d.norm();
+  // From the centre back along the sight line: |s·d| = radialFactor(-d̂) (1 on the ellipsoid).
+  const double rho = apple.lumpAmplitude > 0.0 ? AppleShape(apple).radialFactor(-d.normalized()) : 1.0;
+  return apple.centerMm - dir * rho / d.norm();
 }
 
 Eigen::Vector2d projectPx(const geometry::CameraIntrinsics& cam, const Eigen::Vector3d& p) {
@@ -276,6 +399,8 @@ void readApple(JsonObjectReader& r, SimApple& a) {
   vec3(r, "center_mm", a.centerMm);
   r.number("radius_mm", a.radiusMm);
   r.number("aspect", a.aspect);
+  r.number("lump_amplitude", a.lumpAmplitude);
+  r.unsignedInteger("lump_seed", a.lumpSeed);
   direction(r, "stem_axis", a.stemAxis);
   r.allow("approach_mm");  // written for people and the evaluation; derived, never read back
   vec3(r, "skin_rgb", a.skinRgb);
@@ -438,6 +563,8 @@ OrderedJson sceneToJson(const SimScene& s) {
                       {"center_mm", vec3Json(a.centerMm)},
                       {"radius_mm", a.radiusMm},
                       {"aspect", a.aspect},
+                      {"lump_amplitude", a.lumpAmplitude},
+                      {"lump_seed", a.lumpSeed},
                       {"stem_axis", vec3Json(a.stemAxis)},
                       {"approach_mm", vec3Json(approachPoint(a))},
                       {"skin_rgb", vec3Json(a.skinRgb)},

@@ -7,6 +7,7 @@
 #pragma once
 
 #include <Eigen/Core>
+#include <array>
 #include <cstdint>
 #include <optional>
 #include <string>
@@ -31,6 +32,42 @@ struct SimApple {
   Eigen::Vector3d blushAxis{-0.2, -0.4, -0.9};  // from the centre towards the middle of the blush
   double specular = 0.04;                       // wax cuticle: Fresnel reflectance at normal incidence
   double shininess = 80.0;                      // Blinn-Phong exponent of the highlight
+  // Irregular, lumpy fruit: in the frame where the ellipsoid is the unit sphere, the
+  // surface lies at distance 1 + lumpAmplitude·h(û) from the centre along û, h a smooth
+  // pattern (|h| < 1) of five ridges round the stem and a few bumps and dents drawn from
+  // lumpSeed (AppleShape). 0: the smooth ellipsoid.
+  double lumpAmplitude = 0.0;
+  uint64_t lumpSeed = 0;
+};
+
+// The surface of one apple, for intersecting and sampling it: the ellipsoid's frame and
+// axes and, for a lumpy apple, its pattern (built once from the seed, not per call).
+class AppleShape {
+ public:
+  explicit AppleShape(const SimApple& apple);
+  bool lumpy() const { return amplitude_ > 0.0; }
+  // 1 + lumpAmplitude·h(û) for a unit direction in the scaled frame.
+  double radialFactor(const Eigen::Vector3d& unitScaled) const;
+  // Scaled frame: u = S⁻¹Rᵀ(p - c); the surface is |u| = radialFactor(û).
+  Eigen::Vector3d toScaled(const Eigen::Vector3d& pointMm) const;
+  Eigen::Vector3d fromScaled(const Eigen::Vector3d& u) const;
+  // Outward unit normal at (or near) the world point.
+  Eigen::Vector3d normal(const Eigen::Vector3d& pointMm) const;
+  // The first crossing of the surface by origin + t·dir (scaled-frame origin and
+  // direction, t unchanged by the scaling) in (tMin, tMax).
+  bool intersectScaled(const Eigen::Vector3d& ol, const Eigen::Vector3d& dl, double tMin, double tMax, double* t) const;
+  // The bound of radialFactor: every surface point has |u| within [1 - a, 1 + a].
+  double amplitude() const { return amplitude_; }
+
+ private:
+  static constexpr int kBumps = 6;
+  Eigen::Vector3d center_;
+  Eigen::Matrix3d frame_;
+  Eigen::Vector3d axes_;
+  double amplitude_;
+  double ridgePhase_ = 0.0;
+  std::array<Eigen::Vector3d, kBumps> bumpDir_{};
+  std::array<double, kBumps> bumpSign_{};
 };
 
 // A leaf: a flat lens-shaped blade, two-sided. |b| <= w/2 · (1 - (2a/L)²) in its plane.
@@ -176,8 +213,10 @@ Eigen::Vector3d approachPoint(const SimApple& apple);
 Eigen::Matrix3d appleFrame(const SimApple& apple);
 // Outward unit normal of the apple's surface at (or near) `pointMm`.
 Eigen::Vector3d appleNormal(const SimApple& apple, const Eigen::Vector3d& pointMm);
-// Largest semi-axis (a bounding radius).
-inline double appleBoundMm(const SimApple& a) { return a.radiusMm * (a.aspect > 1.0 ? a.aspect : 1.0); }
+// Largest semi-axis, lumps included (a bounding radius).
+inline double appleBoundMm(const SimApple& a) {
+  return a.radiusMm * (a.aspect > 1.0 ? a.aspect : 1.0) * (1.0 + a.lumpAmplitude);
+}
 
 // Projects a camera-frame point with the Brown–Conrady model (OpenCV's), in double,
 // without OpenCV. Pixel centres at integers. The point must have z > 0.

@@ -78,6 +78,25 @@ uint8_t laserFlags(const SimScene& scene, const SceneGeometry& geo, const Eigen:
   return flags;
 }
 
+// The laser plane's cut of a lumpy apple along u0 + r·w (scaled frame, r in [0, rMax]):
+// the crossing of |u| = radialFactor(û), by bisection. NaN where u0 is not inside the cut
+// (a plane grazing the fruit's edge), which the row sampling leaves out.
+Eigen::Vector3d lumpyCut(const AppleShape& shape, const Eigen::Vector3d& u0, const Eigen::Vector3d& w, double rMax) {
+  const auto g = [&](double r) {
+    const Eigen::Vector3d u = u0 + r * w;
+    const double len = u.norm();
+    return len < 1e-12 ? -1.0 : len - shape.radialFactor(u / len);
+  };
+  if (!(g(0.0) < 0.0)) return Eigen::Vector3d::Constant(std::nan(""));
+  double a = 0.0;
+  double b = rMax;
+  for (int it = 0; it < 60; ++it) {
+    const double mid = 0.5 * (a + b);
+    (g(mid) < 0.0 ? a : b) = mid;
+  }
+  return shape.fromScaled(u0 + 0.5 * (a + b) * w);
+}
+
 }  // namespace
 
 std::vector<RowTruth> laserLineTruthAll(const SimScene& scene, const SimApple& apple, double slideMm) {
@@ -91,17 +110,21 @@ std::vector<RowTruth> laserLineTruthAll(const SimScene& scene, const SimApple& a
   const Eigen::Vector3d axes(apple.radiusMm, apple.radiusMm, apple.radiusMm * apple.aspect);
   const Eigen::Vector3d m = (frame.transpose() * n).cwiseProduct(axes);
   const double e = (d - n.dot(apple.centerMm)) / m.norm();
-  if (std::abs(e) >= 1.0) return rows;
+  const AppleShape shape(apple);
+  const double outer = 1.0 + shape.amplitude();
+  if (std::abs(e) >= outer) return rows;
   const Eigen::Vector3d mu = m.normalized();
   const Eigen::Vector3d u0 = e * mu;
-  const double rho = std::sqrt(1.0 - e * e);
   const Eigen::Vector3d e1 = mu.unitOrthogonal();
   const Eigen::Vector3d e2 = mu.cross(e1);
   auto circle = [&](double phi) -> Eigen::Vector3d {
-    const Eigen::Vector3d u = u0 + rho * (std::cos(phi) * e1 + std::sin(phi) * e2);
-    return apple.centerMm + frame * u.cwiseProduct(axes);
+    const Eigen::Vector3d w = std::cos(phi) * e1 + std::sin(phi) * e2;
+    if (!shape.lumpy()) return apple.centerMm + frame * (u0 + std::sqrt(1.0 - e * e) * w).cwiseProduct(axes);
+    // A lumpy apple: along each ray from u0 in the plane, where |u| = radialFactor(û).
+    return lumpyCut(shape, u0, w, std::sqrt(outer * outer - e * e));
   };
-  auto facesCamera = [&](const Eigen::Vector3d& p) { return appleNormal(apple, p).dot(-p) > 0.0; };
+  auto normalAt = [&](const Eigen::Vector3d& p) { return shape.lumpy() ? shape.normal(p) : appleNormal(apple, p); };
+  auto facesCamera = [&](const Eigen::Vector3d& p) { return normalAt(p).dot(-p) > 0.0; };
   std::vector<std::pair<int, double>> crossings;
   rowCrossings(scene.truth.camera, circle, facesCamera, 0.0, 2.0 * M_PI, 4096, true, &crossings);
   const SceneGeometry geo(scene);
@@ -115,7 +138,7 @@ std::vector<RowTruth> laserLineTruthAll(const SimScene& scene, const SimApple& a
     r.pointMm = circle(phi);
     r.column = projectPx(scene.truth.camera, r.pointMm).x();
     r.appleId = apple.id;
-    const Eigen::Vector3d normal = appleNormal(apple, r.pointMm);
+    const Eigen::Vector3d normal = normalAt(r.pointMm);
     r.flags = laserFlags(scene, geo, r.pointMm, normal, slideMm, SurfaceKind::kApple, appleIndex);
     if (r.column < -0.5 || r.column > scene.truth.camera.widthPx - 0.5) r.flags |= kTruthOutside;
     rows.push_back(r);
