@@ -61,25 +61,7 @@ step "private arm64 root for ${extra_packages[*]}"
 stamp=$extra/.complete
 if [[ ! -f $stamp ]]; then
   ((updated)) || "${sudo[@]}" apt-get update -q >/dev/null
-  rm -rf "$extra" && mkdir -p "$extra/debs"
-  # What apt would add to install them here = what the private root needs.
-  mapfile -t debs < <(apt-get install -s --no-install-recommends "${extra_packages[@]}" 2>/dev/null |
-    awk '$1 == "Inst" {print $2}' | grep ':arm64$')
-  if ((${#debs[@]} == 0)); then
-    fail "apt cannot resolve ${extra_packages[*]}"
-    finish
-  fi
-  echo "unpacking ${#debs[@]} packages: ${debs[*]}"
-  (cd "$extra/debs" && apt-get download -q "${debs[@]}" 2>&1 >/dev/null | grep -v "unsandboxed" >&2; exit "${PIPESTATUS[0]}") || { fail "apt-get download"; finish; }
-  for d in "$extra"/debs/*.deb; do dpkg-deb -x "$d" "$extra" || { fail "dpkg-deb -x $d"; finish; }; done
-  # A -dev symlink whose library is installed on the host (not unpacked here) dangles:
-  # point it at the host's copy. And no static archives: link what the board runs.
-  find "$extra/usr/lib" -name '*.a' -delete
-  while IFS= read -r link; do
-    target=/usr/lib/$triplet/$(readlink "$link")
-    [[ -e $target ]] && ln -sf "$target" "$link"
-  done < <(find "$extra/usr/lib" -xtype l)
-  touch "$stamp"
+  tests/aarch64/unpack_arm64.sh "$extra" "${extra_packages[@]}" || { fail "unpack ${extra_packages[*]}"; finish; }
 fi
 pass "private arm64 root ($extra)"
 # Some of those packages are not multiarch-clean: they put arm64 libraries in /usr/lib.

@@ -14,6 +14,8 @@
 # new kernel. Only stdout's last line is meant for callers; progress goes to stderr and
 # the full build log to a file whose path is printed when the build fails.
 set -euo pipefail
+# shellcheck source=tests/lib/cached_build.sh
+source "$(dirname "${BASH_SOURCE[0]}")/../lib/cached_build.sh"
 
 readonly kSourcePackage=linux-source-6.1
 readonly kSourceTarball=/usr/src/linux-source-6.1.tar.xz
@@ -74,49 +76,20 @@ main() {
             declare -f build_kernel
         } | sha256sum | cut -c1-16
     )
-    local root=${ALACS_CACHE:-${XDG_CACHE_HOME:-$HOME/.cache}/alacs}
-    mkdir -p "$root" || die "cannot create the cache directory $root"
-    root=$(cd "$root" && pwd -P)
-    local final=$root/board-kernel-$key
+    local root
+    root=$(cache_root "") || die "no cache directory"
+    cached_build "$root" "board-kernel-$key" Image publish_kernel build_kernel.sh ||
+        die "see the log above"
+}
 
-    # Fast path, no lock: $final only ever appears complete (rename below).
-    if [[ -f $final/Image ]]; then
-        echo "$final/Image"
-        return 0
-    fi
-    local lock_fd
-    exec {lock_fd}>"$root/board-kernel-$key.lock"
-    if ! flock -n "$lock_fd"; then
-        echo "build_kernel.sh: waiting for another build of $key to finish" >&2
-        flock "$lock_fd"
-    fi
-    if [[ -f $final/Image ]]; then
-        echo "$final/Image"
-        return 0
-    fi
-
-    local work
-    work=$(mktemp -d "$root/build.board-kernel-$key.XXXXXX")
-    # shellcheck disable=SC2064 # expand $work now: it is local to main.
-    trap "rm -rf '$work'" EXIT
-    local log=$root/board-kernel-$key.build.log
-    : >"$log"
-    echo "build_kernel.sh: building the board kernel $key from $kSourcePackage $version" \
+# cached_build's PRODUCE: $1 work directory, $2 log; publishes Image and config in $1/out.
+publish_kernel() {
+    local work=$1 log=$2
+    echo "build_kernel.sh: building the board kernel from $kSourcePackage" \
         "(first run on this machine: several minutes on 2 cores); log: $log" >&2
-    local start=$SECONDS
-    if ! build_kernel "$work" "$log" "$kFragment"; then
-        tail -n 30 "$log" >&2
-        die "kernel build failed; full log: $log"
-    fi
-    verify_config "$work/config" || die "full log: $log"
-
-    local stage=$work/out
-    mkdir "$stage"
-    mv "$work/Image" "$work/config" "$stage/"
-    printf '%s %s\nbuilt in %d s\n' "$kSourcePackage" "$version" $((SECONDS - start)) >"$stage/source"
-    mv -T "$stage" "$final"
-    echo "build_kernel.sh: built in $((SECONDS - start)) s: $final/Image" >&2
-    echo "$final/Image"
+    build_kernel "$work" "$log" "$kFragment" && verify_config "$work/config" &&
+        mv "$work/Image" "$work/config" "$work/out/" &&
+        printf '%s %s\n' "$kSourcePackage" "$(dpkg-query -W -f='${Version}' "$kSourcePackage")" >"$work/out/source"
 }
 
 main "$@"

@@ -19,6 +19,8 @@
 # Only stdout's last line is meant for callers; progress goes to stderr and the full
 # log to a file whose path is printed when the build fails.
 set -euo pipefail
+# shellcheck source=tests/lib/cached_build.sh
+source "$(dirname "${BASH_SOURCE[0]}")/../lib/cached_build.sh"
 
 here=$(cd "$(dirname "${BASH_SOURCE[0]}")" && pwd -P)
 readonly kSuite=bookworm
@@ -142,46 +144,18 @@ main() {
             declare -f stage2_init build_rootfs
         } | sha256sum | cut -c1-16
     )
-    local root=${ALACS_CACHE:-${XDG_CACHE_HOME:-$HOME/.cache}/alacs}
-    mkdir -p "$root" || die "cannot create the cache directory $root"
-    root=$(cd "$root" && pwd -P)
-    local final=$root/board-rootfs-$key
+    local root
+    root=$(cache_root "") || die "no cache directory"
+    cached_build "$root" "board-rootfs-$key" rootfs.img publish_rootfs build_rootfs.sh ||
+        die "see the log above"
+}
 
-    if [[ -f $final/rootfs.img ]]; then
-        echo "$final/rootfs.img"
-        return 0
-    fi
-    local lock_fd
-    exec {lock_fd}>"$root/board-rootfs-$key.lock"
-    if ! flock -n "$lock_fd"; then
-        echo "build_rootfs.sh: waiting for another build of $key to finish" >&2
-        flock "$lock_fd"
-    fi
-    if [[ -f $final/rootfs.img ]]; then
-        echo "$final/rootfs.img"
-        return 0
-    fi
-
-    local work
-    work=$(mktemp -d "$root/build.board-rootfs-$key.XXXXXX")
-    # shellcheck disable=SC2064 # expand $work now: it is local to main.
-    trap "rm -rf '$work'" EXIT
-    local log=$root/board-rootfs-$key.build.log
-    : >"$log"
-    echo "build_rootfs.sh: building the board root file system $key (debootstrap from" \
+# cached_build's PRODUCE: $1 work directory, $2 log; publishes rootfs.img in $1/out.
+publish_rootfs() {
+    local work=$1 log=$2
+    echo "build_rootfs.sh: building the board root file system (debootstrap from" \
         "$kMirror, second stage under TCG: tens of minutes on 2 cores); log: $log" >&2
-    local start=$SECONDS
-    if ! build_rootfs "$work" "$log"; then
-        tail -n 40 "$log" >&2
-        die "root file system build failed; full log: $log"
-    fi
-    local stage=$work/out
-    mkdir "$stage"
-    mv "$work/rootfs.img" "$stage/"
-    printf 'built in %d s\n' $((SECONDS - start)) >"$stage/source"
-    mv -T "$stage" "$final"
-    echo "build_rootfs.sh: built in $((SECONDS - start)) s: $final/rootfs.img" >&2
-    echo "$final/rootfs.img"
+    build_rootfs "$work" "$log" && mv "$work/rootfs.img" "$work/out/"
 }
 
 main "$@"

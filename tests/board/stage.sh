@@ -25,21 +25,8 @@ log() { echo "stage.sh: $*" >&2; }
 # The arm64 OpenCV imgcodecs/calib3d -dev packages, unpacked beside the host's (not
 # installed): the same private root as tests/aarch64/run.sh makes, and the same stamp, so
 # either script reuses the other's. See that script for why.
-if [[ ! -f $extra/.complete ]]; then
-  log "unpacking the arm64 OpenCV imgcodecs/calib3d -dev packages into $extra"
-  rm -rf "$extra" && mkdir -p "$extra/debs"
-  mapfile -t debs < <(apt-get install -s --no-install-recommends libopencv-calib3d-dev:arm64 libopencv-imgcodecs-dev:arm64 2>/dev/null |
-    awk '$1 == "Inst" {print $2}' | grep ':arm64$')
-  ((${#debs[@]})) || { log "apt cannot resolve the arm64 OpenCV packages (dpkg --add-architecture arm64; tests/aarch64/run.sh)"; exit 1; }
-  (cd "$extra/debs" && apt-get download -q "${debs[@]}" >/dev/null)
-  for d in "$extra"/debs/*.deb; do dpkg-deb -x "$d" "$extra"; done
-  find "$extra/usr/lib" -name '*.a' -delete
-  while IFS= read -r link; do
-    target=/usr/lib/$triplet/$(readlink "$link")
-    [[ -e $target ]] && ln -sf "$target" "$link"
-  done < <(find "$extra/usr/lib" -xtype l)
-  touch "$extra/.complete"
-fi
+[[ -f $extra/.complete ]] || log "unpacking the arm64 OpenCV imgcodecs/calib3d -dev packages into $extra"
+tests/aarch64/unpack_arm64.sh "$extra" libopencv-calib3d-dev:arm64 libopencv-imgcodecs-dev:arm64 >&2
 extra_libs="$extra/usr/lib/$triplet:$extra/usr/lib"
 
 launcher=()

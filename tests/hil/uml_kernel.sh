@@ -13,6 +13,8 @@
 # progress goes to stderr and the full build log to a file whose path is
 # printed when the build fails.
 set -euo pipefail
+# shellcheck source=tests/lib/cached_build.sh
+source "$(dirname "${BASH_SOURCE[0]}")/../lib/cached_build.sh"
 
 readonly kSourcePackage=linux-source-6.1
 readonly kSourceTarball=/usr/src/linux-source-6.1.tar.xz
@@ -95,53 +97,20 @@ main() {
             declare -f build_kernel
         } | sha256sum | cut -c1-16
     )
-    local root=${ALACS_CACHE:-${XDG_CACHE_HOME:-$HOME/.cache}/alacs}/uml
-    mkdir -p "$root" || die "cannot create the cache directory $root"
-    root=$(cd "$root" && pwd -P)
-    local final=$root/$key
+    local root
+    root=$(cache_root uml) || die "no cache directory"
+    cached_build "$root" "$key" linux publish_kernel uml_kernel.sh ||
+        die "see the log above"
+}
 
-    # Fast path, no lock: $final only ever appears complete (rename below).
-    if [[ -x $final/linux ]]; then
-        echo "$final/linux"
-        return 0
-    fi
-
-    local lock_fd
-    exec {lock_fd}>"$root/$key.lock"
-    if ! flock -n "$lock_fd"; then
-        echo "uml_kernel.sh: waiting for another build of $key to finish" >&2
-        flock "$lock_fd"
-    fi
-    # Another caller may have built it while we waited.
-    if [[ -x $final/linux ]]; then
-        echo "$final/linux"
-        return 0
-    fi
-
-    local work
-    work=$(mktemp -d "$root/build.$key.XXXXXX")
-    # shellcheck disable=SC2064 # expand $work now: it is local to main.
-    trap "rm -rf '$work'" EXIT
-    local log=$root/$key.build.log
-    : >"$log"
-    echo "uml_kernel.sh: building the UML kernel $key from $kSourcePackage" \
-        "$version (first run on this machine: 3-8 min on 2 cores); log: $log" >&2
-
-    local start=$SECONDS
-    if ! build_kernel "$work" "$log"; then
-        tail -n 30 "$log" >&2
-        die "kernel build failed; full log: $log"
-    fi
-    verify_config "$work/config" || die "full log: $log"
-
-    # Publish atomically: a directory rename within one filesystem.
-    local stage=$work/out
-    mkdir "$stage"
-    mv "$work/linux" "$work/config" "$stage/"
-    printf '%s %s\n' "$kSourcePackage" "$version" >"$stage/source"
-    mv -T "$stage" "$final"
-    echo "uml_kernel.sh: built in $((SECONDS - start)) s: $final/linux" >&2
-    echo "$final/linux"
+# cached_build's PRODUCE: $1 work directory, $2 log; publishes linux and config in $1/out.
+publish_kernel() {
+    local work=$1 log=$2
+    echo "uml_kernel.sh: building the UML kernel from $kSourcePackage" \
+        "(first run on this machine: 3-8 min on 2 cores); log: $log" >&2
+    build_kernel "$work" "$log" && verify_config "$work/config" &&
+        mv "$work/linux" "$work/config" "$work/out/" &&
+        printf '%s %s\n' "$kSourcePackage" "$(dpkg-query -W -f='${Version}' "$kSourcePackage")" >"$work/out/source"
 }
 
 main "$@"
