@@ -166,9 +166,11 @@ class Localizer {
   // which limit and by how much.
   Result<ScanPlan> plan(const Eigen::Vector3d& roughMm, double strokeMm, PlanRefusal* why = nullptr) const;
 
-  // Processes one frame taken at `slideMm`. Errors: those of LLE (bad frame or ROI).
+  // Processes one frame taken at `slideMm`. With `laserOff` (a frame of the same size and
+  // format, the laser off, at the same exposure; only the plan's ROI is read), its red is
+  // subtracted first (the ambient light). Errors: those of LLE (bad frame or ROI).
   Result<LineObservation> observe(const image::ImageView& frame, const ScanPlan& plan, double slideMm,
-                                  image::LleWorkspace& ws) const;
+                                  image::LleWorkspace& ws, const image::ImageView* laserOff = nullptr) const;
 
   // The second pass of an adaptive scan: the stops to add when the first pass's estimate
   // (`first`, or its error) rests on fewer than followUpMinLines lines or its diameter's σ

@@ -1,0 +1,101 @@
+#include "localize/exposure.h"
+
+#include <algorithm>
+#include <array>
+#include <cmath>
+
+namespace alacs::localize {
+
+namespace {
+int64_t roundUs(double us) { return static_cast<int64_t>(std::llround(us)); }
+}  // namespace
+
+Status MeteringParams::validate() const {
+  if (!(percentile >= 50.0 && percentile <= 100.0))
+    return {Error::kInvalidArgument, "metering.percentile must be in 50..100"};
+  if (targetDn < 1 || targetDn > 254) return {Error::kInvalidArgument, "metering.target_dn must be in 1..254"};
+  if (saturatedDn < 2 || saturatedDn > 255) return {Error::kInvalidArgument, "metering.saturated_dn must be in 2..255"};
+  if (targetDn >= saturatedDn)
+    return {Error::kInvalidArgument, "metering.target_dn must be below metering.saturated_dn"};
+  if (!(brightDnPerMs >= 1.0 && brightDnPerMs <= 1e6))
+    return {Error::kInvalidArgument, "metering.bright_dn_per_ms must be in 1..1e6"};
+  if (!(stepDown >= 1.5 && stepDown <= 64.0)) return {Error::kInvalidArgument, "metering.step_down must be in 1.5..64"};
+  if (maxFrames < 1 || maxFrames > 8) return {Error::kInvalidArgument, "metering.max_frames must be in 1..8"};
+  if (subtractAboveDn < 0 || subtractAboveDn > 255)
+    return {Error::kInvalidArgument, "metering.subtract_above_dn must be in 0..255"};
+  if (minExposureUs < 1 || minExposureUs > 1000000)
+    return {Error::kInvalidArgument, "metering.min_exposure_us must be in 1..1000000"};
+  return Status::ok();
+}
+
+Result<int> redPercentileDn(const image::ImageView& frame, const image::Roi& roi, double percentile) {
+  if (roi.empty() || roi.x < 0 || roi.y < 0 || roi.x + roi.width > frame.width || roi.y + roi.height > frame.height ||
+      frame.data == nullptr)
+    return Status(Error::kBadInput, "metering: the ROI is empty or leaves the frame");
+  std::array<uint64_t, 256> histogram{};
+  const int red = image::redOffset(frame.format);
+  for (int y = roi.y; y < roi.y + roi.height; ++y) {
+    const uint8_t* px = frame.row(y) + static_cast<size_t>(roi.x) * 3U + static_cast<size_t>(red);
+    for (int x = 0; x < roi.width; ++x) ++histogram[px[3 * x]];
+  }
+  const uint64_t n = static_cast<uint64_t>(roi.width) * static_cast<uint64_t>(roi.height);
+  // The smallest level that at least `percentile` % of the pixels do not exceed.
+  const auto rank = std::clamp<uint64_t>(
+      static_cast<uint64_t>(std::ceil(percentile / 100.0 * static_cast<double>(n))), 1, n);
+  uint64_t below = 0;
+  for (int v = 0; v < 256; ++v) {
+    below += histogram[static_cast<size_t>(v)];
+    if (below >= rank) return v;
+  }
+  return 255;
+}
+
+ExposureMeter::ExposureMeter(const MeteringParams& params, int64_t startExposureUs, int64_t maxExposureUs)
+    : p_(params),
+      startUs_(std::max<int64_t>(1, startExposureUs)),
+      maxUs_(maxExposureUs > 0 ? maxExposureUs : startUs_),
+      nextUs_(params.enabled ? startUs_ : 0) {
+  decision_.exposureUs = startUs_;
+  // A shortest exposure above the longest is the longest.
+  p_.minExposureUs = std::min(p_.minExposureUs, maxUs_);
+}
+
+Status ExposureMeter::add(const image::ImageView& frame, const image::Roi& roi, int64_t exposureUs) {
+  if (nextUs_ == 0) return {Error::kInvalidArgument, "metering is over"};
+  if (exposureUs <= 0) return {Error::kBadInput, "metering: the frame's exposure must be positive"};
+  Result<int> level = redPercentileDn(frame, roi, p_.percentile);
+  if (!level) return level.status();
+  MeteringDecision& d = decision_;
+  if (d.frames == 0) firstUs_ = exposureUs;
+  ++d.frames;
+  d.meteredDn = *level;
+  d.meteredUs = exposureUs;
+  const auto us = static_cast<double>(exposureUs);
+  if (*level >= p_.saturatedDn) {
+    // Clipped: the level is at least what was read. Ask again, shorter, while frames and
+    // the shortest exposure allow; else guess it one step further down and say so.
+    const int64_t shorter = std::max(p_.minExposureUs, roundUs(us / p_.stepDown));
+    d.saturated = true;
+    d.exposureUs = std::clamp(roundUs(us * p_.targetDn / (*level * p_.stepDown)), p_.minExposureUs, maxUs_);
+    d.ambientDn = p_.targetDn;
+    d.subtract = d.ambientDn > p_.subtractAboveDn;
+    nextUs_ = d.frames < p_.maxFrames && shorter < exposureUs ? shorter : 0;
+    return Status::ok();
+  }
+  d.saturated = false;
+  const bool bright = *level * 1000.0 / us >= p_.brightDnPerMs;
+  // Not bright: never longer than the first metering frame as taken (the start; a replayed
+  // camera reports the exposure it recorded, so a replay decides as the scan did).
+  const int64_t longest = bright ? maxUs_ : std::min(maxUs_, firstUs_);
+  int64_t chosen = std::clamp(roundUs(us * p_.targetDn / std::max(1, *level)), std::min(p_.minExposureUs, longest), longest);
+  // Within 10 % of the metered exposure: keep it, so that the metering frame can serve as
+  // the laser-off frame (one exposure less).
+  if (std::abs(static_cast<double>(chosen) - us) <= 0.1 * us && exposureUs <= longest) chosen = exposureUs;
+  d.exposureUs = chosen;
+  d.ambientDn = static_cast<int>(std::lround(*level * static_cast<double>(chosen) / us));
+  d.subtract = d.ambientDn > p_.subtractAboveDn;
+  nextUs_ = 0;
+  return Status::ok();
+}
+
+}  // namespace alacs::localize

@@ -1,0 +1,181 @@
+// Metering the laser frames' exposure from laser-off frames (localize/exposure.h).
+#include <catch2/catch.hpp>
+
+#include <cstdint>
+#include <vector>
+
+#include "localize/exposure.h"
+
+using namespace alacs;
+
+namespace {
+
+// A BGR frame whose red is `red` inside `roi` and `outside` elsewhere.
+struct Frame {
+  Frame(int w, int h, const image::Roi& roi, uint8_t red, uint8_t outside = 0,
+        image::PixelFormat format = image::PixelFormat::kBgr888)
+      : pixels(static_cast<size_t>(w) * static_cast<size_t>(h) * 3U, 7) {
+    view = {pixels.data(), w, h, static_cast<size_t>(w) * 3U, format};
+    const int r = image::redOffset(format);
+    for (int y = 0; y < h; ++y)
+      for (int x = 0; x < w; ++x) {
+        const bool in = x >= roi.x && x < roi.x + roi.width && y >= roi.y && y < roi.y + roi.height;
+        pixels[(static_cast<size_t>(y) * static_cast<size_t>(w) + static_cast<size_t>(x)) * 3U + static_cast<size_t>(r)] =
+            in ? red : outside;
+      }
+  }
+  std::vector<uint8_t> pixels;
+  image::ImageView view;
+};
+
+const image::Roi kRoi{10, 5, 40, 20};
+
+}  // namespace
+
+TEST_CASE("The metered level is a percentile of the ROI's red only", "[exposure]") {
+  Frame f(64, 32, kRoi, 100, 255);
+  // 1 % of the ROI's pixels (8 of 800) brighter: the 99th percentile still reads 100.
+  for (int i = 0; i < 8; ++i) f.pixels[(static_cast<size_t>(kRoi.y + 3) * 64U + static_cast<size_t>(kRoi.x + i)) * 3U + 2U] = 240;
+  CHECK(*localize::redPercentileDn(f.view, kRoi, 99.0) == 100);
+  CHECK(*localize::redPercentileDn(f.view, kRoi, 100.0) == 240);
+  CHECK(*localize::redPercentileDn(f.view, kRoi, 50.0) == 100);
+  // The red byte is the format's: in RGB888 it is the first.
+  Frame rgb(64, 32, kRoi, 90, 0, image::PixelFormat::kRgb888);
+  CHECK(*localize::redPercentileDn(rgb.view, kRoi, 99.0) == 90);
+  CHECK_FALSE(localize::redPercentileDn(f.view, image::Roi{60, 0, 10, 10}, 99.0));
+  CHECK_FALSE(localize::redPercentileDn(f.view, image::Roi{0, 0, 0, 10}, 99.0));
+}
+
+TEST_CASE("Bright skin shortens the exposure to the target level", "[exposure]") {
+  localize::MeteringParams p;
+  p.targetDn = 128;
+  p.subtractAboveDn = 100;
+  localize::ExposureMeter meter(p, 3000);
+  REQUIRE(meter.nextMeteringUs() == 3000);
+  Frame f(64, 32, kRoi, 200);
+  REQUIRE(meter.add(f.view, kRoi, 3000));
+  CHECK(meter.nextMeteringUs() == 0);
+  const localize::MeteringDecision& d = meter.decision();
+  CHECK(d.exposureUs == 1920);  // 3000 · 128 / 200
+  CHECK(d.ambientDn == 128);
+  CHECK(d.subtract);            // 128 > 100
+  CHECK(d.frames == 1);
+  CHECK_FALSE(d.saturated);
+  CHECK_FALSE(meter.lastFrameAtDecision());  // the laser-off frame needs an exposure of its own
+  CHECK_FALSE(meter.add(f.view, kRoi, 3000));  // metering is over
+}
+
+TEST_CASE("A dim scene keeps the configured exposure and its metering frame serves as the laser-off frame",
+          "[exposure]") {
+  localize::MeteringParams p;
+  p.targetDn = 128;
+  p.subtractAboveDn = 40;
+  localize::ExposureMeter meter(p, 3000);
+  Frame f(64, 32, kRoi, 60);
+  REQUIRE(meter.add(f.view, kRoi, 3000));
+  CHECK(meter.decision().exposureUs == 3000);  // never longer than configured
+  CHECK(meter.decision().ambientDn == 60);
+  CHECK(meter.decision().subtract);
+  CHECK(meter.lastFrameAtDecision());
+  // Just above the target: within 10 % of the metered exposure, which is kept.
+  localize::ExposureMeter near(p, 3000);
+  Frame g(64, 32, kRoi, 135);
+  REQUIRE(near.add(g.view, kRoi, 3000));
+  CHECK(near.decision().exposureUs == 3000);
+  CHECK(near.lastFrameAtDecision());
+}
+
+TEST_CASE("A saturated metering frame steps down and meters again, a bounded number of times", "[exposure]") {
+  localize::MeteringParams p;
+  p.targetDn = 128;
+  p.stepDown = 4.0;
+  p.maxFrames = 3;
+  localize::ExposureMeter meter(p, 3000);
+  Frame clipped(64, 32, kRoi, 255);
+  REQUIRE(meter.add(clipped.view, kRoi, 3000));
+  REQUIRE(meter.nextMeteringUs() == 750);
+  CHECK(meter.decision().saturated);
+  Frame seen(64, 32, kRoi, 100);
+  REQUIRE(meter.add(seen.view, kRoi, 750));
+  CHECK(meter.nextMeteringUs() == 0);
+  CHECK(meter.decision().exposureUs == 960);  // 750 · 128 / 100
+  CHECK(meter.decision().frames == 2);
+  CHECK_FALSE(meter.decision().saturated);
+
+  // Clipped every time: three frames, then a guess one step below the last, flagged.
+  localize::ExposureMeter always(p, 3000);
+  int frames = 0;
+  while (const int64_t us = always.nextMeteringUs()) {
+    REQUIRE(always.add(clipped.view, kRoi, us));
+    ++frames;
+  }
+  CHECK(frames == 3);
+  CHECK(always.decision().saturated);
+  CHECK(always.decision().meteredUs == 188);           // 3000 / 4 / 4, rounded
+  CHECK(always.decision().exposureUs == 24);           // 188 · 128 / (255 · 4)
+  // ... and never below the shortest exposure.
+  p.minExposureUs = 200;
+  localize::ExposureMeter floor(p, 3000);
+  while (const int64_t us = floor.nextMeteringUs()) REQUIRE(floor.add(clipped.view, kRoi, us));
+  CHECK(floor.decision().exposureUs == 200);
+  CHECK(floor.decision().frames == 3);  // 3000, 750, 200 (then no shorter exposure is left)
+}
+
+TEST_CASE("The level is scaled by the exposure the frame reports, not the one asked for", "[exposure]") {
+  localize::MeteringParams p;
+  p.targetDn = 128;
+  localize::ExposureMeter meter(p, 3000);
+  Frame f(64, 32, kRoi, 200);
+  REQUIRE(meter.add(f.view, kRoi, 1000));  // a replayed frame recorded at 1000 us
+  CHECK(meter.decision().exposureUs == 640);  // 1000 · 128 / 200
+  CHECK(meter.decision().meteredUs == 1000);
+  CHECK_FALSE(meter.add(f.view, kRoi, 1000));
+}
+
+TEST_CASE("Bright ambient lengthens the exposure up to the target, dim ambient never", "[exposure]") {
+  localize::MeteringParams p;
+  p.targetDn = 220;
+  p.brightDnPerMs = 250.0;
+  // Sun: 100 DN in 100 us (1000 DN/ms): the laser is weak next to the skin; the exposure
+  // grows until the skin is at the target, at most to the longest allowed.
+  localize::ExposureMeter sun(p, 100, 3000);
+  Frame f(64, 32, kRoi, 100);
+  REQUIRE(sun.add(f.view, kRoi, 100));
+  CHECK(sun.decision().exposureUs == 220);
+  CHECK(sun.decision().ambientDn == 220);
+  localize::ExposureMeter capped(p, 100, 150);
+  REQUIRE(capped.add(f.view, kRoi, 100));
+  CHECK(capped.decision().exposureUs == 150);
+  // Lab: 100 DN in 1000 us (100 DN/ms): the laser may be as bright as the skin, and a
+  // longer exposure would clip it: the first frame's exposure stays.
+  localize::ExposureMeter lab(p, 1000, 3000);
+  REQUIRE(lab.add(f.view, kRoi, 1000));
+  CHECK(lab.decision().exposureUs == 1000);
+  CHECK(lab.lastFrameAtDecision());
+}
+
+TEST_CASE("Metering off asks for no frame and keeps the configured exposure", "[exposure]") {
+  localize::MeteringParams p;
+  p.enabled = false;
+  localize::ExposureMeter meter(p, 2500);
+  CHECK(meter.nextMeteringUs() == 0);
+  CHECK(meter.decision().exposureUs == 2500);
+  CHECK_FALSE(meter.decision().subtract);
+  CHECK_FALSE(meter.lastFrameAtDecision());
+}
+
+TEST_CASE("Metering parameters are range-checked", "[exposure]") {
+  localize::MeteringParams p;
+  CHECK(p.validate());
+  p.targetDn = 250;  // not below saturatedDn
+  CHECK_FALSE(p.validate());
+  p = {};
+  p.stepDown = 1.0;
+  CHECK_FALSE(p.validate());
+  p = {};
+  p.maxFrames = 0;
+  CHECK_FALSE(p.validate());
+  p = {};
+  p.percentile = 20.0;
+  CHECK_FALSE(p.validate());
+}
