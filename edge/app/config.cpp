@@ -16,7 +16,7 @@ Status bad(const std::string& key, const std::string& what) {
 Status validateConfig(const DaemonConfig& c) {
   // The components' own checks (cross-field ones among them, e.g. scan.search_mm against
   // scan.gate_mm) name their keys; from a file they are bad input like any other.
-  for (const Status& s : {c.motion.validate(), c.scan.validate(), c.lle.validate()})
+  for (const Status& s : {c.motion.validate(), c.scan.validate(), c.lle.validate(), c.metering.validate()})
     if (!s) return {Error::kBadInput, "config: " + s.reason()};
   if (c.exposureUs * 2 > c.laserMaxOnMs * 1000)
     return bad("camera.exposure_us", "must be at most half of laser.max_on_ms");
@@ -86,6 +86,18 @@ Status configFromJson(const Json& json, DaemonConfig& c) {
     l->integer("noise_gamma", c.lle.noiseGamma, Need::kOptional, 1, 1000);
     l->finish();
   }
+  if (auto m = root.object("metering")) {
+    m->flag("enabled", c.metering.enabled);
+    m->number("percentile", c.metering.percentile, Need::kOptional, 50, 100);
+    m->integer("target_dn", c.metering.targetDn, Need::kOptional, 1, 254);
+    m->number("bright_dn_per_ms", c.metering.brightDnPerMs, Need::kOptional, 1, 1e6);
+    m->integer("saturated_dn", c.metering.saturatedDn, Need::kOptional, 2, 255);
+    m->number("step_down", c.metering.stepDown, Need::kOptional, 1.5, 64);
+    m->integer("max_frames", c.metering.maxFrames, Need::kOptional, 1, 8);
+    m->integer("subtract_above_dn", c.metering.subtractAboveDn, Need::kOptional, 0, 255);
+    m->integer("min_exposure_us", c.metering.minExposureUs, Need::kOptional, 1, 1000000);
+    m->finish();
+  }
   if (auto cam = root.object("camera")) {
     cam->integer("exposure_us", c.exposureUs, Need::kOptional, 10, 500000);
     cam->integer("frame_timeout_ms", c.frameTimeoutMs, Need::kOptional, 10, 60000);
@@ -141,6 +153,15 @@ OrderedJson configToJson(const DaemonConfig& c) {
               {"brce_threshold", c.lle.brceThreshold},
               {"noise_theta", c.lle.noiseTheta},
               {"noise_gamma", c.lle.noiseGamma}};
+  j["metering"] = {{"enabled", c.metering.enabled},
+                   {"percentile", c.metering.percentile},
+                   {"target_dn", c.metering.targetDn},
+                   {"bright_dn_per_ms", c.metering.brightDnPerMs},
+                   {"saturated_dn", c.metering.saturatedDn},
+                   {"step_down", c.metering.stepDown},
+                   {"max_frames", c.metering.maxFrames},
+                   {"subtract_above_dn", c.metering.subtractAboveDn},
+                   {"min_exposure_us", c.metering.minExposureUs}};
   j["camera"] = {{"exposure_us", c.exposureUs},
                  {"frame_timeout_ms", c.frameTimeoutMs},
                  {"retries", c.frameRetries},

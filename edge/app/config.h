@@ -9,6 +9,7 @@
 #include "common/json_file.h"
 #include "common/result.h"
 #include "image/lle.h"
+#include "localize/exposure.h"
 #include "localize/localizer.h"
 #include "motion/trapezoid.h"
 #include "ports/digital_io.h"
@@ -26,6 +27,7 @@ struct DaemonConfig {
   motion::SlideLimits motion;
   localize::ScanParams scan;
   image::LleParams lle;
+  localize::MeteringParams metering;    // the laser frames' exposure from laser-off frames
   int realtimePriority = 0;             // SCHED_FIFO priority of the step-timing thread; 0: none
   int exposureUs = 3000;
   int laserMaxOnMs = 250;               // the laser is forced off (and a fault raised) beyond this

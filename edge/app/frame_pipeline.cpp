@@ -44,6 +44,41 @@ void FramePipeline::begin(const localize::Localizer& localizer, const localize::
   results_.clear();
 }
 
+namespace {
+// Copies the rows and columns of `roi` (3 bytes a pixel) from `frame` into `to`, a buffer
+// of the frame's geometry.
+void copyRoi(const image::ImageView& frame, const image::Roi& roi, uint8_t* to) {
+  for (int y = roi.y; y < roi.y + roi.height; ++y) {
+    const size_t off = static_cast<size_t>(y) * frame.strideBytes + static_cast<size_t>(roi.x) * 3U;
+    std::memcpy(to + off, frame.data + off, static_cast<size_t>(roi.width) * 3U);
+  }
+}
+}  // namespace
+
+void FramePipeline::setLaserOff(const image::ImageView& frame, const image::Roi& roi) {
+  (void)finish();
+  std::lock_guard<std::mutex> lock(mu_);
+  const size_t bytes = frame.strideBytes * static_cast<size_t>(frame.height);
+  if (laserOffBuffer_.bytes() != bytes) laserOffBuffer_.reset(bytes);
+  laserOffBuffer_.dropPages();
+  copyRoi(frame, roi, laserOffBuffer_.data());
+  image::ImageView v = frame;
+  v.data = laserOffBuffer_.data();
+  laserOff_ = v;
+}
+
+void FramePipeline::clearLaserOff() {
+  (void)finish();
+  std::lock_guard<std::mutex> lock(mu_);
+  laserOff_.reset();
+  laserOffBuffer_.dropPages();
+}
+
+bool FramePipeline::hasLaserOff() const {
+  std::lock_guard<std::mutex> lock(mu_);
+  return laserOff_.has_value();
+}
+
 void FramePipeline::push(const image::ImageView& frame, double slideMm) {
   std::unique_lock<std::mutex> lock(mu_);
   cv_.wait(lock, [&] { return !bufferBusy_[0] || !bufferBusy_[1]; });
@@ -52,11 +87,7 @@ void FramePipeline::push(const image::ImageView& frame, double slideMm) {
   if (buffers_[b].bytes() != bytes) buffers_[b].reset(bytes);  // once per frame size
   shape_ = frame;
   // Only the ROI rows and columns are read by the LLE: copy those.
-  const image::Roi& roi = plan_.roi;
-  for (int y = roi.y; y < roi.y + roi.height; ++y) {
-    const size_t off = static_cast<size_t>(y) * frame.strideBytes + static_cast<size_t>(roi.x) * 3U;
-    std::memcpy(buffers_[b].data() + off, frame.data + off, static_cast<size_t>(roi.width) * 3U);
-  }
+  copyRoi(frame, plan_.roi, buffers_[b].data());
   bufferBusy_[b] = true;
   lastBuffer_ = b;
   queue_.push_back({b, slideMm});
@@ -81,6 +112,7 @@ void FramePipeline::run() {
   while (true) {
     Task task;
     image::ImageView view;
+    std::optional<image::ImageView> laserOff;
     {
       std::unique_lock<std::mutex> lock(mu_);
       cv_.wait(lock, [&] { return quit_ || !queue_.empty(); });
@@ -89,9 +121,12 @@ void FramePipeline::run() {
       queue_.pop_front();
       view = shape_;
       view.data = buffers_[task.buffer].data();
+      laserOff = laserOff_;
     }
-    // The localizer and plan only change in begin(), which first waits for this work.
-    Result<localize::LineObservation> obs = localizer_->observe(view, plan_, task.slideMm, ws_);
+    // The localizer, plan and laser-off frame only change in begin() and setLaserOff(),
+    // which first wait for this work.
+    Result<localize::LineObservation> obs =
+        localizer_->observe(view, plan_, task.slideMm, ws_, laserOff ? &*laserOff : nullptr);
     std::lock_guard<std::mutex> lock(mu_);
     if (obs) {
       ALACS_LOG_DEBUG("scan", "frame at %.2f mm: %zu rows, %zu points", task.slideMm, obs->line.rows.size(),

@@ -11,6 +11,7 @@
 #include <deque>
 #include <memory>
 #include <mutex>
+#include <optional>
 #include <thread>
 #include <vector>
 
@@ -27,6 +28,13 @@ class FramePipeline {
 
   // Starts a scan with this localizer and plan; forgets the previous scan's results.
   void begin(const localize::Localizer& localizer, const localize::ScanPlan& plan);
+  // The laser-off frame every following frame's LLE subtracts (its `roi` copied: the
+  // caller may reuse its buffer at once), until clearLaserOff(); kept across begin(), since
+  // the camera is fixed and one ambient frame serves every stop of both passes. Waits for
+  // the frames already queued (they keep the previous setting).
+  void setLaserOff(const image::ImageView& frame, const image::Roi& roi);
+  void clearLaserOff();
+  bool hasLaserOff() const;
   // Queues `frame` (copied: the caller may reuse its buffer at once), taken at `slideMm`.
   void push(const image::ImageView& frame, double slideMm);
   // Waits until every queued frame is processed; the observations in push order (frames
@@ -67,6 +75,8 @@ class FramePipeline {
     size_t bytes_ = 0;
   };
   Mapping buffers_[2];
+  Mapping laserOffBuffer_;
+  std::optional<image::ImageView> laserOff_;  // a view of laserOffBuffer_ when set
   bool bufferBusy_[2] = {false, false};
   size_t lastBuffer_ = 0;
   image::ImageView shape_;  // size and format of the frames of this scan

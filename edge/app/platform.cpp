@@ -191,6 +191,7 @@ WorkerDeps workerDepsFor(const DaemonConfig& cfg, Platform& platform, const Cloc
   deps.realtimePriority = cfg.realtimePriority;
   deps.capture.exposureUs = cfg.exposureUs;
   deps.capture.timeoutMs = cfg.frameTimeoutMs;
+  deps.metering = cfg.metering;
   deps.debugDir = debugDir;
   deps.frameSlideMm = platform.frameSlideMm();
   return deps;

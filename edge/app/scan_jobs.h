@@ -48,6 +48,12 @@ struct WorkerEvent {
   TimeNs processingTailNs = 0;  // image work left after the last frame (not overlapped with motion)
   int followUpStops = 0;         // localize: stops of the adaptive second pass (0: none taken)
   int firstPassLines = 0;        // localize, second pass taken: lines in the first pass's fit
+  // localize: the exposure metered from laser-off frames of the ROI (localize/exposure.h)
+  // and used for the laser frames (0: not metered), the laser-off frames it took (the
+  // metering frames and the subtracted one), and whether the LLE subtracted a laser-off frame.
+  int64_t exposureUs = 0;
+  int laserOffFrames = 0;
+  bool laserOffSubtracted = false;
   // A continuous scan's result is posted as soon as it is known, while the slide still
   // brakes past the last stop; if that braking then ends badly (limit switch, I/O error,
   // STOP), a second event of the same job follows with this set: the result stands, only

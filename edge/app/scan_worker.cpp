@@ -427,6 +427,7 @@ WorkerEvent ScanWorker::doLocalize(const WorkerJob& job) {
     ev.faultBit = protocol::kFaultInternal;
     return ev;
   }
+  meterExposure(plan, capture, ev);
   const bool continuous = job.localize.mode == protocol::ScanMode::kContinuous;
   // One pass over some stops; the frames' image work overlaps the motion.
   TimeNs motionDone = 0;
@@ -483,6 +484,62 @@ WorkerEvent ScanWorker::doLocalize(const WorkerJob& job) {
   ev.resultReason = rc.reason;
   ev.status = Status::ok();
   return ev;
+}
+
+void ScanWorker::meterExposure(const localize::ScanPlan& plan, ports::CaptureRequest& capture, WorkerEvent& ev) {
+  localize::ExposureMeter meter(deps_.metering, capture.exposureUs);
+  pipeline_.clearLaserOff();
+  if (meter.nextMeteringUs() == 0) return;
+  // The camera is fixed and only the laser moves: the ambient of the ROI is the same at
+  // every stop, so it is metered once, before the first move. The laser is off (every job
+  // ends with it off, and these captures never switch it on).
+  setPhase(protocol::ProgressPhase::kExposing);
+  const auto laserOffFrame = [&](int64_t exposureUs) {
+    ports::CaptureRequest req = capture;
+    req.exposureUs = exposureUs;
+    frameReadSinceNs_.store(deps_.clock->now());
+    Result<ports::CapturedFrame> f = deps_.camera->capture(req, {});
+    frameReadSinceNs_.store(0);
+    markProgress();
+    if (f) ++ev.laserOffFrames;
+    return f;
+  };
+  std::optional<ports::CapturedFrame> last;
+  while (const int64_t us = meter.nextMeteringUs()) {
+    if (cancel_.load()) return;
+    Result<ports::CapturedFrame> f = laserOffFrame(us);
+    if (!f) {
+      ALACS_LOG_WARN("scan", "metering: no laser-off frame at %lld us (%s): the configured exposure, no subtraction",
+                     static_cast<long long>(us), f.status().toString().c_str());
+      return;
+    }
+    if (Status s = meter.add(f->view, plan.roi, f->info.exposureUs); !s) {
+      ALACS_LOG_WARN("scan", "metering: %s: the configured exposure, no subtraction", s.toString().c_str());
+      return;
+    }
+    last = *f;
+  }
+  const localize::MeteringDecision& d = meter.decision();
+  capture.exposureUs = d.exposureUs;
+  ev.exposureUs = d.exposureUs;
+  if (d.subtract) {
+    // The last metering frame is the laser-off frame when it was taken at the chosen
+    // exposure; else one more, at that exposure.
+    Result<ports::CapturedFrame> off =
+        meter.lastFrameAtDecision() ? Result<ports::CapturedFrame>(*last) : laserOffFrame(d.exposureUs);
+    if (off) {
+      pipeline_.setLaserOff(off->view, plan.roi);
+      ev.laserOffSubtracted = true;
+    } else {
+      ALACS_LOG_WARN("scan", "metering: no laser-off frame at %lld us (%s): no subtraction",
+                     static_cast<long long>(d.exposureUs), off.status().toString().c_str());
+    }
+  }
+  ALACS_LOG_INFO("scan",
+                 "metering: red p%.0f %d DN at %lld us%s -> exposure %lld us (red ~%d DN), %s, %d laser-off frames",
+                 deps_.metering.percentile, d.meteredDn, static_cast<long long>(d.meteredUs),
+                 d.saturated ? " (saturated)" : "", static_cast<long long>(d.exposureUs), d.ambientDn,
+                 ev.laserOffSubtracted ? "laser-off subtracted" : "no subtraction", ev.laserOffFrames);
 }
 
 Status ScanWorker::stopAndGo(const localize::ScanPlan& plan, const ports::CaptureRequest& capture, WorkerEvent& ev) {

@@ -15,13 +15,14 @@
 #include <vector>
 
 #include "app/frame_pipeline.h"
-#include "app/scan_jobs.h"
 #include "app/laser_guard.h"
+#include "app/scan_jobs.h"
+#include "localize/exposure.h"
 #include "localize/localizer.h"
-#include "survey/survey.h"
 #include "motion/step_runner.h"
 #include "ports/frame_source.h"
 #include "protocol/codec.h"
+#include "survey/survey.h"
 
 namespace alacs::app {
 
@@ -34,6 +35,9 @@ struct WorkerDeps {
   LaserGuard* laser = nullptr;
   ports::FrameSource* camera = nullptr;
   ports::CaptureRequest capture;
+  // Before a localize scan's stops, the exposure is metered from laser-off frames of the
+  // ROI (localize/exposure.h); `metering.enabled` false: the configured exposure as is.
+  localize::MeteringParams metering;
   int realtimePriority = 0;            // SCHED_FIFO priority of the worker (0: normal scheduling)
   int captureRetries = 2;              // further attempts after a failed frame, then a fault
   std::string debugDir;                // overlay PNGs go here when not empty
@@ -80,6 +84,11 @@ class ScanWorker final : public ScanJobs {
   // the counted positions at exposure start and end).
   Result<ports::CapturedFrame> exposeStop(size_t stop, const ports::CaptureRequest& capture, WorkerEvent& ev,
                                           double* midSlideMm = nullptr);
+  // Laser off, meters the exposure for `plan`'s laser frames into `capture.exposureUs` and
+  // hands the pipeline the laser-off frame to subtract, when the meter asks for one. Never
+  // fails the scan: a frame that cannot be had (a replayed scan without laser-off frames, a
+  // camera error) ends metering with what is known, logged.
+  void meterExposure(const localize::ScanPlan& plan, ports::CaptureRequest& capture, WorkerEvent& ev);
   Status moveTo(double mm, WorkerEvent& ev);
   Status moveOutcome(const motion::MoveReport& r, WorkerEvent& ev);
   // The two ways through a localize plan's stops; both hand frames to pipeline_.

@@ -24,14 +24,20 @@ ReplaySource::ReplaySource(std::string dir, ScanManifest m, const Clock& clock, 
       slideMm_(std::move(slideMm)),
       lastSlideMm_(std::numeric_limits<double>::quiet_NaN()) {}
 
-int ReplaySource::nearestFrame(double slideMm, bool laserOn) const {
+int ReplaySource::nearestFrame(double slideMm, bool laserOn, int64_t exposureUs) const {
   int best = -1;
+  double bestExposureErr = std::numeric_limits<double>::infinity();
   double bestErr = std::numeric_limits<double>::infinity();
   for (size_t i = 0; i < manifest_.frames.size(); ++i) {
     const FrameRecord& f = manifest_.frames[i];
     if (f.laserOn != laserOn) continue;
+    const double exposureErr =
+        !laserOn && exposureUs > 0 && f.exposureUs > 0
+            ? std::abs(std::log(static_cast<double>(f.exposureUs) / static_cast<double>(exposureUs)))
+            : 0.0;
     const double err = std::abs(f.slideMm - slideMm);
-    if (err < bestErr) {
+    if (exposureErr < bestExposureErr - 1e-9 || (exposureErr <= bestExposureErr + 1e-9 && err < bestErr)) {
+      bestExposureErr = exposureErr;
       bestErr = err;
       best = static_cast<int>(i);
     }
@@ -48,7 +54,7 @@ Result<ports::CapturedFrame> ReplaySource::doCapture(const ports::CaptureRequest
   const double position = slideMm_();
   // The recorded exposure is over at once: the laser goes off before the PNG is decoded.
   if (onExposureEnd) onExposureEnd();
-  const int index = nearestFrame(position, laserOn);
+  const int index = nearestFrame(position, laserOn, request.exposureUs);
   if (index < 0)
     return Status(Error::kNotFound, std::string("scan '") + dir_ + "' has no frame with the laser " + (laserOn ? "on" : "off"));
   const FrameRecord& rec = manifest_.frames[static_cast<size_t>(index)];

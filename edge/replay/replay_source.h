@@ -35,7 +35,10 @@ class ReplaySource final : public ports::FrameSource {
   const std::string& dir() const { return dir_; }
 
   // The frame a capture at `slideMm` with the laser `laserOn` would serve; -1: none.
-  int nearestFrame(double slideMm, bool laserOn) const;
+  // Laser-off frames (the ambient, the same at every slide position) are matched by
+  // exposure first (the recorded one nearest `exposureUs` in ratio), then by position;
+  // laser-on frames by position only.
+  int nearestFrame(double slideMm, bool laserOn, int64_t exposureUs = 0) const;
 
  private:
   ReplaySource(std::string dir, ScanManifest m, const Clock& clock, std::function<bool()> laserLevel,

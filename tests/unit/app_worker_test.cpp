@@ -36,10 +36,16 @@ class DarkCamera final : public ports::FrameSource {
   }
   const char* name() const override { return "dark"; }
   std::function<void()> onCapture;  // called on the worker thread as each capture begins
+  std::vector<int64_t> requestedUs;  // the exposure of each capture asked for
+  // The red of every pixel from now on (BGR888: the third byte), whatever the exposure.
+  void setRed(uint8_t red) {
+    for (size_t i = 2; i < frame_.size(); i += 3) frame_[i] = red;
+  }
 
  private:
   Result<ports::CapturedFrame> doCapture(const ports::CaptureRequest& r, const std::function<void()>& end) override {
     if (onCapture) onCapture();
+    requestedUs.push_back(r.exposureUs);
     const TimeNs startNs = clock_.now();
     sleeper_.sleepUntil(startNs + r.exposureUs * kNsPerUs);
     if (end) end();
@@ -251,13 +257,79 @@ TEST_CASE("The worker shows when the frame read in flight began, for the frame s
   REQUIRE(ev);
   CHECK(ev->status.isOk());
   REQUIRE(seen.size() >= 2);  // one read per stop (and per stop of a second pass, if any)
-  REQUIRE(seen.size() == ev->exposures.size());
+  // One read per stop, and the laser-off frames the exposure was metered on before.
+  REQUIRE(seen.size() == ev->exposures.size() + static_cast<size_t>(ev->laserOffFrames));
   for (const Seen& s : seen) {
     CHECK(s.sinceNs > 0);
     CHECK(s.sinceNs == s.nowNs);
   }
   CHECK(seen[1].nowNs > seen[0].nowNs);
   CHECK(worker.frameReadSinceNs() == 0);  // none in flight once the reads returned
+}
+
+TEST_CASE(
+    "Before the stops, the worker meters the exposure on laser-off frames and hands the pipeline the "
+    "laser-off frame to subtract",
+    "[app][worker]") {
+  Rig rig(2.0);
+  rig.deps.metering.targetDn = 100;
+  rig.deps.metering.subtractAboveDn = 50;
+  const localize::Localizer loc(sim::defaultScene().truth, image::LleParams{}, localize::ScanParams{});
+  app::ScanWorker worker(rig.deps, loc, rig.efd);
+  worker.submit(jobOf(app::WorkerJob::Kind::kHome));
+  std::optional<app::WorkerEvent> ev = rig.next(worker);
+  REQUIRE(ev);
+  REQUIRE(ev->status.isOk());
+  rig.camera.setRed(200);  // 200 DN at the configured 1000 us: 500 us brings it to 100
+  struct Seen {
+    bool laser;
+    size_t steps;  // STEP pulses so far
+  };
+  std::vector<Seen> seen;
+  rig.camera.requestedUs.clear();
+  rig.camera.onCapture = [&] { seen.push_back({rig.laserLine.level(), rig.step.steps().size()}); };
+  const size_t stepsBefore = rig.step.steps().size();
+  app::WorkerJob scan = jobOf(app::WorkerJob::Kind::kLocalize);
+  scan.localize.mode = protocol::ScanMode::kStopAndGo;
+  scan.plan.stopsMm = {10.0, 20.0};
+  scan.plan.roi = {0, 0, 32, 32};
+  worker.submit(scan);
+  ev = rig.next(worker);
+  REQUIRE(ev);
+  CHECK(ev->status.isOk());
+  CHECK(ev->exposureUs == 500);
+  CHECK(ev->laserOffFrames == 2);  // metered at 1000 us, then the laser-off frame at 500 us
+  CHECK(ev->laserOffSubtracted);
+  REQUIRE(seen.size() == 2 + ev->exposures.size());
+  REQUIRE(rig.camera.requestedUs.size() == seen.size());
+  // The laser-off frames come first, before the slide moves, with the laser off.
+  for (size_t i = 0; i < 2; ++i) {
+    CHECK_FALSE(seen[i].laser);
+    CHECK(seen[i].steps == stepsBefore);
+  }
+  CHECK(rig.camera.requestedUs[0] == 1000);
+  CHECK(rig.camera.requestedUs[1] == 500);
+  // Every stop at the metered exposure, the laser on only during its exposure.
+  for (size_t i = 2; i < seen.size(); ++i) {
+    CHECK(seen[i].laser);
+    CHECK(rig.camera.requestedUs[i] == 500);
+  }
+  for (const app::ExposureWindow& x : ev->exposures) CHECK(x.endNs - x.startNs == 500 * kNsPerUs);
+
+  // Metering off: the configured exposure, no laser-off frame.
+  rig.deps.metering.enabled = false;
+  app::ScanWorker plain(rig.deps, loc, rig.efd);
+  plain.submit(jobOf(app::WorkerJob::Kind::kHome));
+  REQUIRE(rig.next(plain));
+  seen.clear();
+  plain.submit(scan);
+  ev = rig.next(plain);
+  REQUIRE(ev);
+  CHECK(ev->exposureUs == 0);
+  CHECK(ev->laserOffFrames == 0);
+  CHECK_FALSE(ev->laserOffSubtracted);
+  CHECK(seen.size() == ev->exposures.size());
+  for (const Seen& s : seen) CHECK(s.laser);
 }
 
 TEST_CASE("One job waits behind the running one; cancel() ends both, and a job sent afterwards runs", "[app][worker]") {
