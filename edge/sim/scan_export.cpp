@@ -60,6 +60,9 @@ Status exportScan(const SimScene& scene, const std::shared_ptr<const RayTable>& 
   const cv::Rect full(0, 0, info.widthPx, info.heightPx);
   const cv::Rect region = options.renderRegion ? (*options.renderRegion & full) : full;
   if (region.empty()) return {Error::kInvalidArgument, "render region is outside the frame"};
+  if ((!options.frameIndices.empty() && options.frameIndices.size() != frames.size()) ||
+      (!options.rendered.empty() && options.rendered.size() != frames.size()))
+    return {Error::kInvalidArgument, "frameIndices and rendered hold one entry per frame, or none"};
   cv::Mat crop;
   for (size_t i = 0; i < frames.size(); ++i) {
     const ExportFrame& f = frames[i];
@@ -68,8 +71,15 @@ Status exportScan(const SimScene& scene, const std::shared_ptr<const RayTable>& 
     req.slideEndMm = f.slideEndMm;
     req.laserFraction = f.laserOn ? 1.0 : 0.0;
     req.exposureUs = f.exposureUs > 0 ? f.exposureUs : scene.sensor.exposureUs;
-    req.frameIndex = options.firstFrameIndex + i;
-    renderer.renderRegion(req, region, crop);
+    req.frameIndex = options.frameIndices.empty() ? options.firstFrameIndex + i : options.frameIndices[i];
+    const cv::Mat* rendered = options.rendered.empty() || options.rendered[i].empty() ? nullptr : &options.rendered[i];
+    if (rendered == nullptr) {
+      renderer.renderRegion(req, region, crop);
+    } else if (rendered->size() == region.size() && rendered->type() == CV_8UC3) {
+      crop = *rendered;
+    } else {
+      return {Error::kInvalidArgument, "a frame rendered beforehand is not of the render region"};
+    }
     replay::FrameRecord rec;
     rec.slideMm = 0.5 * (f.slideStartMm + f.slideEndMm);
     if (f.slideStartMm != f.slideEndMm) {

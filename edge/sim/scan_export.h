@@ -30,6 +30,12 @@ struct ExportOptions {
   std::optional<cv::Rect> renderRegion;
   bool writeTruth = true;
   uint64_t firstFrameIndex = 0;  // noise seed of the first frame
+  // Per frame, or empty: each frame's noise seed (firstFrameIndex + its position when empty).
+  std::vector<uint64_t> frameIndices;
+  // Per frame, or empty: frames already rendered (the render region, as
+  // Renderer::renderRegion gives it for this frame's request), written as they are; an
+  // empty Mat is rendered here.
+  std::vector<cv::Mat> rendered;
 };
 
 // Renders and writes `frames` into `dir`. `info` gives kind, target, rough position,

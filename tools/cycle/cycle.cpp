@@ -53,6 +53,9 @@ struct Options {
   double followUpDiameterSigmaMm = -1.0;  // -1: ScanParams' default
   int stops = 0;                          // 0: ScanParams' default
   double spacingMm = 0.0;                 // 0: ScanParams' default
+  int metering = 1;                       // the exposure metered from laser-off frames (the daemon's default)
+  std::string lighting = "overcast";
+  double exposureX = 1.0;  // the exposure: this × the auto exposure (at most 3000 us)
   std::string exportDir;
   bool replay = false;
   std::vector<std::string> dirs;
@@ -75,6 +78,7 @@ struct Trial {
   double centreErrMm = 0;
   bool ok = false;
   int followUpStops = 0;  // the adaptive second pass's stops (0: not taken)
+  int laserOffFrames = 0;  // metering and the subtracted frame
 };
 
 double median(std::vector<double> v) {
@@ -120,6 +124,7 @@ Trial timeJob(app::ScanWorker& worker, int efd, const Clock& clock, double parkM
   t.tailMs = static_cast<double>(ev.processingTailNs) / 1e6;
   t.ok = ev.status.isOk() && !ev.estimates.empty();
   t.followUpStops = ev.followUpStops;
+  t.laserOffFrames = ev.laserOffFrames;
   if (t.ok && truthCentreMm != nullptr && job.kind == app::WorkerJob::Kind::kLocalize)
     t.centreErrMm = (ev.estimates[0].centerMm - *truthCentreMm).norm();
   return t;
@@ -168,11 +173,11 @@ void scaleCamera(sim::SimScene& scene, int widthPx, int heightPx) {
 
 double caseDistanceMm(int c) { return 1000.0 + 100.0 * (c % 5); }
 
-Result<sim::OrchardCase> orchardCase(int c) {
+Result<sim::OrchardCase> orchardCase(int c, sim::LightingKind lighting = sim::LightingKind::kOvercast) {
   sim::CaseSpec spec;
   spec.distanceMm = caseDistanceMm(c);
   spec.occluded = true;
-  spec.lighting = sim::LightingKind::kOvercast;
+  spec.lighting = lighting;
   return sim::makeOrchardCase(spec, 1000 + static_cast<uint64_t>(c));
 }
 
@@ -204,16 +209,24 @@ int simulatedCycle(const Options& o) {
   motion::SlideLimits limits;  // the daemon's defaults: docs/daemon.md
   image::LleParams lle;
   localize::ScanParams scanParams = scanParamsOf(o);
-  std::printf("localize cycle: %d orchard cases (1.0-1.4 m, occluded, overcast), motor %.0f mm/s, %.0f mm/s², "
-              "%.0f steps/mm, slide parked -20/-5/+5/+20 mm from the scan's first stop\n",
-              o.cases, limits.maxSpeedMmPerS, limits.accelMmPerS2, limits.stepsPerMm);
+  Result<sim::LightingKind> lighting = sim::parseLighting(o.lighting);
+  if (!lighting) {
+    std::fprintf(stderr, "alacs_cycle: --lighting: %s\n", lighting.status().reason().c_str());
+    return 2;
+  }
+  std::printf(
+      "localize cycle: %d orchard cases (1.0-1.4 m, occluded, %s, exposure %.1f × auto), motor %.0f mm/s, "
+      "%.0f mm/s², %.0f steps/mm, slide parked -20/-5/+5/+20 mm from the scan's first stop, metering %s\n",
+      o.cases, o.lighting.c_str(), o.exposureX, limits.maxSpeedMmPerS, limits.accelMmPerS2, limits.stepsPerMm,
+      o.metering != 0 ? "on" : "off");
   const std::string modes = o.modes.empty() ? "both" : o.modes;
   for (const char* mode : {"stop-and-go", "continuous"}) {
     if (modes != "both" && modes != mode) continue;
     const bool continuous = std::strcmp(mode, "continuous") == 0;
     std::vector<Trial> trials;
+    std::vector<double> laserOffFrames;
     for (int c = 0; c < o.cases; ++c) {
-      Result<sim::OrchardCase> oc = orchardCase(c);
+      Result<sim::OrchardCase> oc = orchardCase(c, *lighting);
       if (!oc) continue;
       sim::SimScene scene = oc->scene;
       scaleCamera(scene, o.widthPx, o.heightPx);
@@ -225,7 +238,9 @@ int simulatedCycle(const Options& o) {
       app::LaserGuard laser(laserLine, clock, 250 * kNsPerMs);
       sim::SimCamera camera(scene, clock, sleeper, [&] { return laserLine.level(); }, [&] { return slide.positionMm(); });
       app::WorkerDeps deps = workerDeps(clock, sleeper, limits, slide, laser, camera);
-      deps.capture.exposureUs = std::min<int64_t>(sim::autoExposureUs(scene), 3000);
+      deps.capture.exposureUs =
+          std::min<int64_t>(std::llround(static_cast<double>(sim::autoExposureUs(scene)) * o.exposureX), 3000);
+      deps.metering.enabled = o.metering != 0;
       const int efd = ::eventfd(0, EFD_CLOEXEC);
       app::ScanWorker worker(deps, loc, efd);
       app::WorkerJob job;
@@ -243,9 +258,13 @@ int simulatedCycle(const Options& o) {
                     t.ok ? "found" : "not found", t.centreErrMm, plan->stopsMm.front(), plan->stopsMm.back(),
                     t.followUpStops);
       trials.push_back(t);
+      laserOffFrames.push_back(t.laserOffFrames);
       ::close(efd);
     }
     report(mode, trials, true);
+    if (!laserOffFrames.empty())
+      std::printf("    laser-off frames (metering and the subtracted one) per scan: median %.0f, max %.0f\n",
+                  median(laserOffFrames), *std::max_element(laserOffFrames.begin(), laserOffFrames.end()));
   }
   std::printf("  peak resident memory of this process (worker + simulator): %.1f MB\n", app::peakResidentMb());
   return 0;
@@ -410,6 +429,13 @@ int main(int argc, char** argv) {
   app.add_option("--follow-up-diameter-sigma-mm", o.followUpDiameterSigmaMm, "0: lines only (default: ScanParams')");
   app.add_option("--stops", o.stops, "stops of the first pass (default: ScanParams')");
   app.add_option("--spacing-mm", o.spacingMm, "spacing of the first pass's stops (default: ScanParams')");
+  app.add_option("--metering", o.metering, "1: meter the exposure from laser-off frames (the daemon's default), 0: off")
+      ->capture_default_str();
+  app.add_option("--lighting", o.lighting, "lab|overcast|direct|sun")->capture_default_str();
+  app.add_option("--exposure-x", o.exposureX,
+                 "the exposure: this × the auto exposure, at most 3000 us (the hard "
+                 "worlds fix it at 1.6-2.6 × in sun)")
+      ->capture_default_str();
   app.add_option("--export", o.exportDir, "write the orchard scans as scan directories into DIR");
   app.add_flag("--replay", o.replay, "run the worker on the scan directories DIR...");
   app.add_option("DIR", o.dirs, "scan directories (--replay)");

@@ -6,11 +6,16 @@
 //   --world benchmark|benchmark-hard|holdout: the world tuned on, its hard cases (also
 //              tuned on), or the second world that no parameter choice may look at
 //              (sim/orchard.h, docs/evaluation.md).
+//   --metering 0|1 (1), --meter-target-dn, --meter-subtract-above-dn: the daemon's exposure
+//              metering from laser-off frames (localize/exposure.h), which every scan
+//              follows: laser-off frames first, then the laser frames at the chosen exposure.
 #include <cmath>
 #include <cstdio>
 #include <sys/stat.h>
 
+#include "localize/exposure.h"
 #include "sim/orchard.h"
+#include "sim/renderer.h"
 #include "sim/scan_export.h"
 #include "twin.h"
 
@@ -35,6 +40,60 @@ struct CaseJob {
 bool exists(const std::string& path) {
   struct stat st {};
   return ::stat(path.c_str(), &st) == 0;
+}
+
+// Noise seeds of the laser-off frames, apart from the stops' (0, 1, ...), so that a scene
+// whose exposure metering leaves as it was renders its stops exactly as before.
+constexpr uint64_t kLaserOffFrameIndex = 1000;
+constexpr double kFrameIntervalS = 0.05;
+
+struct Metered {
+  std::vector<sim::ExportFrame> laserOff;  // in the order taken, before the stops
+  std::vector<cv::Mat> rendered;           // theirs
+  std::vector<uint64_t> frameIndices;      // their noise seeds
+  localize::MeteringDecision decision;
+};
+
+// The daemon's acquisition (app/scan_worker.cpp, meterExposure): laser-off frames of the
+// ROI from the scene's (fixed) exposure on, metered by the same ExposureMeter, which may
+// choose up to `maxExposureUs` (the daemon's configured exposure); then,
+// when it asks for subtraction and no metering frame was taken at the exposure it chose,
+// one more laser-off frame at that exposure. Rendered here (the meter needs their pixels)
+// and written as rendered.
+Metered meterScene(const sim::SimScene& scene, const std::shared_ptr<const sim::RayTable>& rays, const cv::Rect& region,
+                   const image::Roi& roi, double slideMm, const localize::MeteringParams& params,
+                   int64_t maxExposureUs) {
+  Metered out;
+  localize::ExposureMeter meter(params, scene.sensor.exposureUs, maxExposureUs);
+  sim::Renderer renderer(scene, rays);
+  // The meter reads the render region as a frame of its own: the ROI moves with it.
+  const image::Roi local{roi.x - region.x, roi.y - region.y, roi.width, roi.height};
+  const auto render = [&](int64_t exposureUs, const char* tag) {
+    sim::ExportFrame f;
+    f.slideStartMm = f.slideEndMm = slideMm;
+    f.laserOn = false;
+    f.exposureUs = exposureUs;
+    f.timestampS = kFrameIntervalS * static_cast<double>(out.laserOff.size());
+    f.tag = tag;
+    sim::FrameRequest req;
+    req.slideStartMm = req.slideEndMm = slideMm;
+    req.laserFraction = 0.0;
+    req.exposureUs = exposureUs;
+    req.frameIndex = kLaserOffFrameIndex + out.laserOff.size();
+    out.laserOff.push_back(f);
+    out.frameIndices.push_back(req.frameIndex);
+    out.rendered.emplace_back();
+    renderer.renderRegion(req, region, out.rendered.back());
+    const cv::Mat& m = out.rendered.back();
+    return image::ImageView{m.data, m.cols, m.rows, m.step[0], image::PixelFormat::kBgr888};
+  };
+  while (const int64_t us = meter.nextMeteringUs()) {
+    const image::ImageView v = render(us, "meter");
+    if (Status s = meter.add(v, local, us); !s) break;  // (cannot fail: the ROI is inside the region)
+  }
+  out.decision = meter.decision();
+  if (out.decision.subtract && !meter.lastFrameAtDecision()) (void)render(out.decision.exposureUs, "ambient");
+  return out;
 }
 
 }  // namespace
@@ -71,6 +130,17 @@ int generateMain(const Args& args) {
     return 2;
   }
   const bool resume = args.has("resume") && args.integer("resume", 1) != 0;
+  // The daemon's metering (metering.* in its config); its defaults unless overridden.
+  localize::MeteringParams metering;
+  metering.enabled = args.integer("metering", 1) != 0;
+  metering.targetDn = static_cast<int>(args.integer("meter-target-dn", metering.targetDn));
+  metering.subtractAboveDn = static_cast<int>(args.integer("meter-subtract-above-dn", metering.subtractAboveDn));
+  // The longest exposure the meter may choose: the daemon's configured one (camera.exposure_us).
+  const int64_t maxExposureUs = args.integer("max-exposure-us", 3000);
+  if (Status s = metering.validate(); !s || maxExposureUs < 1) {
+    std::fprintf(stderr, "alacs-twin generate: %s\n", s ? "--max-exposure-us must be positive" : s.reason().c_str());
+    return 2;
+  }
   if (occ != "0" && occ != "1" && occ != "both" && occ != "mix") {
     std::fprintf(stderr, "alacs-twin generate: --occluded must be 0, 1, both or mix\n");
     return 2;
@@ -154,31 +224,51 @@ int generateMain(const Args& args) {
         info.roughMm = oc->roughMm;
         info.roiPx = rp->plan.roi;
         info.note = oc->description;
-        std::vector<sim::ExportFrame> frames;
-        const double exposureS = static_cast<double>(scene.sensor.exposureUs) * 1e-6;
-        const double smearMm = motionMmS * exposureS;
+        // Laser-off frames first (metering, and the one to subtract), then the laser frames
+        // at the exposure chosen.
+        const Metered metered =
+            meterScene(scene, rays, rp->region, rp->plan.roi, rp->plan.stopsMm.front(), metering, maxExposureUs);
+        std::vector<sim::ExportFrame> frames = metered.laserOff;
+        std::vector<uint64_t> frameIndices = metered.frameIndices;
+        const int64_t exposureUs = metered.decision.exposureUs;
+        const double smearMm = motionMmS * static_cast<double>(exposureUs) * 1e-6;
+        double t = kFrameIntervalS * static_cast<double>(frames.size());
+        uint64_t index = 0;  // the stops' noise seeds, as without metering
+        const auto laserFrame = [&](double startMm, double endMm, const char* tag) {
+          sim::ExportFrame f;
+          f.slideStartMm = startMm;
+          f.slideEndMm = endMm;
+          f.laserOn = true;
+          f.exposureUs = exposureUs;
+          f.timestampS = t;
+          f.tag = tag;
+          frames.push_back(f);
+          frameIndices.push_back(index++);
+        };
         if (job.single) {
           // The laser somewhere across the target's central 60 %.
           sim::CaseRng rng(job.seed ^ 0x5EEDULL);
           const double off = rng.uniform(-0.6, 0.6) * target.radiusMm;
           const double s = scene.truth.laser.slideForPoint(target.centerMm + off * scene.truth.laser.planeNormal);
           info.stopsMm = {s};
-          frames.push_back({s - 0.5 * smearMm, s + 0.5 * smearMm, true, 0, 0.0, "stop"});
+          laserFrame(s - 0.5 * smearMm, s + 0.5 * smearMm, "stop");
         } else {
           info.stopsMm = rp->plan.stopsMm;
-          double t = 0.0;
           for (double s : rp->plan.stopsMm) {
-            frames.push_back({s - 0.5 * smearMm, s + 0.5 * smearMm, true, 0, t, "stop"});
+            laserFrame(s - 0.5 * smearMm, s + 0.5 * smearMm, "stop");
             t += 0.25;  // a stop every 250 ms (move, settle, expose)
           }
           // The paper's single-line experiment: the laser aimed at the marker on the
           // apple's face (the truth's approach point), not planned from the rough position.
           const double aimed = scene.truth.laser.slideForPoint(sim::approachPoint(target));
-          if (aimed >= 0.0 && aimed <= 200.0) frames.push_back({aimed, aimed, true, 0, t, "aimed"});
+          if (aimed >= 0.0 && aimed <= 200.0) laserFrame(aimed, aimed, "aimed");
         }
         if (!(resume && exists(dir + "/manifest.json"))) {
           sim::ExportOptions opt;
           opt.renderRegion = rp->region;
+          opt.frameIndices = frameIndices;
+          opt.rendered = metered.rendered;
+          opt.rendered.resize(frames.size());  // the laser frames are rendered by exportScan
           if (Status s = sim::exportScan(scene, rays, dir, info, frames, opt); !s)
             return Status(s.code(), job.name + ": " + s.reason());
         }
@@ -192,6 +282,9 @@ int generateMain(const Args& args) {
             {"lux", tools::jsonNumber(oc->lux, "%.0f")},
             {"occlusion_share", tools::jsonNumber(oc->occlusionShare, "%.4f")},
             {"exposure_us", static_cast<long long>(scene.sensor.exposureUs)},
+            {"laser_exposure_us", static_cast<long long>(exposureUs)},
+            {"laser_off_frames", metered.laserOff.size()},
+            {"laser_off_subtracted", metered.decision.subtract},
             {"bandpass_nm", tools::jsonNumber(scene.sensor.bandpassFwhmNm, "%.0f")},
             {"diameter_mm", tools::jsonNumber(2.0 * target.radiusMm, "%.2f")},
             {"world", sim::worldName(job.spec.world)},

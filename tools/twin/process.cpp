@@ -1,13 +1,16 @@
 // alacs-twin process: the pipeline on scan directories, exactly as the scan worker runs
-// it live: the localizer plans the stops from the scan's rough position, a ReplaySource
-// serves the frame recorded nearest each stop and its recorded position, the localizer
-// observes each frame and fuses the lines. One JSON line per scan on stdout:
+// it live: the localizer plans the stops from the scan's rough position, the exposure is
+// metered from the scan's laser-off frames (and a laser-off frame kept for subtraction
+// when the meter asks for it), a ReplaySource serves the frame recorded nearest each stop
+// and its recorded position, the localizer observes each frame and fuses the lines. One JSON line per scan on stdout:
 //   {"scan", "kind", "roi", "frames": [{"slide_mm", "valid", "rows"?, "curve"?}],
 //    "multi": estimate, "single": estimate (the stop nearest the rough position only)}
+#include <algorithm>
 #include <chrono>
 #include <cmath>
 #include <cstdio>
 
+#include "localize/exposure.h"
 #include "replay/replay_source.h"
 #include "twin.h"
 
@@ -36,6 +39,58 @@ tools::Json estimateJson(const Result<localize::AppleEstimate>& e) {
           {"lines_used", e->linesUsed},
           {"points_used", e->pointsUsed},
           {"sphere_fit", e->sphereFit}};
+}
+
+// What the scan worker does before the stops (app/scan_worker.cpp, meterExposure), on a
+// replayed scan: laser-off frames from the recorded ones, metered by the same
+// ExposureMeter, starting at the exposure of the scan's first laser-off frame, choosing at
+// most `maxExposureUs` (the daemon's configured exposure, as the scan was generated with). A scan
+// without laser-off frames (recorded before metering) is processed as recorded, without
+// subtraction, and says so.
+struct Metering {
+  localize::MeteringDecision decision;
+  int laserOffFrames = 0;
+  cv::Mat laserOff;  // the frame to subtract (full frame; its ROI valid), empty: none
+  std::string note;
+};
+
+Metering meterReplay(replay::ReplaySource& src, bool& laser, const image::Roi& roi,
+                     const localize::MeteringParams& params, int64_t maxExposureUs) {
+  Metering out;
+  const auto& frames = src.manifest().frames;
+  const auto firstOff =
+      std::find_if(frames.begin(), frames.end(), [](const replay::FrameRecord& f) { return !f.laserOn; });
+  if (firstOff == frames.end() || !params.enabled) {
+    out.note = params.enabled ? "no laser-off frame: not metered" : "metering off";
+    out.decision.exposureUs = 0;
+    return out;
+  }
+  localize::ExposureMeter meter(params, firstOff->exposureUs, maxExposureUs);
+  laser = false;
+  Result<ports::CapturedFrame> last = Status(Error::kNotFound, "none");
+  while (const int64_t us = meter.nextMeteringUs()) {
+    ports::CaptureRequest req;
+    req.exposureUs = us;
+    last = src.capture(req, {});
+    if (!last) break;
+    ++out.laserOffFrames;
+    if (Status s = meter.add(last->view, roi, last->info.exposureUs); !s) break;
+  }
+  out.decision = meter.decision();
+  if (out.decision.subtract) {
+    if (!meter.lastFrameAtDecision() || !last) {
+      ports::CaptureRequest req;
+      req.exposureUs = out.decision.exposureUs;
+      last = src.capture(req, {});
+      if (last) ++out.laserOffFrames;
+    }
+    if (last) {
+      const image::ImageView& v = last->view;
+      out.laserOff = cv::Mat(v.height, v.width, CV_8UC3, const_cast<uint8_t*>(v.data), v.strideBytes).clone();
+    }
+  }
+  laser = true;
+  return out;
 }
 
 }  // namespace
@@ -69,6 +124,17 @@ int processMain(const Args& args) {
     std::fprintf(stderr, "alacs-twin process: %s\n", s.reason().c_str());
     return 2;
   }
+  // The daemon's metering (metering.* in its config); its defaults unless overridden, as
+  // `alacs-twin generate` takes them.
+  localize::MeteringParams metering;
+  metering.enabled = args.integer("metering", 1) != 0;
+  metering.targetDn = static_cast<int>(args.integer("meter-target-dn", metering.targetDn));
+  metering.subtractAboveDn = static_cast<int>(args.integer("meter-subtract-above-dn", metering.subtractAboveDn));
+  const int64_t maxExposureUs = args.integer("max-exposure-us", 3000);
+  if (Status s = metering.validate(); !s || maxExposureUs < 1) {
+    std::fprintf(stderr, "alacs-twin process: %s\n", s ? "--max-exposure-us must be positive" : s.reason().c_str());
+    return 2;
+  }
   const bool wantRows = args.has("rows");
   const int jobs = static_cast<int>(args.integer("jobs", 2));
   std::vector<std::string> lines(dirs.size());
@@ -79,8 +145,9 @@ int processMain(const Args& args) {
         const std::string& dir = dirs[static_cast<size_t>(i)];
         VirtualClock clock;
         double slide = 0.0;
-        Result<std::unique_ptr<replay::ReplaySource>> src =
-            replay::ReplaySource::open(dir, clock, [] { return true; }, [&] { return slide; });
+        bool laser = true;
+        Result<std::unique_ptr<replay::ReplaySource>> src = replay::ReplaySource::open(
+            dir, clock, [&] { return laser; }, [&] { return slide; });
         tools::Json o;
         o["scan"] = dir;
         if (!src) {
@@ -115,6 +182,14 @@ int processMain(const Args& args) {
         const std::vector<double> stops = m.scan.stopsMm.empty() ? plan->stopsMm : m.scan.stopsMm;
         const double centreStop = cal.laser.slideForPoint(*m.scan.roughMm);
         o["roi"] = {plan->roi.x, plan->roi.y, plan->roi.width, plan->roi.height};
+        const Metering metered = meterReplay(**src, laser, plan->roi, metering, maxExposureUs);
+        o["exposure_us"] = metered.decision.exposureUs;
+        o["laser_off_frames"] = metered.laserOffFrames;
+        o["laser_off_subtracted"] = !metered.laserOff.empty();
+        if (!metered.note.empty()) o["metering"] = metered.note;
+        const image::ImageView laserOffView{metered.laserOff.data, metered.laserOff.cols, metered.laserOff.rows,
+                                            metered.laserOff.step[0], image::PixelFormat::kBgr888};
+        const image::ImageView* laserOff = metered.laserOff.empty() ? nullptr : &laserOffView;
         image::LleWorkspace ws;
         std::vector<localize::LineObservation> obs;
         double observeMs = 0.0;
@@ -122,7 +197,9 @@ int processMain(const Args& args) {
         tools::Json frameJson = tools::Json::array();
         auto run = [&](double at) -> Result<localize::LineObservation> {
           slide = at;
-          Result<ports::CapturedFrame> f = (*src)->capture({}, {});
+          ports::CaptureRequest req;
+          if (metered.decision.exposureUs > 0) req.exposureUs = metered.decision.exposureUs;
+          Result<ports::CapturedFrame> f = (*src)->capture(req, {});
           if (!f) {
             frameJson.push_back({{"slide_mm", tools::jsonNumber(at)}, {"valid", false}, {"error", f.status().reason()}});
             return f.status();
@@ -130,7 +207,7 @@ int processMain(const Args& args) {
           tools::Json fo;
           const double recorded = (*src)->lastSlideMm();
           const auto t0 = std::chrono::steady_clock::now();
-          Result<localize::LineObservation> ob = loc.observe(f->view, *plan, recorded, ws);
+          Result<localize::LineObservation> ob = loc.observe(f->view, *plan, recorded, ws, laserOff);
           observeMs += std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
           fo["slide_mm"] = tools::jsonNumber(recorded);
           fo["frame"] = (*src)->lastFrame();

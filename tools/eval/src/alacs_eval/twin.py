@@ -47,7 +47,8 @@ def run_lines(cmd: list[str], total: int, desc: str, quiet: bool = False) -> lis
 
 GENERATOR_SOURCES = ("edge/sim", "edge/replay", "tools/twin/generate.cpp", "tools/twin/calibration_scans.cpp",
                      "tools/twin/main.cpp", "edge/localize/localizer.cpp", "edge/localize/localizer.h",
-                     "edge/geometry/calibration.cpp", "edge/geometry/calibration.h", "edge/geometry/triangulation.cpp")
+                     "edge/geometry/calibration.cpp", "edge/geometry/calibration.h", "edge/geometry/triangulation.cpp",
+                     "edge/localize/exposure.cpp", "edge/localize/exposure.h")
 
 
 def generator_version(sources: tuple[str, ...] = GENERATOR_SOURCES) -> str:
