@@ -60,6 +60,13 @@ GateVerdict checkCalibrationQuality(const CalibrationQuality& q, const Calibrati
   return v;
 }
 
+GateVerdict judgeCalibration(const CalibrationQuality& quality, const std::vector<std::string>& failedStages,
+                             const CalibrationLimits& limits) {
+  GateVerdict v = checkCalibrationQuality(quality, limits);
+  v.failures.insert(v.failures.begin(), failedStages.begin(), failedStages.end());
+  return v;
+}
+
 Status CalibrationLimits::fromJson(const Json& json, CalibrationLimits& l) {
   JsonErrors errors("limits");
   JsonObjectReader root(errors, &json, "");

@@ -50,4 +50,11 @@ struct GateVerdict {
 
 GateVerdict checkCalibrationQuality(const CalibrationQuality& quality, const CalibrationLimits& limits = {});
 
+// The verdict on a calibration some of whose stages could not be computed (the total σ,
+// say): each failed stage's reason first, then every figure outside its limit, its
+// figures (NaN) named "not measured". A stage's failure is a refusal with its reason,
+// never an end before the gate speaks (docs/calibration.md, "The quality gate").
+GateVerdict judgeCalibration(const CalibrationQuality& quality, const std::vector<std::string>& failedStages,
+                             const CalibrationLimits& limits = {});
+
 }  // namespace alacs::geometry

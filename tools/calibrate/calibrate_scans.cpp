@@ -26,30 +26,18 @@ std::string fmt(const char* f, double a) {
 
 }  // namespace
 
-Result<geometry::TargetView> detectCheckerboard(const cv::Mat& bgr, const BoardSpec& board) {
+Result<geometry::TargetView> detectCheckerboard(const cv::Mat& bgr, const BoardSpec& board,
+                                                const geometry::CornerOptions& options) {
   if (bgr.empty() || bgr.type() != CV_8UC3) return Status(Error::kBadInput, "not an 8-bit BGR image");
   cv::Mat gray;
   cv::cvtColor(bgr, gray, cv::COLOR_BGR2GRAY);
-  const cv::Size pattern(board.squaresX - 1, board.squaresY - 1);
-  std::vector<cv::Point2f> corners;
-  bool found = false;
-  try {
-    // The sector-based detector: sub-pixel accurate by itself, robust to blur and
-    // uneven light (Duda & Frese 2018).
-    found = cv::findChessboardCornersSB(gray, pattern, corners,
-                                        cv::CALIB_CB_NORMALIZE_IMAGE | cv::CALIB_CB_EXHAUSTIVE | cv::CALIB_CB_ACCURACY);
-  } catch (const cv::Exception& e) {
-    return Status(Error::kBadInput, std::string("corner detection failed: ") + e.what());
-  }
-  if (!found || corners.size() != static_cast<size_t>(pattern.area()))
-    return Status(Error::kNotFound, "no " + std::to_string(pattern.width) + "x" + std::to_string(pattern.height) +
-                                        " checkerboard found");
+  const int cols = board.squaresX - 1;
+  const int rows = board.squaresY - 1;
+  Result<std::vector<Eigen::Vector2d>> corners = geometry::findCheckerboardCorners(gray, cols, rows, options);
+  if (!corners) return corners.status();
   geometry::TargetView view;
-  const std::vector<Eigen::Vector3d> object = geometry::checkerboardCorners(pattern.width, pattern.height, board.squareMm);
-  for (size_t i = 0; i < corners.size(); ++i) {
-    view.objectMm.push_back(object[i]);
-    view.imagePx.emplace_back(corners[i].x, corners[i].y);
-  }
+  view.objectMm = geometry::checkerboardCorners(cols, rows, board.squareMm);
+  view.imagePx = std::move(*corners);
   return view;
 }
 
@@ -72,9 +60,11 @@ Result<CalibrationRun> runCalibration(const CalibrationInput& in, const ImageLoa
       return Status(Error::kBadInput, names[i] + ": image is " + std::to_string(img->cols) + "x" +
                                           std::to_string(img->rows) + ", expected " + std::to_string(in.widthPx) +
                                           "x" + std::to_string(in.heightPx));
-    Result<geometry::TargetView> v = detectCheckerboard(*img, in.board);
+    Result<geometry::TargetView> v = detectCheckerboard(*img, in.board, in.corners);
     if (!v) {
+      run.skippedViews.push_back(names[i] + ": " + v.status().reason());
       run.log.push_back(names[i] + ": skipped (" + v.status().reason() + ")");
+      if (in.onSkipped) in.onSkipped(names[i], v.status().reason());
       continue;
     }
     viewOfName[i] = static_cast<int>(views.size());
@@ -83,7 +73,8 @@ Result<CalibrationRun> runCalibration(const CalibrationInput& in, const ImageLoa
   Result<geometry::CameraFit> cam = geometry::calibrateCamera(views, in.widthPx, in.heightPx, in.cameraOptions);
   if (!cam) return Status(cam.status().code(), "camera: " + cam.status().reason());
   run.camera = *cam;
-  run.log.push_back("camera: " + std::to_string(views.size()) + " views, reprojection RMS " +
+  run.log.push_back("camera: " + std::to_string(views.size()) +
+                    " views (corners: " + geometry::cornerMethodName(in.corners.method) + "), reprojection RMS " +
                     fmt("%.3f px", cam->rmsPx));
   {
     // The full covariance must agree with calib3d's σ on its diagonal; its off-diagonal
@@ -113,11 +104,13 @@ Result<CalibrationRun> runCalibration(const CalibrationInput& in, const ImageLoa
     const int vi = viewOfName[static_cast<size_t>(placementView[p])];
     if (vi < 0) {
       run.log.push_back(pl.name + ": skipped (no board in " + pl.boardImage + ")");
+      if (in.onSkipped) in.onSkipped(pl.name, "placement not used: no board in its laser-off frame " + pl.boardImage);
       continue;
     }
     Result<geometry::TargetPose> pose = geometry::locateTarget(cam->camera, views[static_cast<size_t>(vi)]);
     if (!pose) {
       run.log.push_back(pl.name + ": skipped (" + pose.status().reason() + ")");
+      if (in.onSkipped) in.onSkipped(pl.name, "placement not used: " + pose.status().reason());
       continue;
     }
     Result<cv::Mat> off = load(pl.boardImage);
@@ -141,6 +134,7 @@ Result<CalibrationRun> runCalibration(const CalibrationInput& in, const ImageLoa
     roi.height = std::clamp(static_cast<int>(std::ceil(v1)), 0, in.heightPx) - roi.y;
     if (roi.width < 16 || roi.height < 16) {
       run.log.push_back(pl.name + ": skipped (board outside the frame)");
+      if (in.onSkipped) in.onSkipped(pl.name, "placement not used: board outside the frame");
       continue;
     }
     const Eigen::Matrix3d rt = pose->rotation.transpose();

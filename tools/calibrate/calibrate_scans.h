@@ -16,6 +16,7 @@
 #include "geometry/calibration.h"
 #include "geometry/calibration_uncertainty.h"
 #include "geometry/camera_calibration.h"
+#include "geometry/checkerboard_corners.h"
 #include "geometry/laser_calibration.h"
 #include "image/lle.h"
 
@@ -54,9 +55,13 @@ struct CalibrationInput {
   std::vector<PlacementRef> placements;
   Eigen::Vector3d nominalSlideAxis{1.0, 0.0, 0.0};
   geometry::CameraFitOptions cameraOptions;
+  geometry::CornerOptions corners;  // the detector (default: chosen on the twin's tuning set)
   image::LleParams lle;
   double boardEdgeGuardMm = 8.0;  // laser pixels this close to the board's edge are not used
   int uncertaintyDraws = 0;       // 0: linearised total σ; > 0: Monte Carlo with this many draws
+  // Called as each view or placement is skipped, with why (also when a later stage then
+  // fails, so the person at the rig always learns which views to redo). May be empty.
+  std::function<void(const std::string& name, const std::string& why)> onSkipped;
 };
 
 struct CalibrationRun {
@@ -68,12 +73,14 @@ struct CalibrationRun {
   // returned, its total-σ figures NaN ("not measured"), so that the quality gate gives
   // its verdict with that among its reasons instead of the run ending before it.
   std::string uncertaintyError;
+  std::vector<std::string> skippedViews;  // "<view>: <why the board was not found>" (also to onSkipped)
   std::vector<std::string> log;       // what was used and what was skipped, and why
 };
 
 // Inner corners of the checkerboard in `bgr`, with their board coordinates (mm, z = 0).
-// Errors: kNotFound when the board is not found.
-Result<geometry::TargetView> detectCheckerboard(const cv::Mat& bgr, const BoardSpec& board);
+// Errors: kNotFound when the board is not found, with the reason for the technician.
+Result<geometry::TargetView> detectCheckerboard(const cv::Mat& bgr, const BoardSpec& board,
+                                                const geometry::CornerOptions& options = {});
 
 // Runs the whole calibration. Errors: kBadInput naming what is missing (too few views
 // with a board, no laser on the board, ...).

@@ -12,6 +12,7 @@
 #include "calibrate/calibrate_scans.h"
 #include "geometry/calibration.h"
 #include "geometry/calibration_gate.h"
+#include "geometry/checkerboard_corners.h"
 #include "replay/scan_dir.h"
 #include "tool_common/cli.h"
 
@@ -95,6 +96,11 @@ int main(int argc, char** argv) {
                  "total sigma by a Monte Carlo of N intrinsics draws (seeded) instead of the default +-1 sigma per "
                  "direction; for checking, N x slower")
       ->check(CLI::NonNegativeNumber);
+  std::string cornerMethod = geometry::cornerMethodName(geometry::kDefaultCornerMethod);
+  app.add_option("--corners", cornerMethod,
+                 "corner detector: sb, sb-accuracy, classic-subpix or sb-subpix (docs/calibration.md, measured "
+                 "against the twin's exact corners)")
+      ->capture_default_str();
   app.add_flag("--verbose", verbose, "where the total sigma comes from, per working distance");
   if (const int rc = tools::parseCommandLine(app, argc, argv); rc >= 0) return rc;
   if (!board.empty()) {
@@ -112,6 +118,11 @@ int main(int argc, char** argv) {
     input.nominalSlideAxis.normalize();
   }
   if (freeK3) input.cameraOptions.fixK3 = false;
+  if (Result<geometry::CornerMethod> m = geometry::parseCornerMethod(cornerMethod); m) {
+    input.corners.method = *m;
+  } else {
+    return tools::usageError(app, "--corners: " + m.status().reason());
+  }
   if (outPath.empty()) outPath = (fs::path(scansDir) / "calibration.json").string();
   geometry::CalibrationLimits limits;
   if (!limitsPath.empty()) {
@@ -192,7 +203,16 @@ int main(int argc, char** argv) {
   };
   std::printf("alacs_calibrate: %zu camera views, %zu board placements from %s\n", input.cameraViews.size(),
               input.placements.size(), scansDir.c_str());
+  // Every skipped view or placement with its reason, as it happens: the person at the rig
+  // learns which views to redo even when a later stage fails.
+  int skipped = 0;
+  input.onSkipped = [&skipped](const std::string& name, const std::string& why) {
+    std::printf("  skipped %s: %s\n", name.c_str(), why.c_str());
+    std::fflush(stdout);
+    ++skipped;
+  };
   Result<calib::CalibrationRun> run = calib::runCalibration(input, load);
+  if (skipped > 0) std::printf("alacs_calibrate: %d views or placements skipped (reasons above)\n", skipped);
   if (!run) {
     // No calibration to judge: the gate's verdict says where the run stopped.
     std::fprintf(stderr, "alacs_calibrate: %s\n", run.status().toString().c_str());
@@ -211,8 +231,9 @@ int main(int argc, char** argv) {
               l.slideAxis.y(), l.slideAxis.z(), l.slideScale);
   printQuality(cal.quality);
   if (verbose) printUncertainty(run->uncertainty);
-  geometry::GateVerdict verdict = geometry::checkCalibrationQuality(cal.quality, limits);
-  if (!run->uncertaintyError.empty()) verdict.failures.insert(verdict.failures.begin(), run->uncertaintyError);
+  std::vector<std::string> failedStages;
+  if (!run->uncertaintyError.empty()) failedStages.push_back(run->uncertaintyError);
+  const geometry::GateVerdict verdict = geometry::judgeCalibration(cal.quality, failedStages, limits);
   if (!verdict.passed()) {
     cal.quality.gate = geometry::CalibrationQuality::Gate::kRefused;
     std::fprintf(stderr, "alacs_calibrate: REFUSED by the quality gate:\n");
