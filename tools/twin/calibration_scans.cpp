@@ -5,6 +5,8 @@
 //   DIR/laser_plane_NNNN       the same board, flat, at 0.8-1.6 m: one laser-off frame (its
 //                              pose) and laser-on frames at slide 0, 25, ..., 200 mm: the
 //                              laser plane at home, the slide axis and its scale
+//   --world tuning|holdout     other boards, blur, noise and tilts (CalibWorld below);
+//                              every board scan has the exact corners in truth/corners.csv
 // alacs-twin examples: the example frames of docs/simulation.md.
 #include <Eigen/Geometry>
 #include <cmath>
@@ -66,6 +68,62 @@ Eigen::Vector3d atPixel(const geometry::CameraIntrinsics& cam, double u, double 
   return Eigen::Vector3d(x * z, y * z, z);
 }
 
+// The conditions of a calibration set (docs/calibration.md, "Worlds"). The benchmark is
+// the set the docs' figures were first made on; the tuning set is what the corner
+// detector was chosen on; the holdout is only measured, never used to choose a parameter.
+struct CalibWorld {
+  const char* name;
+  sim::SimBoard board;   // squares, size and margin (pose set per view)
+  double psfSigmaPx[2];  // optics blur per view, uniform in this range
+  double gainDb;         // analogue gain: more of it, more noise at the same exposure
+  double readNoiseE;
+  double tiltDeg;      // |rx|, |ry| up to this
+  double rollDeg;      // |rz| up to this
+  bool gridPositions;  // image positions on a 4×3 grid (else uniform over the frame)
+  uint64_t salt;       // separates the worlds' random streams
+};
+
+CalibWorld calibWorld(const std::string& name) {
+  sim::SimBoard board;  // 10×7 squares of 40 mm, 60 mm margin
+  if (name == "tuning") {
+    sim::SimBoard small = board;
+    small.squaresX = 12;
+    small.squaresY = 9;
+    small.squareMm = 30.0;
+    small.marginMm = 45.0;
+    return {"tuning", small, {0.7, 1.5}, 12.0, 4.0, 40.0, 20.0, true, 0x7A11ULL};
+  }
+  if (name == "holdout") return {"holdout", board, {0.8, 1.7}, 18.0, 6.0, 35.0, 15.0, false, 0x40D0ULL};
+  return {"benchmark", board, {0.6, 0.6}, 6.0, 2.3, 35.0, 15.0, true, 0};
+}
+
+// The world of --world with --board, --margin-mm and --tilt-deg applied; false (and a
+// message) for a bad value.
+bool worldFromArgs(const Args& args, CalibWorld& world) {
+  const std::string name = args.str("world", "benchmark");
+  if (name != "benchmark" && name != "tuning" && name != "holdout") {
+    std::fprintf(stderr, "alacs-twin calib: --world wants benchmark|tuning|holdout, got '%s'\n", name.c_str());
+    return false;
+  }
+  world = calibWorld(name);
+  if (args.has("board")) {
+    int sx = 0, sy = 0;
+    double mm = 0;
+    char tail = 0;
+    const std::string b = args.str("board");
+    if (std::sscanf(b.c_str(), "%dx%dx%lf%c", &sx, &sy, &mm, &tail) != 3 || sx < 3 || sy < 3 || !(mm > 0)) {
+      std::fprintf(stderr, "alacs-twin calib: --board wants SXxSYxMM, e.g. 10x7x40\n");
+      return false;
+    }
+    world.board.squaresX = sx;
+    world.board.squaresY = sy;
+    world.board.squareMm = mm;
+  }
+  world.board.marginMm = args.num("margin-mm", world.board.marginMm);
+  world.tiltDeg = args.num("tilt-deg", world.tiltDeg);
+  return true;
+}
+
 }  // namespace
 
 int calibrationMain(const Args& args) {
@@ -74,11 +132,18 @@ int calibrationMain(const Args& args) {
     std::fprintf(stderr, "alacs-twin calib: needs --out DIR\n");
     return 2;
   }
+  CalibWorld world = calibWorld("benchmark");
+  if (!worldFromArgs(args, world)) return 2;
+  const bool benchmark = world.salt == 0;
   const uint64_t seed = static_cast<uint64_t>(args.integer("seed", 7));
   const int views = static_cast<int>(args.integer("views", 24));
   const int jobs = static_cast<int>(args.integer("jobs", 2));
   const std::vector<double> positions = args.list("positions", {0, 25, 50, 75, 100, 125, 150, 175, 200});
   const auto rays = std::make_shared<const sim::RayTable>(sim::defaultScene().truth.camera);
+  char note[160];
+  std::snprintf(note, sizeof note, "%dx%d squares of %g mm (%dx%d inner corners), margin %g mm, world %s",
+                world.board.squaresX, world.board.squaresY, world.board.squareMm, world.board.squaresX - 1,
+                world.board.squaresY - 1, world.board.marginMm, world.name);
 
   struct Job {
     std::string dir;
@@ -88,29 +153,42 @@ int calibrationMain(const Args& args) {
     std::string line;
   };
   std::vector<Job> work;
-  sim::CaseRng rng(seed);
+  // The benchmark keeps its stream (its scans are the docs' reference); the other worlds
+  // draw from their own.
+  sim::CaseRng rng(benchmark ? seed : seed * 0x9E3779B97F4A7C15ULL + world.salt);
+  const uint64_t sceneSeed = benchmark ? seed * 1000 : (seed + world.salt) * 1000;
+  auto conditions = [&](sim::SimScene& s) {
+    s.sensor.gainDb = world.gainDb;
+    s.sensor.readNoiseE = world.readNoiseE;
+    s.sensor.psfSigmaPx = rng.uniform(world.psfSigmaPx[0], world.psfSigmaPx[1]);
+  };
   // Checkerboard views: image positions on a 4×3 grid (the corners of the frame matter
-  // most for the distortion), distances 0.7-1.6 m, tilts up to 35°.
+  // most for the distortion) or anywhere in it, distances 0.7-1.6 m, tilts up to 35°.
   for (int v = 0; v < views; ++v) {
     Job j;
     char name[64];
     std::snprintf(name, sizeof name, "/checkerboard_%02d", v);
     j.dir = out + name;
     for (int attempt = 0;; ++attempt) {
-      j.scene = boardScene(seed * 1000 + static_cast<uint64_t>(v));
-      sim::SimBoard b;
+      j.scene = boardScene(sceneSeed + static_cast<uint64_t>(v));
+      sim::SimBoard b = world.board;
       const auto& cam = j.scene.truth.camera;
-      const double u = cam.widthPx * (0.2 + 0.2 * (v % 4)) + rng.uniform(-80, 80);
-      const double w = cam.heightPx * (0.25 + 0.25 * ((v / 4) % 3)) + rng.uniform(-60, 60);
+      const double u = world.gridPositions ? cam.widthPx * (0.2 + 0.2 * (v % 4)) + rng.uniform(-80, 80)
+                                           : rng.uniform(0.12, 0.88) * cam.widthPx;
+      const double w = world.gridPositions ? cam.heightPx * (0.25 + 0.25 * ((v / 4) % 3)) + rng.uniform(-60, 60)
+                                           : rng.uniform(0.15, 0.85) * cam.heightPx;
       const double z = rng.uniform(700.0, 1600.0);
-      placeBoard(b, tilt(rng.uniform(-35, 35), rng.uniform(-35, 35), rng.uniform(-15, 15)), atPixel(cam, u, w, z));
+      const double t = world.tiltDeg;
+      placeBoard(b, tilt(rng.uniform(-t, t), rng.uniform(-t, t), rng.uniform(-world.rollDeg, world.rollDeg)),
+                 atPixel(cam, u, w, z));
       j.scene.board = b;
       if (allCornersVisible(j.scene) || attempt > 200) break;
     }
     j.scene.lighting.directDir = Eigen::Vector3d(rng.uniform(-0.4, 0.4), -0.6, -0.8).normalized();
+    if (!benchmark) conditions(j.scene);
     j.scene.sensor.exposureUs = sim::autoExposureUs(j.scene);
     j.info.kind = "checkerboard";
-    j.info.note = "10x7 squares of 40 mm (9x6 inner corners), laser off";
+    j.info.note = std::string(note) + ", laser off";
     j.frames.push_back({0.0, 0.0, false, 0, 0.0, "board"});
     work.push_back(j);
   }
@@ -122,17 +200,19 @@ int calibrationMain(const Args& args) {
     char name[64];
     std::snprintf(name, sizeof name, "/laser_plane_%04d", static_cast<int>(z));
     j.dir = out + name;
-    j.scene = boardScene(seed * 1000 + 500 + static_cast<uint64_t>(d++));
+    j.scene = boardScene(sceneSeed + 500 + static_cast<uint64_t>(d++));
     const auto& las = j.scene.truth.laser;
     const Eigen::Vector3d& n = las.planeNormal;
     const double y = rng.uniform(-60, 60);
     const double x = (las.planeOffsetAt(100.0) - n.y() * y - n.z() * z) / n.x();
-    sim::SimBoard b;
+    sim::SimBoard b = world.board;
     placeBoard(b, tilt(rng.uniform(-15, 15), rng.uniform(-20, 20), rng.uniform(-5, 5)), Eigen::Vector3d(x, y, z));
     j.scene.board = b;
+    if (!benchmark) conditions(j.scene);
     j.scene.sensor.exposureUs = sim::autoExposureUs(j.scene);
     j.info.kind = "laser_plane";
-    j.info.note = "frame 0: laser off (board pose); then laser on at each slide position, a quarter of the exposure";
+    j.info.note = std::string(note) +
+                  "; frame 0: laser off (board pose); then laser on at each slide position, a quarter of the exposure";
     j.info.stopsMm = positions;
     j.frames.push_back({0.0, 0.0, false, 0, 0.0, "pose"});
     double t = 0.25;
