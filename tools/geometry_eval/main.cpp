@@ -7,6 +7,7 @@
 //                localizer with the given calibration, compares with the twin's truth, and
 //                reports per distance, beside the paper's figures; chooses the paper's
 //                ω2/ω1 by 5-fold cross-validation over the same cases
+//   corners      every corner detector against the twin's exact corners (corners_eval.h)
 #include <Eigen/Geometry>
 #include <algorithm>
 #include <cmath>
@@ -21,7 +22,10 @@
 #include <string>
 #include <vector>
 
+#include "corners_eval.h"
 #include "geometry/calibration.h"
+#include "geometry/checkerboard_corners.h"
+#include "geometry/triangulation.h"
 #include "localize/localizer.h"
 #include "replay/scan_dir.h"
 #include "sim/orchard.h"
@@ -30,7 +34,6 @@
 #include "sim/scene.h"
 #include "sim/truth.h"
 #include "tool_common/cli.h"
-#include "geometry/triangulation.h"
 
 using namespace alacs;
 
@@ -612,7 +615,27 @@ int main(int argc, char** argv) {
   check->add_option("--max-mean-mm", maxMeanMm, "the limit of the worst mean 3D error")->capture_default_str();
   check->add_option("--seed", seed, "accepted, unused");
 
+  CLI::App* corners = app.add_subcommand(
+      "corners",
+      "every corner detector on the board views of a twin calibration set (alacs-twin calib), against the twin's "
+      "exact corners (truth/corners.csv): views detected, corner RMS, max; the views the default detector skips, "
+      "with the reason. Exits 4 below --min-detected or above --max-rms-px");
+  eval::CornersEvalOptions cornersOpt;
+  cornersOpt.windowShares = {geometry::CornerOptions{}.subPixWindowShare};
+  corners->add_option("--scans", cornersOpt.scansDir, "the directory of scan directories")->required();
+  corners
+      ->add_option("--window-shares", cornersOpt.windowShares,
+                   "cornerSubPix half windows as shares of the corner spacing, W,W,...")
+      ->delimiter(',')
+      ->capture_default_str();
+  corners->add_flag("--verbose", cornersOpt.verbose, "one line per view and detector");
+  corners->add_flag("--default-only", cornersOpt.defaultOnly, "only the default detector (fast)");
+  corners->add_option("--min-detected", cornersOpt.minDetected, "views the default detector must find")
+      ->capture_default_str();
+  corners->add_option("--max-rms-px", cornersOpt.maxRmsPx, "its corner RMS limit (0: none)")->capture_default_str();
+
   if (const int rc = tools::parseCommandLine(app, argc, argv); rc >= 0) return rc;
+  if (corners->parsed()) return eval::cornersEval(cornersOpt);
   if (scans->parsed()) return calibScans(outDir, views, placements, seed);
   if (check->parsed()) return checkCalibration(calibration, truth, maxMeanMm);
   std::vector<double> distanceList;
