@@ -4,6 +4,8 @@
                                  and occlusion), writes docs/evaluation.md and
                                  docs/figures/eval_*.png
     alacs-eval report --small    the CI set (a few minutes), into build/eval-small
+    alacs-eval calibration       corner detectors and the calibration's 3D error on the
+                                 twin's calibration worlds (docs/calibration.md)
 """
 
 from __future__ import annotations
@@ -14,7 +16,7 @@ import sys
 import time
 from pathlib import Path
 
-from alacs_eval import evaluate, report, twin, worlds
+from alacs_eval import calibration, evaluate, report, twin, worlds
 
 ROOT = twin.ROOT
 
@@ -83,6 +85,20 @@ def _worlds(a: argparse.Namespace) -> int:
     return 0
 
 
+def _calibration(a: argparse.Namespace) -> int:
+    """Corner detectors on the tuning and holdout sets; 3D error per board, tilt and view count."""
+    work = Path(a.work) if a.work else ROOT / "build" / ("calibration-quick" if a.quick else "calibration")
+    tw = twin.find_twin(a.twin)
+    tools = Path(a.tools_build) if a.tools_build else tw.parent.parent.parent
+    cfg = calibration.Config(work=work, twin=tw, tools=tools, jobs=a.jobs, quick=a.quick, quiet=a.quiet,
+                             corners=not a.study_only, detector=a.corners)
+    res = calibration.run(cfg)
+    (work / "results.json").write_text(json.dumps(res, indent=1, default=float))
+    (work / "calibration.md").write_text("\n".join(cfg.log) + "\n")
+    print(f"alacs-eval: {work / 'calibration.md'}; numbers in {work / 'results.json'}")
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="alacs-eval", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = p.add_subparsers(dest="cmd", required=True)
@@ -107,6 +123,16 @@ def main(argv: list[str] | None = None) -> int:
     v.add_argument("--regenerate", action="store_true", help="write every world's scans again")
     v.add_argument("--other-object-prior", type=float, help="the localizer's ScanParams::otherObjectPrior (0: the fit's σ alone)")
     v.set_defaults(func=_worlds)
+    c = sub.add_parser("calibration", help="corner detectors and the calibration's 3D error (issue 17, item 6)")
+    c.add_argument("--quick", action="store_true", help="the corner sets only, 4 views and 5 placements each, the default detector (CI)")
+    c.add_argument("--study-only", action="store_true", help="the 3D error study only, not the corner sets")
+    c.add_argument("--corners", help="alacs_calibrate --corners for the study (default: its own default)")
+    c.add_argument("--work", help="default build/calibration (--quick: build/calibration-quick)")
+    c.add_argument("--twin", help="the alacs-twin binary (default $ALACS_TWIN or the newest build/*/tools/twin)")
+    c.add_argument("--tools-build", help="the build holding alacs_calibrate and alacs_geometry_eval (default: the twin's)")
+    c.add_argument("--jobs", type=int, default=2)
+    c.add_argument("--quiet", action="store_true", help="no progress bars")
+    c.set_defaults(func=_calibration)
     w = sub.add_parser("render", help="write the report and plots again from a previous run's results.json")
     w.add_argument("--work", required=True, help="the run's work directory (holds results.json)")
     w.add_argument("--doc", help="default docs/evaluation.md")
