@@ -3,8 +3,8 @@
 // does the work; this file converts its exceptions into Status and its covariance into
 // the quality figures the gate reads (docs/calibration.md).
 //
-// Detection (finding the corners in an image) is not here: the calibrate tool does it,
-// so that this library stays free of image decoding. Thread-safe (pure functions).
+// Detection (finding the corners in an image) is in checkerboard_corners.h; images reach
+// it decoded (this library reads no files). Thread-safe (pure functions).
 #pragma once
 
 #include <Eigen/Core>
