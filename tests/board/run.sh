@@ -5,7 +5,7 @@
 #
 # Usage: tests/board/run.sh
 #   ALACS_BOARD_BREAK=no-execstoppost  stage the unit without its ExecStopPost (a test must fail)
-#   ALACS_TWIN=path                    the host's alacs-twin (default build/release/tools/twin/alacs-twin)
+#   ALACS_TWIN=path                    the host's alacs-twin (default: build/release's, built here)
 #   ALACS_BOARD_TIMEOUT=seconds        the whole boot and test run (default 1800)
 #   ALACS_BOARD_TESTS=name,name        run only these harness tests (harness.py's function names)
 #
@@ -64,7 +64,16 @@ if [[ ${ALACS_BOARD_BREAK:-} == no-execstoppost ]]; then
   sed -i '/^ExecStopPost=/d' "$stage/usr/lib/systemd/system/alacsd.service"
 fi
 
-# The recorded scan and its x86 result.
+# The recorded scan and its x86 result, from the host's alacs-twin built from the same
+# sources as the board's alacsd (unless ALACS_TWIN names one): a clean clone has none yet,
+# and a stale one would compare the board with older code.
+if [[ -z ${ALACS_TWIN:-} ]]; then
+  t=$(now)
+  { cmake -S . -B build/release -G Ninja -DCMAKE_BUILD_TYPE=Release >"$run/twin-build.log" 2>&1 &&
+    nice ninja -C build/release alacs-twin >>"$run/twin-build.log" 2>&1; } ||
+    { tail -n 30 "$run/twin-build.log"; die "building alacs-twin failed ($run/twin-build.log)"; }
+  echo "board: host alacs-twin built ($(since "$t") s)" >&2
+fi
 [[ -x $twin ]] || die "$twin is not built (cmake --build build/release --target alacs-twin)"
 "$twin" generate --set loc --out "$run/twin" --count 1 --distance-mm 1200 --occluded 0 --seed 5 --jobs 1 \
   >"$run/twin.log" 2>&1 || die "alacs-twin generate ($run/twin.log)"
