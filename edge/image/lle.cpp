@@ -42,6 +42,8 @@ Status LleParams::validate() const {
   if (!(bridgePx >= 0.0 && bridgePx <= 256.0)) return bad(Error::kInvalidArgument, "bridgePx must be in 0..256");
   if (!(bridgePxPerRow >= 0.0 && bridgePxPerRow <= 16.0))
     return bad(Error::kInvalidArgument, "bridgePxPerRow must be in 0..16");
+  if (!(centrePriorShare == 0.0 || (centrePriorShare >= 0.02 && centrePriorShare <= 10.0)))
+    return bad(Error::kInvalidArgument, "centrePriorShare must be 0 or in 0.02..10");
   if (smoothOrder < 0 || smoothOrder > 2) return bad(Error::kInvalidArgument, "smoothOrder must be in 0..2");
   if (smoothRows < 0 || smoothRows > 32) return bad(Error::kInvalidArgument, "smoothRows must be in 0..32");
   if (edgeRatio != 0 && (edgeRatio < 2 || edgeRatio > 16))

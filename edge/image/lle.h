@@ -16,8 +16,9 @@
 //      of the red excess over the local background (sub-pixel);
 //      (Candidates are taken at weakThresholdPct of the threshold; a segment must have rows
 //      that pass the threshold itself: hysteresis, so weak lines in bright light are kept.)
-//   4. links the peaks of successive rows into segments by continuity, keeps the strongest
-//      segment and the segments that continue it across gaps as "the line", and fits the
+//   4. links the peaks of successive rows into segments by continuity, grows a line from
+//      each of the strongest segments (the segments that continue it across gaps), keeps
+//      the one strongest after a weight on its distance from the ROI's centre, and fits the
 //      polynomial robustly (rows beyond max(outlierPx, 3·1.4826·MAD) are rejected);
 //   5. reports per row a confidence and a status, and the line's segments and coverage.
 //
@@ -86,6 +87,10 @@ struct LleParams {
   double bridgePx = 3.0;     // two segments are one line when their ends, extrapolated to the
   double bridgePxPerRow = 0.08;  // middle of the gap between them, agree within bridgePx + this·gap
   bool keepOtherSegments = true;  // also report segments that are not the line (other surfaces)
+  double centrePriorShare = 0.2;  // the line is the one, grown from one of the strongest segments, whose
+                                  // strength times a Gaussian weight on its centre's offset from the ROI's centre (σ =
+                                  // this share of the ROI's width and height; the ROI is planned round the target) is
+                                  // largest; 0: grown from the strongest segment (0, 0.02..10)
   int smoothOrder = 1;       // of that local fit: 0 mean, 1 line, 2 quadratic
   int smoothRows = 8;        // a row's column: local fit through the centroids within ±this many rows (0: none) (0..32)
   int edgeRatio = 3;         // occluding edge: the background on one side of a run is darker than

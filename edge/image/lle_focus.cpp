@@ -576,21 +576,79 @@ bool continuesLine(const Chain& c, const LleParams& p, int h, const Peak<Col>* p
   return agrees;
 }
 
-// Stage 4b: the line = the strongest segment plus every segment that continues it
-// (continuesLine), in order of strength. Sets Chain::onLine and owner[y], the line's
+// The line grown from segment order[seed]: it, then every other segment that continues
+// it (continuesLine), in order of strength. Sets Chain::onLine and owner[y], the line's
 // peak of each row (-1: none).
 template <class Col>
-void assembleLine(const LleParams& p, int h, const Peak<Col>* peaks, Chain* chains, const int32_t* order, int nSeg,
-                  int32_t* owner, int* endRows, int32_t* endKeys) {
+void growLine(const LleParams& p, int h, const Peak<Col>* peaks, Chain* chains, const int32_t* order, int nSeg,
+              int seed, int32_t* owner, int* endRows, int32_t* endKeys) {
   const int kMax = p.maxPeaksPerRow;
   std::fill(owner, owner + h, -1);
-  for (int s = 0; s < nSeg; ++s) {
+  for (int s = 0; s < nSeg; ++s) chains[order[s]].onLine = 0;
+  if (seed >= nSeg) return;  // no segment: no line
+  for (int k = -1; k < nSeg; ++k) {
+    const int s = k < 0 ? seed : k;
+    if (k == seed) continue;
     Chain& c = chains[order[s]];
-    if (s > 0 && !continuesLine(c, p, h, peaks, owner, endRows, endKeys)) continue;
+    if (k >= 0 && !continuesLine(c, p, h, peaks, owner, endRows, endKeys)) continue;
     c.onLine = 1;
     for (int pi = c.head; pi >= 0; pi = peaks[pi].next)
       if (owner[pi / kMax] < 0) owner[pi / kMax] = pi;
   }
+}
+
+// The grown line's rank: the area of its segments times the centre prior's weight (Q16),
+// exp(-½·((dx/σx)² + (dy/σy)²)), dx and dy the offsets of its centre (the mean of its
+// rows' peak columns, the middle of its first and last row) from the ROI's centre in
+// shares of the ROI's width and height, σ = centrePriorShare. The weight is rounded to an
+// integer once per line, so both arithmetics rank alike.
+template <class Col>
+int64_t lineRank(const LleParams& p, int w, int h, const Peak<Col>* peaks, const Chain* chains, const int32_t* order,
+                 int nSeg, const int32_t* owner) {
+  int64_t area = 0;
+  for (int s = 0; s < nSeg; ++s) area += chains[order[s]].onLine != 0 ? chains[order[s]].area : 0;
+  int64_t sumKeys = 0;
+  int rows = 0;
+  int first = -1;
+  int last = -1;
+  for (int y = 0; y < h; ++y) {
+    if (owner[y] < 0) continue;
+    sumKeys += peaks[owner[y]].key;
+    ++rows;
+    if (first < 0) first = y;
+    last = y;
+  }
+  if (rows == 0) return 0;
+  const double dx = static_cast<double>(sumKeys) / (256.0 * rows) / w - 0.5;  // keys: Q8 columns
+  const double dy = 0.5 * (first + last) / h - 0.5;
+  const double sigma = p.centrePriorShare;
+  const double weight = std::exp(-0.5 * (dx * dx + dy * dy) / (sigma * sigma));
+  return area * static_cast<int64_t>(std::lround(65536.0 * weight));
+}
+
+// Stage 4b: the line. Without the centre prior, the one grown from the strongest segment;
+// with it, of the lines grown from each of the kSeeds strongest (those with at least an
+// eighth of the strongest's area), the highest-ranked (lineRank: strength, continuity
+// across gaps and the line's place in the ROI, which is planned round the target). A frame
+// of more than kMaxSegments segments is noise, not a choice of surfaces: the strongest.
+template <class Col>
+void assembleLine(const LleParams& p, int w, int h, const Peak<Col>* peaks, Chain* chains, const int32_t* order,
+                  int nSeg, int32_t* owner, int* endRows, int32_t* endKeys) {
+  constexpr int kSeeds = 6;
+  constexpr int kMaxSegments = 48;
+  int best = 0;
+  if (p.centrePriorShare > 0.0 && nSeg > 1 && nSeg <= kMaxSegments) {
+    int64_t bestRank = -1;
+    for (int seed = 0; seed < std::min(nSeg, kSeeds) && 8 * chains[order[seed]].area >= chains[order[0]].area; ++seed) {
+      growLine(p, h, peaks, chains, order, nSeg, seed, owner, endRows, endKeys);
+      const int64_t rank = lineRank(p, w, h, peaks, chains, order, nSeg, owner);
+      if (rank > bestRank) {
+        bestRank = rank;
+        best = seed;
+      }
+    }
+  }
+  growLine(p, h, peaks, chains, order, nSeg, best, owner, endRows, endKeys);
 }
 
 // The robust fit's outcome: n rows (the line's), `fitted`, and the rejection limit (Q8).
@@ -854,7 +912,7 @@ int focusRobust(const ImageView& frame, const ImageView* laserOff, const Roi& ro
   findPeaks<A>(frame, laserOff, roi, p, ws, a.peaks, a.nPeaks);
   const int nChains = linkChains(p, h, a.peaks, a.nPeaks, a.chains, a.active);
   const int nSeg = segmentsByStrength(p, a.chains, nChains, a.order);
-  assembleLine(p, h, a.peaks, a.chains, a.order, nSeg, a.owner, a.endRows, a.endKeys);
+  assembleLine(p, roi.width, h, a.peaks, a.chains, a.order, nSeg, a.owner, a.endRows, a.endKeys);
   typename A::Fit curve;
   const RobustFit f = robustFit<A>(roi, p, a, curve);
   listSegments(roi, p, a.chains, nChains, out);

@@ -584,3 +584,35 @@ TEST_CASE("Smoothing along the line weighs rows by their peak's strength", "[lle
   REQUIRE(dim != nullptr);
   CHECK(std::abs(dim->centroidQ8 / 256.0 - 61.5) < 0.2);  // its own centroid is where it is
 }
+
+TEST_CASE("A neighbour's stronger line at the ROI's edge is not the line; the centred target's is",
+          "[lle][continuity][robust]") {
+  // The ROI is planned round the target: its line crosses the middle (rows 70..129). A
+  // touching neighbour above it returns a stronger, longer line near the top (rows 0..64),
+  // far enough across that it does not continue the target's.
+  Rgb img(200, 200, 20);
+  auto target = [](int y) { return 100.0 + 0.0008 * (y - 100) * (y - 100); };
+  auto neighbour = [](int y) { return 130.0 - 0.1 * y; };
+  addLine(img, target, 1.3, 110, 70, 130);
+  addLine(img, neighbour, 1.3, 200, 0, 65);
+  LaserLine l = run(img);
+  REQUIRE(l.valid);
+  CHECK(l.firstLineRow == 70);
+  CHECK(l.lastLineRow == 129);
+  for (int y : {75, 100, 125}) CHECK(l.columnAt(y) == Approx(target(y)).margin(0.1));
+  // Without the centre prior the line is the strongest surface's: the neighbour's.
+  LleParams strongest;
+  strongest.centrePriorShare = 0.0;
+  l = run(img, strongest);
+  REQUIRE(l.valid);
+  CHECK(l.firstLineRow == 0);
+  CHECK(l.lastLineRow == 64);
+  CHECK(l.columnAt(30) == Approx(neighbour(30)).margin(0.1));
+  // The parameter is checked.
+  strongest.centrePriorShare = 0.01;
+  LleWorkspace ws;
+  LaserLine out;
+  const alacs::Status refused = extractLine(img.view(), Roi{0, 0, 200, 200}, strongest, ws, out);
+  CHECK_FALSE(refused.isOk());
+  CHECK_THAT(refused.reason(), Catch::Contains("centrePriorShare"));
+}

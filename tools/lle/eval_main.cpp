@@ -165,6 +165,8 @@ bool setParam(image::LleParams& p, const std::string& kv) {
   else if (k == "minseg") p.minSegmentRows = iv;
   else if (k == "bridge") p.bridgePx = v;
   else if (k == "bridgerow") p.bridgePxPerRow = v;
+  else if (k == "centre")
+    p.centrePriorShare = v;
   else if (k == "smooth") p.smoothRows = iv;
   else if (k == "sorder") p.smoothOrder = iv;
   else if (k == "weak") p.weakThresholdPct = iv;

@@ -85,6 +85,10 @@ int parseArgs(int argc, char** argv, Options& o) {
   app.add_option("--gap", p.maxGapRows, "largest gap within a segment, rows")->capture_default_str();
   app.add_option("--min-segment", p.minSegmentRows, "shortest segment, rows")->capture_default_str();
   app.add_option("--peaks", p.maxPeaksPerRow, "peaks per row")->capture_default_str();
+  app.add_option("--centre-prior", p.centrePriorShare,
+                 "the line starts from the strongest segment weighted by its distance from the ROI's centre, "
+                 "sigma in shares of the ROI (0: the strongest)")
+      ->capture_default_str();
   app.add_option("--edge", p.edgeRatio, "occluding-edge ratio (0 off: rows at an occluding edge are kept valid)")
       ->capture_default_str();
   app.add_option("--robust-pct", p.robustThresholdPct, "the robust method's strong threshold, % of --th")

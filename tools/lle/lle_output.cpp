@@ -53,7 +53,8 @@ Json lleDocument(const LleRun& run, int frameWidth, int frameHeight, const image
                    {"edge_agree_px", p.edgeAgreePx},
                    {"max_jump_px", jsonNumber(p.maxJumpPx, "%g")},
                    {"max_gap_rows", p.maxGapRows},
-                   {"min_segment_rows", p.minSegmentRows}};
+                   {"min_segment_rows", p.minSegmentRows},
+                   {"centre_prior_share", jsonNumber(p.centrePriorShare, "%g")}};
   // Every ROI row: a row without a valid sample says so (column null, valid false). A row's
   // first sample (the line's when it has one) is the entry; further samples (other
   // segments crossing the row) are listed in its "others".
