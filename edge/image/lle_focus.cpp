@@ -539,21 +539,23 @@ int32_t lineEndAt(const Peak<Col>* peaks, const int32_t* owner, int h, int from,
 // the middle of the gap, agree within bridgePx + bridgePxPerRow·gap.
 template <class Col>
 bool continuesLine(const Chain& c, const LleParams& p, int h, const Peak<Col>* peaks, const int32_t* owner,
-                   int* endRows, int32_t* endKeys) {
+                   int lineFirst, int lineLast, int* endRows, int32_t* endKeys) {
   const int kMax = p.maxPeaksPerRow;
   const int32_t bridge = Q::fromPx(p.bridgePx);
   const int32_t bridgePerRow = Q::fromPx(p.bridgePxPerRow);
   int shared = 0;
   for (int pi = c.head; pi >= 0; pi = peaks[pi].next) shared += owner[pi / kMax] >= 0 ? 1 : 0;
   if (shared > std::max(2, c.count / 10)) return false;
+  // The line's nearest rows above and below the segment; every line row lies within
+  // [lineFirst, lineLast] (-1: no line yet), so the search starts there.
   int above = -1;
-  for (int y = c.first - 1; y >= 0; --y)
+  for (int y = std::min(c.first - 1, lineLast); lineFirst >= 0 && y >= lineFirst; --y)
     if (owner[y] >= 0) {
       above = y;
       break;
     }
   int below = -1;
-  for (int y = c.last + 1; y < h; ++y)
+  for (int y = std::max(c.last + 1, lineFirst); lineFirst >= 0 && y <= lineLast && y < h; ++y)
     if (owner[y] >= 0) {
       below = y;
       break;
@@ -586,14 +588,18 @@ void growLine(const LleParams& p, int h, const Peak<Col>* peaks, Chain* chains, 
   std::fill(owner, owner + h, -1);
   for (int s = 0; s < nSeg; ++s) chains[order[s]].onLine = 0;
   if (seed >= nSeg) return;  // no segment: no line
+  int lineFirst = -1;        // the line's first and last row so far
+  int lineLast = -1;
   for (int k = -1; k < nSeg; ++k) {
     const int s = k < 0 ? seed : k;
     if (k == seed) continue;
     Chain& c = chains[order[s]];
-    if (k >= 0 && !continuesLine(c, p, h, peaks, owner, endRows, endKeys)) continue;
+    if (k >= 0 && !continuesLine(c, p, h, peaks, owner, lineFirst, lineLast, endRows, endKeys)) continue;
     c.onLine = 1;
     for (int pi = c.head; pi >= 0; pi = peaks[pi].next)
       if (owner[pi / kMax] < 0) owner[pi / kMax] = pi;
+    lineFirst = lineFirst < 0 ? c.first : std::min(lineFirst, c.first);
+    lineLast = std::max(lineLast, c.last);
   }
 }
 
@@ -626,21 +632,28 @@ int64_t lineRank(const LleParams& p, int w, int h, const Peak<Col>* peaks, const
   return area * static_cast<int64_t>(std::lround(65536.0 * weight));
 }
 
-// Stage 4b: the line. Without the centre prior, the one grown from the strongest segment;
+// Stage 4b: the line. Without the centre prior (or on the whole frame, which is not a
+// window round a target), the one grown from the strongest segment;
 // with it, of the lines grown from each of the kSeeds strongest (those with at least an
 // eighth of the strongest's area), the highest-ranked (lineRank: strength, continuity
 // across gaps and the line's place in the ROI, which is planned round the target). A frame
 // of more than kMaxSegments segments is noise, not a choice of surfaces: the strongest.
 template <class Col>
-void assembleLine(const LleParams& p, int w, int h, const Peak<Col>* peaks, Chain* chains, const int32_t* order,
-                  int nSeg, int32_t* owner, int* endRows, int32_t* endKeys) {
+void assembleLine(const LleParams& p, bool window, int w, int h, const Peak<Col>* peaks, Chain* chains,
+                  const int32_t* order, int nSeg, int32_t* owner, int* endRows, int32_t* endKeys) {
   constexpr int kSeeds = 6;
   constexpr int kMaxSegments = 48;
   int best = 0;
-  if (p.centrePriorShare > 0.0 && nSeg > 1 && nSeg <= kMaxSegments) {
+  int grown = -1;  // the seed whose line owner[] and Chain::onLine hold
+  if (window && p.centrePriorShare > 0.0 && nSeg > 1 && nSeg <= kMaxSegments) {
     int64_t bestRank = -1;
-    for (int seed = 0; seed < std::min(nSeg, kSeeds) && 8 * chains[order[seed]].area >= chains[order[0]].area; ++seed) {
+    const int seeds = std::min(nSeg, kSeeds);
+    bool covered[kSeeds] = {};  // on a line already grown: it would grow that line again
+    for (int seed = 0; seed < seeds && 8 * chains[order[seed]].area >= chains[order[0]].area; ++seed) {
+      if (covered[seed]) continue;
       growLine(p, h, peaks, chains, order, nSeg, seed, owner, endRows, endKeys);
+      grown = seed;
+      for (int k = seed + 1; k < seeds; ++k) covered[k] = covered[k] || chains[order[k]].onLine != 0;
       const int64_t rank = lineRank(p, w, h, peaks, chains, order, nSeg, owner);
       if (rank > bestRank) {
         bestRank = rank;
@@ -648,7 +661,7 @@ void assembleLine(const LleParams& p, int w, int h, const Peak<Col>* peaks, Chai
       }
     }
   }
-  growLine(p, h, peaks, chains, order, nSeg, best, owner, endRows, endKeys);
+  if (grown != best) growLine(p, h, peaks, chains, order, nSeg, best, owner, endRows, endKeys);
 }
 
 // The robust fit's outcome: n rows (the line's), `fitted`, and the rejection limit (Q8).
@@ -912,7 +925,9 @@ int focusRobust(const ImageView& frame, const ImageView* laserOff, const Roi& ro
   findPeaks<A>(frame, laserOff, roi, p, ws, a.peaks, a.nPeaks);
   const int nChains = linkChains(p, h, a.peaks, a.nPeaks, a.chains, a.active);
   const int nSeg = segmentsByStrength(p, a.chains, nChains, a.order);
-  assembleLine(p, roi.width, h, a.peaks, a.chains, a.order, nSeg, a.owner, a.endRows, a.endKeys);
+  // The centre prior only where the ROI is a window planned round the target, not the whole frame.
+  const bool window = roi.width < frame.width || roi.height < frame.height;
+  assembleLine(p, window, roi.width, h, a.peaks, a.chains, a.order, nSeg, a.owner, a.endRows, a.endKeys);
   typename A::Fit curve;
   const RobustFit f = robustFit<A>(roi, p, a, curve);
   listSegments(roi, p, a.chains, nChains, out);

@@ -595,7 +595,9 @@ TEST_CASE("A neighbour's stronger line at the ROI's edge is not the line; the ce
   auto neighbour = [](int y) { return 130.0 - 0.1 * y; };
   addLine(img, target, 1.3, 110, 70, 130);
   addLine(img, neighbour, 1.3, 200, 0, 65);
-  LaserLine l = run(img);
+  // A window, as planned round a target (on the whole frame the prior does not apply).
+  const Roi window{2, 0, 196, 200};
+  LaserLine l = run(img, {}, &window);
   REQUIRE(l.valid);
   CHECK(l.firstLineRow == 70);
   CHECK(l.lastLineRow == 129);
@@ -603,11 +605,14 @@ TEST_CASE("A neighbour's stronger line at the ROI's edge is not the line; the ce
   // Without the centre prior the line is the strongest surface's: the neighbour's.
   LleParams strongest;
   strongest.centrePriorShare = 0.0;
-  l = run(img, strongest);
+  l = run(img, strongest, &window);
   REQUIRE(l.valid);
   CHECK(l.firstLineRow == 0);
   CHECK(l.lastLineRow == 64);
   CHECK(l.columnAt(30) == Approx(neighbour(30)).margin(0.1));
+  // Nor on the whole frame, which is no window round a target.
+  l = run(img);
+  CHECK(l.firstLineRow == 0);
   // The parameter is checked.
   strongest.centrePriorShare = 0.01;
   LleWorkspace ws;
