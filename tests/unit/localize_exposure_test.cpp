@@ -20,8 +20,8 @@ struct Frame {
     for (int y = 0; y < h; ++y)
       for (int x = 0; x < w; ++x) {
         const bool in = x >= roi.x && x < roi.x + roi.width && y >= roi.y && y < roi.y + roi.height;
-        pixels[(static_cast<size_t>(y) * static_cast<size_t>(w) + static_cast<size_t>(x)) * 3U + static_cast<size_t>(r)] =
-            in ? red : outside;
+        pixels[(static_cast<size_t>(y) * static_cast<size_t>(w) + static_cast<size_t>(x)) * 3U +
+               static_cast<size_t>(r)] = in ? red : outside;
       }
   }
   std::vector<uint8_t> pixels;
@@ -35,7 +35,8 @@ const image::Roi kRoi{10, 5, 40, 20};
 TEST_CASE("The metered level is a percentile of the ROI's red only", "[exposure]") {
   Frame f(64, 32, kRoi, 100, 255);
   // 1 % of the ROI's pixels (8 of 800) brighter: the 99th percentile still reads 100.
-  for (int i = 0; i < 8; ++i) f.pixels[(static_cast<size_t>(kRoi.y + 3) * 64U + static_cast<size_t>(kRoi.x + i)) * 3U + 2U] = 240;
+  for (int i = 0; i < 8; ++i)
+    f.pixels[(static_cast<size_t>(kRoi.y + 3) * 64U + static_cast<size_t>(kRoi.x + i)) * 3U + 2U] = 240;
   CHECK(*localize::redPercentileDn(f.view, kRoi, 99.0) == 100);
   CHECK(*localize::redPercentileDn(f.view, kRoi, 100.0) == 240);
   CHECK(*localize::redPercentileDn(f.view, kRoi, 50.0) == 100);
@@ -58,10 +59,10 @@ TEST_CASE("Bright skin shortens the exposure to the target level", "[exposure]")
   const localize::MeteringDecision& d = meter.decision();
   CHECK(d.exposureUs == 1920);  // 3000 · 128 / 200
   CHECK(d.ambientDn == 128);
-  CHECK(d.subtract);            // 128 > 100
+  CHECK(d.subtract);  // 128 > 100
   CHECK(d.frames == 1);
   CHECK_FALSE(d.saturated);
-  CHECK_FALSE(meter.lastFrameAtDecision());  // the laser-off frame needs an exposure of its own
+  CHECK_FALSE(meter.lastFrameAtDecision());    // the laser-off frame needs an exposure of its own
   CHECK_FALSE(meter.add(f.view, kRoi, 3000));  // metering is over
 }
 
@@ -111,8 +112,8 @@ TEST_CASE("A saturated metering frame steps down and meters again, a bounded num
   }
   CHECK(frames == 3);
   CHECK(always.decision().saturated);
-  CHECK(always.decision().meteredUs == 188);           // 3000 / 4 / 4, rounded
-  CHECK(always.decision().exposureUs == 24);           // 188 · 128 / (255 · 4)
+  CHECK(always.decision().meteredUs == 188);  // 3000 / 4 / 4, rounded
+  CHECK(always.decision().exposureUs == 24);  // 188 · 128 / (255 · 4)
   // ... and never below the shortest exposure.
   p.minExposureUs = 200;
   localize::ExposureMeter floor(p, 3000);
@@ -126,7 +127,7 @@ TEST_CASE("The level is scaled by the exposure the frame reports, not the one as
   p.targetDn = 128;
   localize::ExposureMeter meter(p, 3000);
   Frame f(64, 32, kRoi, 200);
-  REQUIRE(meter.add(f.view, kRoi, 1000));  // a replayed frame recorded at 1000 us
+  REQUIRE(meter.add(f.view, kRoi, 1000));     // a replayed frame recorded at 1000 us
   CHECK(meter.decision().exposureUs == 640);  // 1000 · 128 / 200
   CHECK(meter.decision().meteredUs == 1000);
   CHECK_FALSE(meter.add(f.view, kRoi, 1000));
