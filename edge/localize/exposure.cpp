@@ -40,8 +40,8 @@ Result<int> redPercentileDn(const image::ImageView& frame, const image::Roi& roi
   }
   const uint64_t n = static_cast<uint64_t>(roi.width) * static_cast<uint64_t>(roi.height);
   // The smallest level that at least `percentile` % of the pixels do not exceed.
-  const auto rank = std::clamp<uint64_t>(
-      static_cast<uint64_t>(std::ceil(percentile / 100.0 * static_cast<double>(n))), 1, n);
+  const auto rank =
+      std::clamp<uint64_t>(static_cast<uint64_t>(std::ceil(percentile / 100.0 * static_cast<double>(n))), 1, n);
   uint64_t below = 0;
   for (int v = 0; v < 256; ++v) {
     below += histogram[static_cast<size_t>(v)];
@@ -87,7 +87,8 @@ Status ExposureMeter::add(const image::ImageView& frame, const image::Roi& roi, 
   // Not bright: never longer than the first metering frame as taken (the start; a replayed
   // camera reports the exposure it recorded, so a replay decides as the scan did).
   const int64_t longest = bright ? maxUs_ : std::min(maxUs_, firstUs_);
-  int64_t chosen = std::clamp(roundUs(us * p_.targetDn / std::max(1, *level)), std::min(p_.minExposureUs, longest), longest);
+  int64_t chosen =
+      std::clamp(roundUs(us * p_.targetDn / std::max(1, *level)), std::min(p_.minExposureUs, longest), longest);
   // Within 10 % of the metered exposure: keep it, so that the metering frame can serve as
   // the laser-off frame (one exposure less).
   if (std::abs(static_cast<double>(chosen) - us) <= 0.1 * us && exposureUs <= longest) chosen = exposureUs;

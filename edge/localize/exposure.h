@@ -53,13 +53,13 @@ struct MeteringParams {
 // metering frame's, or, when the ambient is bright, the longest one the meter was given
 // (the daemon: its configured exposure).
 struct MeteringDecision {
-  int64_t exposureUs = 0;     // for the laser frames
-  bool subtract = false;      // take a laser-off frame at exposureUs and subtract it
-  int ambientDn = 0;          // metered red (the percentile) at exposureUs, DN (estimated)
-  int meteredDn = 0;          // metered red of the last metering frame, DN
-  int64_t meteredUs = 0;      // that frame's exposure
-  int frames = 0;             // metering frames used
-  bool saturated = false;     // every metering frame was saturated (the level is a bound)
+  int64_t exposureUs = 0;  // for the laser frames
+  bool subtract = false;   // take a laser-off frame at exposureUs and subtract it
+  int ambientDn = 0;       // metered red (the percentile) at exposureUs, DN (estimated)
+  int meteredDn = 0;       // metered red of the last metering frame, DN
+  int64_t meteredUs = 0;   // that frame's exposure
+  int frames = 0;          // metering frames used
+  bool saturated = false;  // every metering frame was saturated (the level is a bound)
 };
 
 // The `percentile` (%) of the red values of `roi` in `frame` (its pixel format says which

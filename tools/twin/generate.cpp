@@ -131,16 +131,13 @@ int generateMain(const Args& args) {
   }
   const bool resume = args.has("resume") && args.integer("resume", 1) != 0;
   // The daemon's metering (metering.* in its config); its defaults unless overridden.
-  localize::MeteringParams metering;
-  metering.enabled = args.integer("metering", 1) != 0;
-  metering.targetDn = static_cast<int>(args.integer("meter-target-dn", metering.targetDn));
-  metering.subtractAboveDn = static_cast<int>(args.integer("meter-subtract-above-dn", metering.subtractAboveDn));
-  // The longest exposure the meter may choose: the daemon's configured one (camera.exposure_us).
-  const int64_t maxExposureUs = args.integer("max-exposure-us", 3000);
-  if (Status s = metering.validate(); !s || maxExposureUs < 1) {
-    std::fprintf(stderr, "alacs-twin generate: %s\n", s ? "--max-exposure-us must be positive" : s.reason().c_str());
+  const Result<MeteringArgs> meteringOrError = meteringArgs(args);
+  if (!meteringOrError) {
+    std::fprintf(stderr, "alacs-twin generate: %s\n", meteringOrError.status().reason().c_str());
     return 2;
   }
+  const localize::MeteringParams& metering = meteringOrError->params;
+  const int64_t maxExposureUs = meteringOrError->maxExposureUs;
   if (occ != "0" && occ != "1" && occ != "both" && occ != "mix") {
     std::fprintf(stderr, "alacs-twin generate: --occluded must be 0, 1, both or mix\n");
     return 2;

@@ -144,6 +144,17 @@ Status parallelFor(int n, int jobs, const std::function<Status(int)>& work, cons
   return first;
 }
 
+Result<MeteringArgs> meteringArgs(const Args& args) {
+  MeteringArgs m;
+  m.params.enabled = args.integer("metering", 1) != 0;
+  m.params.targetDn = static_cast<int>(args.integer("meter-target-dn", m.params.targetDn));
+  m.params.subtractAboveDn = static_cast<int>(args.integer("meter-subtract-above-dn", m.params.subtractAboveDn));
+  m.maxExposureUs = args.integer("max-exposure-us", m.maxExposureUs);
+  if (Status s = m.params.validate(); !s) return s;
+  if (m.maxExposureUs < 1) return Status(Error::kInvalidArgument, "--max-exposure-us must be positive");
+  return m;
+}
+
 Result<RenderPlan> renderPlan(const geometry::Calibration& cal, const Eigen::Vector3d& roughMm, int stops) {
   localize::ScanParams sp = localize::ScanParams::paperScan();  // the benchmark's scans are the paper's
   sp.stops = stops;

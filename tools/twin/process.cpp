@@ -124,17 +124,14 @@ int processMain(const Args& args) {
     std::fprintf(stderr, "alacs-twin process: %s\n", s.reason().c_str());
     return 2;
   }
-  // The daemon's metering (metering.* in its config); its defaults unless overridden, as
-  // `alacs-twin generate` takes them.
-  localize::MeteringParams metering;
-  metering.enabled = args.integer("metering", 1) != 0;
-  metering.targetDn = static_cast<int>(args.integer("meter-target-dn", metering.targetDn));
-  metering.subtractAboveDn = static_cast<int>(args.integer("meter-subtract-above-dn", metering.subtractAboveDn));
-  const int64_t maxExposureUs = args.integer("max-exposure-us", 3000);
-  if (Status s = metering.validate(); !s || maxExposureUs < 1) {
-    std::fprintf(stderr, "alacs-twin process: %s\n", s ? "--max-exposure-us must be positive" : s.reason().c_str());
+  // The daemon's metering (metering.* in its config); its defaults unless overridden.
+  const Result<MeteringArgs> meteringOrError = meteringArgs(args);
+  if (!meteringOrError) {
+    std::fprintf(stderr, "alacs-twin process: %s\n", meteringOrError.status().reason().c_str());
     return 2;
   }
+  const localize::MeteringParams& metering = meteringOrError->params;
+  const int64_t maxExposureUs = meteringOrError->maxExposureUs;
   const bool wantRows = args.has("rows");
   const int jobs = static_cast<int>(args.integer("jobs", 2));
   std::vector<std::string> lines(dirs.size());

@@ -14,6 +14,7 @@
 #include <vector>
 
 #include "common/result.h"
+#include "localize/exposure.h"
 #include "localize/localizer.h"
 #include "sim/renderer.h"
 #include "tool_common/json.h"
@@ -54,6 +55,16 @@ struct RenderPlan {
   cv::Rect region;
 };
 Result<RenderPlan> renderPlan(const geometry::Calibration& cal, const Eigen::Vector3d& roughMm, int stops = 5);
+
+// The daemon's exposure metering (metering.* in its config, localize/exposure.h) as
+// `generate` and `process` take it: --metering 0|1, --meter-target-dn,
+// --meter-subtract-above-dn, its defaults unless given, and --max-exposure-us, the longest
+// exposure it may choose (the daemon's camera.exposure_us, 3000). Errors: kInvalidArgument.
+struct MeteringArgs {
+  localize::MeteringParams params;
+  int64_t maxExposureUs = 3000;
+};
+Result<MeteringArgs> meteringArgs(const Args& args);
 
 // A vector as a JSON array of three numbers ("%.6f" as printed before; null when not finite).
 tools::Json jsonVec(const Eigen::Vector3d& v);
