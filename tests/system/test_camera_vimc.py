@@ -205,6 +205,10 @@ def test_stop_mid_scan_aborts_at_once_with_the_laser_off(tmp_path, alacsd, vimc)
     try:
         _home(sensor)
         sensor.localize(x=10, y=-20, z=1200)
+        # The scan meters first (EXPOSING with the laser off, before any move), then moves to
+        # its first stop: STOP in an exposure at a stop, not in a move (a move cut short
+        # leaves the slide unhomed, docs/daemon.md).
+        assert sensor.recv(lambda n, s: n == ac.MSG_PROGRESS and str(s["ProgressPhase"]) == "MOVING", 60)
         assert sensor.recv(lambda n, s: n == ac.MSG_PROGRESS and str(s["ProgressPhase"]) == "EXPOSING", 60)
         sent = time.monotonic()
         sensor.send("STOP")
@@ -220,8 +224,11 @@ def test_stop_mid_scan_aborts_at_once_with_the_laser_off(tmp_path, alacsd, vimc)
         sensor.send("CLEAR_FAULT")
         assert sensor.status(lambda s: str(s["State"]) == "IDLE", 10) is not None
         sensor.localize(x=10, y=-20, z=1200)
+        ack = sensor.ack("LOCALIZE", 10)
+        assert ack is not None and str(ack["AckResult"]) == "ACK", sensor.seen[-8:]
         again = _result(sensor, 120)
-        assert again is not None and str(again["ResultReason"]) not in ("CAMERA_FAULT", "STOPPED"), again
+        assert again is not None, f"no result for the scan after STOP ({sensor.seen[-8:]}):\n" + sensor.stop_and_log()
+        assert str(again["ResultReason"]) not in ("CAMERA_FAULT", "STOPPED"), again
     finally:
         assert sensor.stop() == 0, sensor.log
 

@@ -70,7 +70,8 @@ fi
 grep -E '^(method|ours|paper) +(cases|sun)' "$tmp/eval-bp.txt"
 
 step "the command"
-case0="$tmp/lab/lle_0000/frames/frame_0000.png"
+# The first laser-on frame: a scan begins with its metering frames (laser off, tag "meter").
+case0="$tmp/lab/lle_0000/$("$py" -c "import json,sys; print(next(f['file'] for f in json.load(open(sys.argv[1]))['frames'] if f['laser_on']))" "$tmp/lab/lle_0000/manifest.json")"
 if "$bin/alacs_lle" "$case0" --json "$tmp/one.json" --overlay "$tmp/one.png" >/dev/null &&
   "$py" - "$tmp/one.json" <<'PY'
 import json, sys
