@@ -256,7 +256,9 @@ Status ScanWorker::moveTo(double mm, WorkerEvent& ev) {
 Status ScanWorker::moveOutcome(const motion::MoveReport& r, WorkerEvent& ev) {
   ev.maxStepLatenessNs = std::max(ev.maxStepLatenessNs, r.maxLatenessNs);
   if (r.outcome == motion::MoveOutcome::kCompleted) return Status::ok();
-  homed_.store(false);  // a move that did not complete leaves the position in doubt
+  // A move that did not complete leaves the position in doubt; one cancelled before its
+  // first step does not.
+  if (!(r.outcome == motion::MoveOutcome::kCancelled && r.stepsDone == 0)) homed_.store(false);
   if (r.outcome == motion::MoveOutcome::kLimitHit) ev.faultBit = protocol::kFaultLimitHit;
   if (r.outcome == motion::MoveOutcome::kIoError) ev.faultBit = protocol::kFaultInternal;
   if (r.outcome == motion::MoveOutcome::kCancelled) ev.resultStatus = protocol::ResultStatus::kAborted;
@@ -428,6 +430,12 @@ WorkerEvent ScanWorker::doLocalize(const WorkerJob& job) {
     return ev;
   }
   meterExposure(plan, capture, ev);
+  if (cancel_.load()) {
+    // STOP while metering: nothing moved, the slide stays homed.
+    ev.resultStatus = protocol::ResultStatus::kAborted;
+    ev.status = Status(Error::kFault, "scan stopped by command");
+    return ev;
+  }
   const bool continuous = job.localize.mode == protocol::ScanMode::kContinuous;
   // One pass over some stops; the frames' image work overlaps the motion.
   TimeNs motionDone = 0;
@@ -487,53 +495,38 @@ WorkerEvent ScanWorker::doLocalize(const WorkerJob& job) {
 }
 
 void ScanWorker::meterExposure(const localize::ScanPlan& plan, ports::CaptureRequest& capture, WorkerEvent& ev) {
-  localize::ExposureMeter meter(deps_.metering, capture.exposureUs);
   pipeline_.clearLaserOff();
-  if (meter.nextMeteringUs() == 0) return;
+  if (!deps_.metering.enabled) return;
   // The camera is fixed and only the laser moves: the ambient of the ROI is the same at
   // every stop, so it is metered once, before the first move. The laser is off (every job
   // ends with it off, and these captures never switch it on).
   setPhase(protocol::ProgressPhase::kExposing);
-  const auto laserOffFrame = [&](int64_t exposureUs) {
+  const localize::TakeLaserOffFrame take = [&](int64_t exposureUs,
+                                               localize::LaserOffUse) -> Result<localize::LaserOffFrame> {
+    if (cancel_.load()) return Status(Error::kFault, "scan stopped by command");
     ports::CaptureRequest req = capture;
     req.exposureUs = exposureUs;
     frameReadSinceNs_.store(deps_.clock->now());
     Result<ports::CapturedFrame> f = deps_.camera->capture(req, {});
     frameReadSinceNs_.store(0);
     markProgress();
-    if (f) ++ev.laserOffFrames;
-    return f;
+    if (!f) return f.status();
+    ++ev.laserOffFrames;
+    return localize::LaserOffFrame{f->view, f->info.exposureUs};
   };
-  std::optional<ports::CapturedFrame> last;
-  while (const int64_t us = meter.nextMeteringUs()) {
-    if (cancel_.load()) return;
-    Result<ports::CapturedFrame> f = laserOffFrame(us);
-    if (!f) {
-      ALACS_LOG_WARN("scan", "metering: no laser-off frame at %lld us (%s): the configured exposure, no subtraction",
-                     static_cast<long long>(us), f.status().toString().c_str());
-      return;
-    }
-    if (Status s = meter.add(f->view, plan.roi, f->info.exposureUs); !s) {
-      ALACS_LOG_WARN("scan", "metering: %s: the configured exposure, no subtraction", s.toString().c_str());
-      return;
-    }
-    last = *f;
-  }
-  const localize::MeteringDecision& d = meter.decision();
+  const localize::MeteringRun run = localize::runMetering(deps_.metering, capture.exposureUs, 0, plan.roi, take);
+  if (cancel_.load()) return;
+  // A frame that failed: the configured exposure (or, when only the one to subtract
+  // failed, the one chosen), without subtraction.
+  if (!run.status)
+    ALACS_LOG_WARN("scan", "metering: %s: exposure %lld us, no subtraction", run.status.toString().c_str(),
+                   static_cast<long long>(run.decision.exposureUs));
+  const localize::MeteringDecision& d = run.decision;
   capture.exposureUs = d.exposureUs;
   ev.exposureUs = d.exposureUs;
-  if (d.subtract) {
-    // The last metering frame is the laser-off frame when it was taken at the chosen
-    // exposure; else one more, at that exposure.
-    Result<ports::CapturedFrame> off =
-        meter.lastFrameAtDecision() ? Result<ports::CapturedFrame>(*last) : laserOffFrame(d.exposureUs);
-    if (off) {
-      pipeline_.setLaserOff(off->view, plan.roi);
-      ev.laserOffSubtracted = true;
-    } else {
-      ALACS_LOG_WARN("scan", "metering: no laser-off frame at %lld us (%s): no subtraction",
-                     static_cast<long long>(d.exposureUs), off.status().toString().c_str());
-    }
+  if (run.hasLaserOff) {
+    pipeline_.setLaserOff(run.laserOff.view, plan.roi);
+    ev.laserOffSubtracted = true;
   }
   ALACS_LOG_INFO("scan",
                  "metering: red p%.0f %d DN at %lld us%s -> exposure %lld us (red ~%d DN), %s, %d laser-off frames",

@@ -99,4 +99,41 @@ Status ExposureMeter::add(const image::ImageView& frame, const image::Roi& roi, 
   return Status::ok();
 }
 
+MeteringRun runMetering(const MeteringParams& params, int64_t startExposureUs, int64_t maxExposureUs,
+                        const image::Roi& roi, const TakeLaserOffFrame& take) {
+  MeteringRun out;
+  ExposureMeter meter(params, startExposureUs, maxExposureUs);
+  out.decision = meter.decision();
+  const auto fail = [&](Status s) {
+    out.status = std::move(s);
+    out.decision = ExposureMeter(params, startExposureUs, maxExposureUs).decision();
+    out.hasLaserOff = false;
+    return out;
+  };
+  while (const int64_t us = meter.nextMeteringUs()) {
+    Result<LaserOffFrame> f = take(us, LaserOffUse::kMetering);
+    if (!f) return fail(f.status());
+    ++out.frames;
+    if (Status s = meter.add(f->view, roi, f->exposureUs); !s) return fail(s);
+    out.laserOff = *f;
+  }
+  out.decision = meter.decision();
+  if (!out.decision.subtract) return out;
+  if (meter.lastFrameAtDecision()) {
+    out.hasLaserOff = true;
+    return out;
+  }
+  Result<LaserOffFrame> f = take(out.decision.exposureUs, LaserOffUse::kSubtraction);
+  if (!f) {
+    // Metered, but nothing to subtract: the exposure stands, without subtraction.
+    out.status = f.status();
+    out.decision.subtract = false;
+    return out;
+  }
+  ++out.frames;
+  out.laserOff = *f;
+  out.hasLaserOff = true;
+  return out;
+}
+
 }  // namespace alacs::localize

@@ -14,6 +14,7 @@
 #pragma once
 
 #include <cstdint>
+#include <functional>
 #include <vector>
 
 #include "common/result.h"
@@ -99,5 +100,37 @@ class ExposureMeter {
   int64_t nextUs_;
   MeteringDecision decision_;
 };
+
+// Which laser-off frame a metering run asks for: one the meter reads, or the one more at
+// the chosen exposure that is subtracted (when no metering frame was taken at it).
+enum class LaserOffUse { kMetering, kSubtraction };
+
+// A laser-off frame as the caller's camera, replay or renderer took it: its pixels (valid
+// until the caller's next frame) and the exposure it reports, us.
+struct LaserOffFrame {
+  image::ImageView view;
+  int64_t exposureUs = 0;
+};
+
+// Takes a laser-off frame at `exposureUs` (the laser stays off). An error ends the run.
+using TakeLaserOffFrame = std::function<Result<LaserOffFrame>(int64_t exposureUs, LaserOffUse use)>;
+
+struct MeteringRun {
+  Status status;              // ok, or the first failed frame or add(): then decision is the start's
+  MeteringDecision decision;  // what to expose the stops at, and whether to subtract
+  int frames = 0;             // laser-off frames taken (metering and subtraction)
+  // The frame to subtract: decision.subtract and it was taken. It is the last frame taken,
+  // so it stays valid until the caller's next frame.
+  bool hasLaserOff = false;
+  LaserOffFrame laserOff;
+};
+
+// The whole metering of one scan, the same for the scan worker, the twin's generator and
+// alacs-twin process: laser-off frames of `roi` from `startExposureUs` on, read by an
+// ExposureMeter, then, when it asks for subtraction and its last frame was not taken at
+// the exposure chosen, one more at that exposure. Metering off: no frame, the start's
+// exposure, no subtraction.
+MeteringRun runMetering(const MeteringParams& params, int64_t startExposureUs, int64_t maxExposureUs,
+                        const image::Roi& roi, const TakeLaserOffFrame& take);
 
 }  // namespace alacs::localize

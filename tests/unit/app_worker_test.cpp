@@ -515,3 +515,42 @@ TEST_CASE("Enough lines on the fruit: no second pass", "[app][worker][render]") 
   CHECK((run.event->estimates[0].centerMm - apple.centerMm).norm() < 5.0);
   CHECK(laserOnlyDuringExposures(run));
 }
+
+TEST_CASE("STOP while metering: the scan ends ABORTED before any move, and the slide stays homed", "[app][worker]") {
+  Rig rig(2.0);
+  const localize::Localizer loc(sim::defaultScene().truth, image::LleParams{}, localize::ScanParams{});
+  app::ScanWorker worker(rig.deps, loc, rig.efd);
+  worker.submit(jobOf(app::WorkerJob::Kind::kHome));
+  std::optional<app::WorkerEvent> ev = rig.next(worker);
+  REQUIRE(ev);
+  REQUIRE(ev->status.isOk());
+  REQUIRE(worker.homed());
+  const size_t stepsBefore = rig.step.steps().size();
+  int captures = 0;
+  // STOP as the first laser-off frame is taken (the camera returns it; the next one is not asked for).
+  rig.camera.onCapture = [&] {
+    if (++captures == 1) worker.cancel();
+  };
+  app::WorkerJob scan = jobOf(app::WorkerJob::Kind::kLocalize);
+  scan.localize.mode = protocol::ScanMode::kStopAndGo;
+  scan.plan.stopsMm = {10.0, 20.0};
+  scan.plan.roi = {0, 0, 32, 32};
+  worker.submit(scan);
+  ev = rig.next(worker);
+  REQUIRE(ev);
+  CHECK_FALSE(ev->status.isOk());
+  CHECK(ev->resultStatus == protocol::ResultStatus::kAborted);
+  CHECK(captures == 1);
+  CHECK(ev->exposures.empty());
+  CHECK(rig.step.steps().size() == stepsBefore);  // not one step
+  CHECK(worker.homed());
+  CHECK(rig.laserLine.level() == false);
+  // A move cut short, by contrast, leaves the position in doubt.
+  rig.camera.onCapture = nullptr;
+  rig.step.onStep = [&](int64_t) { worker.cancel(); };
+  worker.submit(jobOf(app::WorkerJob::Kind::kMoveTo, 30.0));
+  ev = rig.next(worker);
+  REQUIRE(ev);
+  CHECK_FALSE(ev->status.isOk());
+  CHECK_FALSE(worker.homed());
+}

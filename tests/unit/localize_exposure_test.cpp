@@ -1,7 +1,9 @@
 // Metering the laser frames' exposure from laser-off frames (localize/exposure.h).
 #include <catch2/catch.hpp>
 
+#include <algorithm>
 #include <cstdint>
+#include <memory>
 #include <vector>
 
 #include "localize/exposure.h"
@@ -179,4 +181,90 @@ TEST_CASE("Metering parameters are range-checked", "[exposure]") {
   p = {};
   p.percentile = 20.0;
   CHECK_FALSE(p.validate());
+}
+
+namespace {
+
+// A recording fake of the caller's camera: the exposures and uses asked for, and a frame
+// whose red (in the ROI) follows the exposure at `dnPerMs`, clipped at 255; it fails from
+// the `failFrom`-th frame on (0: never).
+struct RecordingCamera {
+  explicit RecordingCamera(double dnPerMsIn, int failFromIn = 0) : dnPerMs(dnPerMsIn), failFrom(failFromIn) {}
+  double dnPerMs;
+  int failFrom;
+  std::vector<int64_t> asked;
+  std::vector<localize::LaserOffUse> uses;
+  std::vector<std::unique_ptr<Frame>> frames;
+  localize::TakeLaserOffFrame take() {
+    return [this](int64_t us, localize::LaserOffUse use) -> Result<localize::LaserOffFrame> {
+      asked.push_back(us);
+      uses.push_back(use);
+      if (failFrom > 0 && static_cast<int>(asked.size()) >= failFrom) return Status(Error::kTimeout, "frame timed out");
+      const double dn = std::min(255.0, dnPerMs * static_cast<double>(us) / 1000.0);
+      frames.push_back(std::make_unique<Frame>(64, 32, kRoi, static_cast<uint8_t>(dn)));
+      return localize::LaserOffFrame{frames.back()->view, us};
+    };
+  }
+};
+
+}  // namespace
+
+TEST_CASE("A metering run takes the frames the meter asks for, then the one to subtract", "[exposure]") {
+  localize::MeteringParams p;
+  p.targetDn = 128;
+  p.subtractAboveDn = 100;
+  p.stepDown = 4.0;
+  // 200 DN/ms: clipped at 3000 us, 150 DN at 750 us -> 640 us; then one more at 640 us.
+  RecordingCamera cam(200.0);
+  const localize::MeteringRun run = localize::runMetering(p, 3000, 0, kRoi, cam.take());
+  REQUIRE(run.status);
+  CHECK(cam.asked == std::vector<int64_t>{3000, 750, 640});
+  CHECK(cam.uses == std::vector<localize::LaserOffUse>{localize::LaserOffUse::kMetering,
+                                                       localize::LaserOffUse::kMetering,
+                                                       localize::LaserOffUse::kSubtraction});
+  CHECK(run.frames == 3);
+  CHECK(run.decision.exposureUs == 640);
+  REQUIRE(run.hasLaserOff);
+  CHECK(run.laserOff.view.data == cam.frames.back()->view.data);  // the last frame taken
+  CHECK(run.laserOff.exposureUs == 640);
+
+  // Dim: the metering frame, at the exposure kept, is the one subtracted.
+  p.subtractAboveDn = 20;
+  RecordingCamera dim(20.0);
+  const localize::MeteringRun kept = localize::runMetering(p, 3000, 0, kRoi, dim.take());
+  CHECK(dim.asked == std::vector<int64_t>{3000});
+  CHECK(kept.decision.exposureUs == 3000);
+  CHECK(kept.hasLaserOff);
+  CHECK(kept.frames == 1);
+
+  // Off: no frame, the configured exposure.
+  p.enabled = false;
+  RecordingCamera off(200.0);
+  const localize::MeteringRun none = localize::runMetering(p, 3000, 0, kRoi, off.take());
+  CHECK(off.asked.empty());
+  CHECK(none.status);
+  CHECK(none.decision.exposureUs == 3000);
+  CHECK_FALSE(none.hasLaserOff);
+}
+
+TEST_CASE("A failed metering frame leaves the configured exposure; a failed one to subtract, no subtraction",
+          "[exposure]") {
+  localize::MeteringParams p;
+  p.targetDn = 128;
+  p.subtractAboveDn = 100;
+  RecordingCamera first(200.0, 2);  // the second metering frame fails
+  const localize::MeteringRun failed = localize::runMetering(p, 3000, 0, kRoi, first.take());
+  CHECK_FALSE(failed.status);
+  CHECK(failed.status.reason() == "frame timed out");
+  CHECK(failed.decision.exposureUs == 3000);
+  CHECK_FALSE(failed.decision.subtract);
+  CHECK_FALSE(failed.hasLaserOff);
+
+  RecordingCamera last(200.0, 3);  // the one to subtract fails
+  const localize::MeteringRun metered = localize::runMetering(p, 3000, 0, kRoi, last.take());
+  CHECK_FALSE(metered.status);
+  CHECK(metered.decision.exposureUs == 640);  // metered: that stands
+  CHECK_FALSE(metered.decision.subtract);
+  CHECK_FALSE(metered.hasLaserOff);
+  CHECK(metered.frames == 2);
 }

@@ -64,7 +64,6 @@ Metered meterScene(const sim::SimScene& scene, const std::shared_ptr<const sim::
                    const image::Roi& roi, double slideMm, const localize::MeteringParams& params,
                    int64_t maxExposureUs) {
   Metered out;
-  localize::ExposureMeter meter(params, scene.sensor.exposureUs, maxExposureUs);
   sim::Renderer renderer(scene, rays);
   // The meter reads the render region as a frame of its own: the ROI moves with it.
   const image::Roi local{roi.x - region.x, roi.y - region.y, roi.width, roi.height};
@@ -87,12 +86,12 @@ Metered meterScene(const sim::SimScene& scene, const std::shared_ptr<const sim::
     const cv::Mat& m = out.rendered.back();
     return image::ImageView{m.data, m.cols, m.rows, m.step[0], image::PixelFormat::kBgr888};
   };
-  while (const int64_t us = meter.nextMeteringUs()) {
-    const image::ImageView v = render(us, "meter");
-    if (Status s = meter.add(v, local, us); !s) break;  // (cannot fail: the ROI is inside the region)
-  }
-  out.decision = meter.decision();
-  if (out.decision.subtract && !meter.lastFrameAtDecision()) (void)render(out.decision.exposureUs, "ambient");
+  const localize::MeteringRun run = localize::runMetering(
+      params, scene.sensor.exposureUs, maxExposureUs, local,
+      [&](int64_t us, localize::LaserOffUse use) -> Result<localize::LaserOffFrame> {
+        return localize::LaserOffFrame{render(us, use == localize::LaserOffUse::kMetering ? "meter" : "ambient"), us};
+      });
+  out.decision = run.decision;  // (a render cannot fail, nor can add(): the ROI is inside the region)
   return out;
 }
 

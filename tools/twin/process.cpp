@@ -65,29 +65,22 @@ Metering meterReplay(replay::ReplaySource& src, bool& laser, const image::Roi& r
     out.decision.exposureUs = 0;
     return out;
   }
-  localize::ExposureMeter meter(params, firstOff->exposureUs, maxExposureUs);
   laser = false;
-  Result<ports::CapturedFrame> last = Status(Error::kNotFound, "none");
-  while (const int64_t us = meter.nextMeteringUs()) {
-    ports::CaptureRequest req;
-    req.exposureUs = us;
-    last = src.capture(req, {});
-    if (!last) break;
-    ++out.laserOffFrames;
-    if (Status s = meter.add(last->view, roi, last->info.exposureUs); !s) break;
-  }
-  out.decision = meter.decision();
-  if (out.decision.subtract) {
-    if (!meter.lastFrameAtDecision() || !last) {
-      ports::CaptureRequest req;
-      req.exposureUs = out.decision.exposureUs;
-      last = src.capture(req, {});
-      if (last) ++out.laserOffFrames;
-    }
-    if (last) {
-      const image::ImageView& v = last->view;
-      out.laserOff = cv::Mat(v.height, v.width, CV_8UC3, const_cast<uint8_t*>(v.data), v.strideBytes).clone();
-    }
+  const localize::MeteringRun run =
+      localize::runMetering(params, firstOff->exposureUs, maxExposureUs, roi,
+                            [&](int64_t us, localize::LaserOffUse) -> Result<localize::LaserOffFrame> {
+                              ports::CaptureRequest req;
+                              req.exposureUs = us;
+                              Result<ports::CapturedFrame> f = src.capture(req, {});
+                              if (!f) return f.status();
+                              return localize::LaserOffFrame{f->view, f->info.exposureUs};
+                            });
+  out.decision = run.decision;
+  out.laserOffFrames = run.frames;
+  if (!run.status) out.note = "metering: " + run.status.reason();
+  if (run.hasLaserOff) {
+    const image::ImageView& v = run.laserOff.view;
+    out.laserOff = cv::Mat(v.height, v.width, CV_8UC3, const_cast<uint8_t*>(v.data), v.strideBytes).clone();
   }
   laser = true;
   return out;
