@@ -74,6 +74,7 @@ Status configFromJson(const Json& json, DaemonConfig& c) {
     s->number("outside_gate_confidence_pct", c.scan.outsideGateConfidencePct, Need::kOptional, 0, 100);
     s->number("rough_sigma_mm", c.scan.roughSigmaMm, Need::kOptional, 0, 500);
     s->number("other_object_prior", c.scan.otherObjectPrior, Need::kOptional, 0, 0.99);
+    s->number("line_bias_px", c.scan.lineBiasPx, Need::kOptional, 0, 5);
     s->integer("follow_up_min_lines", c.scan.followUpMinLines, Need::kOptional, 1, 15);
     s->number("follow_up_diameter_sigma_mm", c.scan.followUpDiameterSigmaMm, Need::kOptional, 0, 100);
     s->integer("follow_up_max_stops", c.scan.followUpMaxStops, Need::kOptional, 0, 16);
@@ -146,6 +147,7 @@ OrderedJson configToJson(const DaemonConfig& c) {
                {"outside_gate_confidence_pct", c.scan.outsideGateConfidencePct},
                {"rough_sigma_mm", c.scan.roughSigmaMm},
                {"other_object_prior", c.scan.otherObjectPrior},
+               {"line_bias_px", c.scan.lineBiasPx},
                {"follow_up_min_lines", c.scan.followUpMinLines},
                {"follow_up_diameter_sigma_mm", c.scan.followUpDiameterSigmaMm},
                {"follow_up_max_stops", c.scan.followUpMaxStops}};

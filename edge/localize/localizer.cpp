@@ -3,6 +3,7 @@
 #include <Eigen/Dense>
 #include <Eigen/Geometry>
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <functional>
 #include <limits>
@@ -68,6 +69,7 @@ Status ScanParams::validate() const {
     return {Error::kInvalidArgument, "scan.other_object_prior must be in 0..1 (1 excluded)"};
   if (!(followUpDiameterSigmaMm >= 0.0 && followUpDiameterSigmaMm <= 100.0))
     return {Error::kInvalidArgument, "scan.follow_up_diameter_sigma_mm must be in 0..100"};
+  if (!(lineBiasPx >= 0.0 && lineBiasPx <= 5.0)) return {Error::kInvalidArgument, "scan.line_bias_px must be in 0..5"};
   return Status::ok();
 }
 
@@ -357,7 +359,40 @@ Result<AppleEstimate> Localizer::estimate(const ScanPlan& plan, const std::vecto
   return est;
 }
 
+double Localizer::systematicSigmaMm(const Eigen::Vector3d& approachMm) const {
+  double lineMm = 0.0;
+  const double z = approachMm.z();
+  if (scan_.lineBiasPx > 0.0 && z > 0.0) {
+    // The approach point's pixel, moved across the line by the bias, back onto the laser
+    // plane through the point (pinhole: the distortion changes the derivative little).
+    const geometry::CameraIntrinsics& c = cal_.camera;
+    const Eigen::Vector3d& n = cal_.laser.planeNormal;
+    const double offset = n.dot(approachMm);
+    const Eigen::Vector3d ray(approachMm.x() / z + scan_.lineBiasPx / c.fxPx, approachMm.y() / z, 1.0);
+    const double along = n.dot(ray);
+    // A plane seen edge-on: no depth from it (the localizer never plans such a view).
+    lineMm = std::abs(along) > 1e-6 ? (offset / along * ray - approachMm).norm() : 0.0;
+  }
+  // The calibration's 3D error, between its depths (held beyond them).
+  const geometry::CalibrationQuality& q = cal_.quality;
+  const std::array<double, 4> depthsMm{1000.0, 1200.0, 1400.0, 1600.0};
+  const std::array<double, 4> sigmasMm{q.sigma3dTotalMmAt1000, q.sigma3dTotalMmAt1200, q.sigma3dTotalMmAt1400,
+                                       q.sigma3dTotalMmAt1600};
+  double calMm = z <= depthsMm.front() ? sigmasMm.front() : sigmasMm.back();
+  for (size_t i = 0; i + 1 < depthsMm.size(); ++i)
+    if (z > depthsMm[i] && z <= depthsMm[i + 1]) {
+      const double t = (z - depthsMm[i]) / (depthsMm[i + 1] - depthsMm[i]);
+      calMm = sigmasMm[i] + t * (sigmasMm[i + 1] - sigmasMm[i]);
+    }
+  return std::hypot(lineMm, std::max(0.0, calMm));
+}
+
 void Localizer::weighDoubt(const ScanPlan& plan, double ballMm, AppleEstimate& est) const {
+  // The fit's σ holds the points' scatter, not what they share (docs/geometry.md).
+  // (It moves the whole fruit: the centre's σ takes it too.)
+  const double sharedMm = systematicSigmaMm(est.approachMm);
+  est.sigmaMm = std::hypot(est.sigmaMm, sharedMm);
+  est.centerSigmaMm = std::hypot(est.centerSigmaMm, sharedMm);
   est.fitSigmaMm = est.sigmaMm;
   if (!(scan_.otherObjectPrior > 0.0) || !(scan_.roughSigmaMm > 0.0)) return;
   const double dMm = (est.centerMm - plan.roughMm).norm();

@@ -84,6 +84,13 @@ struct ScanParams {
   // the confidence is multiplied by the chance. Set a priori, not tuned on a benchmark.
   // 0: off (σ and confidence from the fit alone).
   double otherObjectPrior = 0.1;
+  // What no fit's covariance holds, because it does not average out over a line's points:
+  // a bias of the whole laser line in the image (the LLE's mean error on the twin's tuning
+  // worlds is 0.09-0.11 px, docs/lle.md), carried through the triangulation at the
+  // approach point, and the calibration's own 3D error at that depth (the file's
+  // quality.sigma_3d_total_mm_at_*; 0 when the file has none). Both are added to σ in
+  // quadrature (docs/geometry.md "Honest uncertainty"). 0: no line bias.
+  double lineBiasPx = 0.1;
   int followUpMinLines = 3;
   double followUpDiameterSigmaMm = 0.0;
   int followUpMaxStops = 6;
@@ -143,7 +150,7 @@ struct AppleEstimate {
   enum class Doubt { kNone, kFarFromRough, kTwoSurfaces };
   Doubt doubt = Doubt::kNone;
   double targetPct = 100.0;  // chance that the fitted object is the target
-  double fitSigmaMm = 0.0;   // σ of the approach point from the fit alone (before the mixture)
+  double fitSigmaMm = 0.0;   // σ of the approach point from the fit and the systematic terms (before the mixture)
   double rivalShare = 0.0;   // rival score / (own + rival) from the sphere fit (0: no rival)
   Eigen::Vector3d rivalCenterMm = Eigen::Vector3d::Zero();
 };
@@ -197,6 +204,10 @@ class Localizer {
  // The part of the plan's ROI where the laser plane at `slideMm` can light anything within
   // the gate around the rough position (empty when it cannot).
   image::Roi stopRoi(const ScanPlan& plan, double slideMm) const;
+
+  // The systematic part of the approach point's σ at `approachMm` (ScanParams::lineBiasPx
+  // and the calibration's error), 1σ 3D, mm: added to every fit's σ.
+  double systematicSigmaMm(const Eigen::Vector3d& approachMm) const;
 
  private:
   // estimate() before the rough-position gate; the fit's prior on the centre is the rough

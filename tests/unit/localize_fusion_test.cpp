@@ -485,3 +485,54 @@ TEST_CASE("Honest uncertainty: two fruit that explain the lines alike are two su
   CHECK(est->confidencePct < 50.0);
   CHECK(est->sigmaMm > 30.0);  // spans the other fruit
 }
+
+TEST_CASE("What all points share is in σ: the line's bias through the triangulation, the calibration's error",
+          "[localize]") {
+  Case k;
+  const Eigen::Vector3d near(0.0, 0.0, 1000.0);
+  const Eigen::Vector3d far(0.0, 0.0, 1600.0);
+  localize::Localizer loc(k.cal, image::LleParams{}, k.scan);
+  const double nearMm = loc.systematicSigmaMm(near);
+  const double farMm = loc.systematicSigmaMm(far);
+  // 0.1 px across the line: tenths of a millimetre, growing with depth (on the axis the
+  // laser plane through the point is farther out on the slide: the baseline grows too).
+  CHECK(nearMm > 0.05);
+  CHECK(farMm < 1.5);
+  CHECK(farMm / nearMm > 1.3);
+  CHECK(farMm / nearMm < 2.8);
+  // Twice the bias, twice the term; none, none.
+  localize::ScanParams twice = k.scan;
+  twice.lineBiasPx = 0.2;
+  CHECK(localize::Localizer(k.cal, image::LleParams{}, twice).systematicSigmaMm(far) ==
+        Approx(2.0 * farMm).epsilon(0.01));
+  localize::ScanParams none = k.scan;
+  none.lineBiasPx = 0.0;
+  CHECK(localize::Localizer(k.cal, image::LleParams{}, none).systematicSigmaMm(far) == 0.0);
+  // The calibration's 3D error at the depth, interpolated between its depths, in quadrature.
+  geometry::Calibration measured = k.cal;
+  measured.quality.sigma3dTotalMmAt1000 = 1.0;
+  measured.quality.sigma3dTotalMmAt1200 = 1.5;
+  measured.quality.sigma3dTotalMmAt1400 = 2.0;
+  measured.quality.sigma3dTotalMmAt1600 = 3.0;
+  const localize::Localizer calibrated(measured, image::LleParams{}, none);
+  CHECK(calibrated.systematicSigmaMm(Eigen::Vector3d(0, 0, 1300.0)) == Approx(1.75));
+  CHECK(calibrated.systematicSigmaMm(Eigen::Vector3d(0, 0, 800.0)) == Approx(1.0));
+  CHECK(calibrated.systematicSigmaMm(Eigen::Vector3d(0, 0, 1800.0)) == Approx(3.0));
+  // ... and an estimate's σ carries it: the same lines, a wider σ.
+  std::mt19937 rngA(5);
+  std::mt19937 rngB(5);
+  localize::Localizer plain(k.cal, image::LleParams{}, none);
+  auto plan = plain.plan(k.center, 200.0);
+  REQUIRE(plan.isOk());
+  std::vector<localize::LineObservation> a;
+  std::vector<localize::LineObservation> b;
+  for (double s : plan->stopsMm) a.push_back(lineOf(k.cal, k.center, k.radius, s, 0.4, {}, rngA));
+  for (double s : plan->stopsMm) b.push_back(lineOf(k.cal, k.center, k.radius, s, 0.4, {}, rngB));
+  auto fit = plain.estimate(*plan, a);
+  auto withCal = localize::Localizer(measured, image::LleParams{}, none).estimate(*plan, b);
+  REQUIRE(fit.isOk());
+  REQUIRE(withCal.isOk());
+  CHECK(withCal->fitSigmaMm > fit->fitSigmaMm);
+  CHECK(withCal->fitSigmaMm ==
+        Approx(std::hypot(fit->fitSigmaMm, calibrated.systematicSigmaMm(withCal->approachMm))).epsilon(0.05));
+}
