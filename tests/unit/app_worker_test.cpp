@@ -127,6 +127,8 @@ struct Rig {
   // The worker's next event, as the daemon's loop waits for it: on the eventfd. The limit
   // is in real time and only keeps a broken worker from hanging the test run; nothing
   // here depends on how fast the machine is.
+  // Homes `w` (a HOME job, which must succeed); its event.
+  std::optional<app::WorkerEvent> home(app::ScanWorker& w);
   std::optional<app::WorkerEvent> next(app::ScanWorker& w, int hangLimitMs = 60000) {
     while (true) {
       if (std::optional<app::WorkerEvent> ev = w.takeEvent()) return ev;
@@ -153,6 +155,23 @@ app::WorkerJob jobOf(app::WorkerJob::Kind kind, double mm = 0.0) {
   return j;
 }
 
+// A stop-and-go LOCALIZE at 10 and 20 mm over a 32 px square ROI.
+app::WorkerJob twoStopScan() {
+  app::WorkerJob scan = jobOf(app::WorkerJob::Kind::kLocalize);
+  scan.localize.mode = protocol::ScanMode::kStopAndGo;
+  scan.plan.stopsMm = {10.0, 20.0};
+  scan.plan.roi = {0, 0, 32, 32};
+  return scan;
+}
+
+std::optional<app::WorkerEvent> Rig::home(app::ScanWorker& w) {
+  w.submit(jobOf(app::WorkerJob::Kind::kHome));
+  std::optional<app::WorkerEvent> ev = next(w);
+  REQUIRE(ev);
+  REQUIRE(ev->status.isOk());
+  return ev;
+}
+
 }  // namespace
 
 TEST_CASE("A continuous scan's result is out while the slide brakes; a job sent then runs once it is at rest",
@@ -161,10 +180,7 @@ TEST_CASE("A continuous scan's result is out while the slide brakes; a job sent 
   const motion::SlideLimits lim = Rig::limits();
   const localize::Localizer loc(sim::defaultScene().truth, image::LleParams{}, localize::ScanParams{});
   app::ScanWorker worker(rig.deps, loc, rig.efd);
-  worker.submit(jobOf(app::WorkerJob::Kind::kHome));
-  std::optional<app::WorkerEvent> ev = rig.next(worker);
-  REQUIRE(ev);
-  REQUIRE(ev->status.isOk());
+  std::optional<app::WorkerEvent> ev = rig.home(worker);
   REQUIRE(rig.slide.positionSteps() == 0);
   const size_t homingSteps = rig.step.steps().size();
   CHECK(homingSteps == static_cast<size_t>(lim.stepsFor(2.0)));
@@ -237,10 +253,7 @@ TEST_CASE("The worker shows when the frame read in flight began, for the frame s
   Rig rig(2.0);
   const localize::Localizer loc(sim::defaultScene().truth, image::LleParams{}, localize::ScanParams{});
   app::ScanWorker worker(rig.deps, loc, rig.efd);
-  worker.submit(jobOf(app::WorkerJob::Kind::kHome));
-  std::optional<app::WorkerEvent> ev = rig.next(worker);
-  REQUIRE(ev);
-  REQUIRE(ev->status.isOk());
+  std::optional<app::WorkerEvent> ev = rig.home(worker);
   CHECK(worker.frameReadSinceNs() == 0);
   struct Seen {
     TimeNs sinceNs;  // what the sensor would read during the capture
@@ -248,10 +261,7 @@ TEST_CASE("The worker shows when the frame read in flight began, for the frame s
   };
   std::vector<Seen> seen;
   rig.camera.onCapture = [&] { seen.push_back({worker.frameReadSinceNs(), rig.time.now()}); };
-  app::WorkerJob scan = jobOf(app::WorkerJob::Kind::kLocalize);
-  scan.localize.mode = protocol::ScanMode::kStopAndGo;
-  scan.plan.stopsMm = {10.0, 20.0};
-  scan.plan.roi = {0, 0, 32, 32};
+  const app::WorkerJob scan = twoStopScan();
   worker.submit(scan);
   ev = rig.next(worker);
   REQUIRE(ev);
@@ -276,10 +286,7 @@ TEST_CASE(
   rig.deps.metering.subtractAboveDn = 50;
   const localize::Localizer loc(sim::defaultScene().truth, image::LleParams{}, localize::ScanParams{});
   app::ScanWorker worker(rig.deps, loc, rig.efd);
-  worker.submit(jobOf(app::WorkerJob::Kind::kHome));
-  std::optional<app::WorkerEvent> ev = rig.next(worker);
-  REQUIRE(ev);
-  REQUIRE(ev->status.isOk());
+  std::optional<app::WorkerEvent> ev = rig.home(worker);
   rig.camera.setRed(200);  // 200 DN at the configured 1000 us: 500 us brings it to 100
   struct Seen {
     bool laser;
@@ -289,10 +296,7 @@ TEST_CASE(
   rig.camera.requestedUs.clear();
   rig.camera.onCapture = [&] { seen.push_back({rig.laserLine.level(), rig.step.steps().size()}); };
   const size_t stepsBefore = rig.step.steps().size();
-  app::WorkerJob scan = jobOf(app::WorkerJob::Kind::kLocalize);
-  scan.localize.mode = protocol::ScanMode::kStopAndGo;
-  scan.plan.stopsMm = {10.0, 20.0};
-  scan.plan.roi = {0, 0, 32, 32};
+  const app::WorkerJob scan = twoStopScan();
   worker.submit(scan);
   ev = rig.next(worker);
   REQUIRE(ev);
@@ -337,10 +341,7 @@ TEST_CASE("One job waits behind the running one; cancel() ends both, and a job s
   const motion::SlideLimits lim = Rig::limits();
   const localize::Localizer loc(sim::defaultScene().truth, image::LleParams{}, localize::ScanParams{});
   app::ScanWorker worker(rig.deps, loc, rig.efd);
-  worker.submit(jobOf(app::WorkerJob::Kind::kHome));
-  std::optional<app::WorkerEvent> ev = rig.next(worker);
-  REQUIRE(ev);
-  REQUIRE(ev->status.isOk());
+  std::optional<app::WorkerEvent> ev = rig.home(worker);
   // At 1 mm into a 1.7 s move: one job queued behind it, a second refused, then cancel().
   const int64_t cancelAt = lim.stepsFor(1.0);
   bool acted = false, queued = false, refused = false;
@@ -520,10 +521,7 @@ TEST_CASE("STOP while metering: the scan ends ABORTED before any move, and the s
   Rig rig(2.0);
   const localize::Localizer loc(sim::defaultScene().truth, image::LleParams{}, localize::ScanParams{});
   app::ScanWorker worker(rig.deps, loc, rig.efd);
-  worker.submit(jobOf(app::WorkerJob::Kind::kHome));
-  std::optional<app::WorkerEvent> ev = rig.next(worker);
-  REQUIRE(ev);
-  REQUIRE(ev->status.isOk());
+  std::optional<app::WorkerEvent> ev = rig.home(worker);
   REQUIRE(worker.homed());
   const size_t stepsBefore = rig.step.steps().size();
   int captures = 0;
@@ -531,10 +529,7 @@ TEST_CASE("STOP while metering: the scan ends ABORTED before any move, and the s
   rig.camera.onCapture = [&] {
     if (++captures == 1) worker.cancel();
   };
-  app::WorkerJob scan = jobOf(app::WorkerJob::Kind::kLocalize);
-  scan.localize.mode = protocol::ScanMode::kStopAndGo;
-  scan.plan.stopsMm = {10.0, 20.0};
-  scan.plan.roi = {0, 0, 32, 32};
+  const app::WorkerJob scan = twoStopScan();
   worker.submit(scan);
   ev = rig.next(worker);
   REQUIRE(ev);
