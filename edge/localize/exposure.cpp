@@ -103,11 +103,11 @@ MeteringRun runMetering(const MeteringParams& params, int64_t startExposureUs, i
                         const image::Roi& roi, const TakeLaserOffFrame& take) {
   MeteringRun out;
   ExposureMeter meter(params, startExposureUs, maxExposureUs);
-  out.decision = meter.decision();
+  const MeteringDecision start = meter.decision();  // what a failed metering falls back to
+  out.decision = start;
   const auto fail = [&](Status s) {
     out.status = std::move(s);
-    out.decision = ExposureMeter(params, startExposureUs, maxExposureUs).decision();
-    out.hasLaserOff = false;
+    out.decision = start;
     return out;
   };
   while (const int64_t us = meter.nextMeteringUs()) {

@@ -116,7 +116,9 @@ struct LaserOffFrame {
 using TakeLaserOffFrame = std::function<Result<LaserOffFrame>(int64_t exposureUs, LaserOffUse use)>;
 
 struct MeteringRun {
-  Status status;              // ok, or the first failed frame or add(): then decision is the start's
+  // ok, or the first failed frame or add(): a failed metering frame leaves the start's
+  // decision; a failed frame to subtract, the one chosen without subtraction.
+  Status status;
   MeteringDecision decision;  // what to expose the stops at, and whether to subtract
   int frames = 0;             // laser-off frames taken (metering and subtraction)
   // The frame to subtract: decision.subtract and it was taken. It is the last frame taken,
