@@ -76,6 +76,7 @@ Status configFromJson(const Json& json, DaemonConfig& c) {
     s->number("other_object_prior", c.scan.otherObjectPrior, Need::kOptional, 0, 0.99);
     s->number("line_bias_px", c.scan.lineBiasPx, Need::kOptional, 0, 5);
     s->integer("follow_up_min_lines", c.scan.followUpMinLines, Need::kOptional, 1, 15);
+    s->number("follow_up_hidden_pct", c.scan.followUpHiddenPct, Need::kOptional, 0, 100);
     s->number("follow_up_diameter_sigma_mm", c.scan.followUpDiameterSigmaMm, Need::kOptional, 0, 100);
     s->integer("follow_up_max_stops", c.scan.followUpMaxStops, Need::kOptional, 0, 16);
     s->finish();
@@ -149,6 +150,7 @@ OrderedJson configToJson(const DaemonConfig& c) {
                {"other_object_prior", c.scan.otherObjectPrior},
                {"line_bias_px", c.scan.lineBiasPx},
                {"follow_up_min_lines", c.scan.followUpMinLines},
+               {"follow_up_hidden_pct", c.scan.followUpHiddenPct},
                {"follow_up_diameter_sigma_mm", c.scan.followUpDiameterSigmaMm},
                {"follow_up_max_stops", c.scan.followUpMaxStops}};
   j["lle"] = {{"brce_step", c.lle.brceStep},

@@ -452,8 +452,9 @@ WorkerEvent ScanWorker::doLocalize(const WorkerJob& job) {
   Status scanned = pass(plan, lines);
   phase_.store(protocol::ProgressPhase::kFitting);
   Result<localize::AppleEstimate> est = scanned ? localizer.estimate(plan, lines) : Result<localize::AppleEstimate>(scanned);
-  // Adaptive scan: too few lines on the fruit for its centre; a second pass in between.
-  if (std::vector<double> more = localizer.followUpStops(plan, est, deps_.limits.strokeMm);
+  // Adaptive scan: a first pass that leaves the fit in doubt (too few lines, the fruit mostly
+  // hidden, two surfaces); a second pass, denser, where the fruit was seen.
+  if (std::vector<double> more = localizer.followUpStops(plan, lines, est, deps_.limits.strokeMm);
       scanned && !more.empty() && !cancel_.load()) {
     ev.firstPassLines = est ? est->linesUsed : 0;
     ALACS_LOG_INFO("scan", "second pass: %zu stops (%d lines reached the fit)", more.size(), ev.firstPassLines);

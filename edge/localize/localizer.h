@@ -66,15 +66,19 @@ struct ScanParams {
   // or of a neighbour, not the target. The estimate is then the rough position's own, with
   // its σ. 0: off. Multi-line spheres are not gated (their centre is measured).
   double roughGateSigmas = 4.0;
-  // Adaptive scan: when fewer than `followUpMinLines` lines reach the fit (a leaf hides the
-  // others, or the rough position centred the stops beside the fruit), one or two lines
-  // leave the centre to the priors; the sensor then takes a second pass of stops halfway
-  // between the first pass's and half a spacing beyond each end (followUpStops), at most
-  // `followUpMaxStops` of them, and fuses all the lines. 0 stops: off (the paper's scan).
-  // The same second pass when the fit's diameter is unsure: its 1σ above this (three lines
-  // far away leave the diameter to ±4 mm and more). 0 (the default): lines only; 4 meets
-  // the diameter targets at 1.6 m, at the price of a second pass on ~45 % of the scans
-  // (docs/geometry.md, docs/daemon.md).
+  // Adaptive scan (docs/geometry.md "The second pass"): a second pass of stops when the
+  // first pass leaves the fit in doubt:
+  //   - fewer than `followUpMinLines` lines reached the fit (a leaf hides the others, or the
+  //     rough position centred the stops beside the fruit): the priors set the centre;
+  //   - the fruit is mostly hidden: at least `followUpHiddenPct` of its expected rows did
+  //     not reach the fit (0: not a reason);
+  //   - another object explains the same lines about as well (Doubt::kTwoSurfaces);
+  //   - its diameter's 1σ above `followUpDiameterSigmaMm` (0, the default: not a reason;
+  //     three lines far away leave the diameter to ±4 mm and more).
+  // The new stops are denser (a third of the spacing) and placed where the first pass saw
+  // the fruit: round the stops whose line put points on it, one spacing either side; at
+  // most `followUpMaxStops` of them, the nearest the middle of what was seen first. All the
+  // lines are then fused. 0 stops: off (the paper's scan).
   // Honest uncertainty (docs/geometry.md "Honest uncertainty"): a fitted fruit may be
   // another object than the target (a touching neighbour, a leaf and the fruit bent into
   // one sphere). The chance that it is the target weighs how far its centre lies from the
@@ -92,6 +96,7 @@ struct ScanParams {
   // quadrature (docs/geometry.md "Honest uncertainty"). 0: no line bias.
   double lineBiasPx = 0.1;
   int followUpMinLines = 3;
+  double followUpHiddenPct = 60.0;
   double followUpDiameterSigmaMm = 0.0;
   int followUpMaxStops = 6;
   Status validate() const;
@@ -179,13 +184,13 @@ class Localizer {
   Result<LineObservation> observe(const image::ImageView& frame, const ScanPlan& plan, double slideMm,
                                   image::LleWorkspace& ws, const image::ImageView* laserOff = nullptr) const;
 
-  // The second pass of an adaptive scan: the stops to add when the first pass's estimate
-  // (`first`, or its error) rests on fewer than followUpMinLines lines or its diameter's σ
-  // exceeds followUpDiameterSigmaMm; empty when neither, when `first` is an error, when
-  // following up is off, or when every such stop is outside [0, strokeMm].
-  // Ordered as one sweep back from where the first pass ended.
+  // The second pass of an adaptive scan (ScanParams "Adaptive scan"): the stops to add
+  // after the first pass's `lines` gave `first`; empty when the first pass is enough, when
+  // `first` is an error, when following up is off, or when every such stop is outside
+  // [0, strokeMm]. Ordered as one sweep back from where the first pass ended.
   // Pure: the caller scans them (observe) and calls estimate() with all the lines.
-  std::vector<double> followUpStops(const ScanPlan& plan, const Result<AppleEstimate>& first, double strokeMm) const;
+  std::vector<double> followUpStops(const ScanPlan& plan, const std::vector<LineObservation>& lines,
+                                    const Result<AppleEstimate>& first, double strokeMm) const;
 
   // Fuses the observations. A line at the slide position of an earlier one (within 0.05 mm)
   // is the same line again and is left out: a replayed scan serves the frame recorded

@@ -275,10 +275,11 @@ TEST_CASE("A line seen twice (a replay serving a recorded frame again) counts on
   CHECK((again->centerMm - once->centerMm).norm() < 1e-9);
   CHECK(again->sigmaMm == Approx(once->sigmaMm));
   // Two lines: the adaptive scan still asks for its second pass.
-  CHECK_FALSE(loc.followUpStops(*plan, again, 200.0).empty());
+  CHECK_FALSE(loc.followUpStops(*plan, twice, again, 200.0).empty());
 }
 
-TEST_CASE("The adaptive second pass: stops in between and beyond, only when too few lines reach the fit", "[localize]") {
+TEST_CASE("The adaptive second pass: denser stops where the first pass saw the fruit, only when it is in doubt",
+          "[localize]") {
   // The hidden-fruit case of the paper's scan: a leaf leaves one line on the target.
   Case k;
   std::mt19937 rng(31);
@@ -286,16 +287,19 @@ TEST_CASE("The adaptive second pass: stops in between and beyond, only when too 
   auto plan = loc.plan(k.center, 200.0);
   REQUIRE(plan.isOk());
   REQUIRE(plan->stopsMm.size() == 5);
+  const double s0 = plan->stopsMm.front();
   const double middle = plan->stopsMm[2];
+  REQUIRE(middle == Approx(s0 + 40.0));
   std::vector<localize::LineObservation> lines{lineOf(k.cal, k.center, k.radius, middle, 0.4, {}, rng)};
   const Result<localize::AppleEstimate> one = loc.estimate(*plan, lines);
   REQUIRE(one.isOk());
   REQUIRE(one->linesUsed == 1);
-  const std::vector<double> more = loc.followUpStops(*plan, one, 200.0);
-  // Halfway between the five stops and half a spacing beyond each end: one sweep back
+  const std::vector<double> more = loc.followUpStops(*plan, lines, one, 200.0);
+  // The fruit was seen at the middle stop only: the thirds of the spacing within one
+  // spacing of it, none where the first pass's other stops saw nothing; one sweep back
   // from the far end (the first pass went forward).
-  const double s0 = plan->stopsMm.front();
-  const std::vector<double> expected{s0 + 90.0, s0 + 70.0, s0 + 50.0, s0 + 30.0, s0 + 10.0, s0 - 10.0};
+  const double third = 20.0 / 3.0;
+  const std::vector<double> expected{middle + 2 * third, middle + third, middle - third, middle - 2 * third};
   REQUIRE(more.size() == expected.size());
   for (size_t i = 0; i < more.size(); ++i) CHECK(more[i] == Approx(expected[i]).margin(1e-9));
   // Those stops give the fruit the lines it lacked: the estimate now rests on several.
@@ -306,42 +310,99 @@ TEST_CASE("The adaptive second pass: stops in between and beyond, only when too 
   CHECK(all->linesUsed >= 4);
   CHECK(all->centerSigmaMm < one->centerSigmaMm);
   CHECK((all->centerMm - k.center).norm() < 3.0);
-  // Enough lines: nothing more. No estimate (nothing lit near the rough position): nothing
-  // more either. Off: nothing.
-  CHECK(loc.followUpStops(*plan, all, 200.0).empty());
-  CHECK(loc.followUpStops(*plan, Result<localize::AppleEstimate>(Status(Error::kNotFound, "none")), 200.0).empty());
+  // Enough lines, the fruit not mostly hidden, no rival: nothing more. No estimate
+  // (nothing lit near the rough position): nothing more either. Off: nothing.
+  REQUIRE(all->occlusionPct < k.scan.followUpHiddenPct);
+  REQUIRE(all->doubt == localize::AppleEstimate::Doubt::kNone);
+  CHECK(loc.followUpStops(*plan, lines, all, 200.0).empty());
+  CHECK(loc.followUpStops(*plan, lines, Result<localize::AppleEstimate>(Status(Error::kNotFound, "none")), 200.0)
+            .empty());
   localize::ScanParams off = k.scan;
   off.followUpMaxStops = 0;
-  CHECK(localize::Localizer(k.cal, image::LleParams{}, off).followUpStops(*plan, one, 200.0).empty());
-  // At most followUpMaxStops, the ones nearest the rough position's slide.
+  CHECK(localize::Localizer(k.cal, image::LleParams{}, off).followUpStops(*plan, lines, one, 200.0).empty());
+  // At most followUpMaxStops, the ones nearest the middle of what was seen.
   localize::ScanParams few = k.scan;
   few.followUpMaxStops = 2;
-  const std::vector<double> two = localize::Localizer(k.cal, image::LleParams{}, few).followUpStops(*plan, one, 200.0);
+  const std::vector<double> two =
+      localize::Localizer(k.cal, image::LleParams{}, few).followUpStops(*plan, {lines[0]}, one, 200.0);
   REQUIRE(two.size() == 2);
-  CHECK(two[0] == Approx(s0 + 50.0));
-  CHECK(two[1] == Approx(s0 + 30.0));
-  // Enough lines but the size in doubt (its σ over the limit): only the stops whose plane
-  // cuts the fruit well inside its limb, not the ones beyond the first pass's ends.
+  CHECK(two[0] == Approx(middle + third));
+  CHECK(two[1] == Approx(middle - third));
+}
+
+TEST_CASE("The second pass's reasons: a mostly hidden fruit, two surfaces, an unsure size", "[localize]") {
+  Case k;
+  std::mt19937 rng(37);
+  const localize::Localizer loc(k.cal, image::LleParams{}, k.scan);
+  auto plan = loc.plan(k.center, 200.0);
+  REQUIRE(plan.isOk());
+  const double s0 = plan->stopsMm.front();
+  // Two stops see the fruit (s0 + 20 and s0 + 40), the three others nothing: a leaf.
+  std::vector<localize::LineObservation> lines;
+  for (double s : plan->stopsMm) {
+    localize::LineObservation l = lineOf(k.cal, k.center, k.radius, s, 0.4, {}, rng);
+    if (s != plan->stopsMm[1] && s != plan->stopsMm[2]) {
+      l.pointsMm.clear();
+      l.pixels.clear();
+    }
+    lines.push_back(std::move(l));
+  }
+  Result<localize::AppleEstimate> est = loc.estimate(*plan, lines);
+  REQUIRE(est.isOk());
+  REQUIRE(est->linesUsed == 2);
+  // Few lines: the thirds from one spacing below the first seen stop to one above the last.
+  const std::vector<double> fromTwo = loc.followUpStops(*plan, lines, est, 200.0);
+  REQUIRE(fromTwo.size() == 6);
+  for (double s : fromTwo) {
+    CHECK(s > s0 - 1e-9);
+    CHECK(s < s0 + 60.0 + 1e-9);
+  }
+  // Enough lines: a fit that the doubt model or the hidden share puts in doubt still asks.
+  localize::AppleEstimate sure = *est;
+  sure.linesUsed = 4;
+  sure.occlusionPct = k.scan.followUpHiddenPct - 1.0;
+  CHECK(loc.followUpStops(*plan, lines, sure, 200.0).empty());
+  localize::AppleEstimate hidden = sure;
+  hidden.occlusionPct = k.scan.followUpHiddenPct;
+  CHECK(loc.followUpStops(*plan, lines, hidden, 200.0) == fromTwo);
+  localize::AppleEstimate rival = sure;
+  rival.doubt = localize::AppleEstimate::Doubt::kTwoSurfaces;
+  CHECK(loc.followUpStops(*plan, lines, rival, 200.0) == fromTwo);
+  localize::ScanParams notHidden = k.scan;
+  notHidden.followUpHiddenPct = 0.0;  // not a reason
+  CHECK(localize::Localizer(k.cal, image::LleParams{}, notHidden).followUpStops(*plan, lines, hidden, 200.0).empty());
+  // Only the size in doubt: the stops whose plane cuts the fruit well inside its limb.
   localize::ScanParams unsure = k.scan;
   unsure.followUpDiameterSigmaMm = 0.01;
   const localize::Localizer sizeLoc(k.cal, image::LleParams{}, unsure);
-  REQUIRE(all->diameterSigmaMm > 0.01);
-  const std::vector<double> inside = sizeLoc.followUpStops(*plan, all, 200.0);
-  CHECK(inside.size() >= 2);
-  CHECK(inside.size() <= 4);
-  const double centreSlide = k.cal.laser.slideForPoint(all->centerMm);
-  for (double s : inside) {
-    CHECK(std::abs(s - centreSlide) < 0.8 * k.radius / k.cal.laser.planeNormal.x() + 1.0);
-    CHECK(s > s0);
-    CHECK(s < s0 + 80.0);
-  }
+  REQUIRE(sure.diameterSigmaMm > 0.01);
+  const std::vector<double> inside = sizeLoc.followUpStops(*plan, lines, sure, 200.0);
+  CHECK_FALSE(inside.empty());
+  const double centreSlide = k.cal.laser.slideForPoint(sure.centerMm);
+  const double limbSlide = 0.8 * 0.5 * sure.diameterMm / std::abs(k.cal.laser.planeNormal.x());
+  for (double s : inside) CHECK(std::abs(s - centreSlide) <= limbSlide + 1e-6);
   CHECK(std::is_sorted(inside.rbegin(), inside.rend()));
-  // At the end of the stroke, a stop beyond it is clamped onto it, or dropped when a stop
-  // of the first pass is already there.
+}
+
+TEST_CASE("The second pass at the end of the stroke: clamped, never twice the same stop", "[localize]") {
+  Case k;
+  std::mt19937 rng(43);
+  const localize::Localizer loc(k.cal, image::LleParams{}, k.scan);
+  auto plan = loc.plan(k.center, 200.0);
+  REQUIRE(plan.isOk());
   localize::ScanPlan atEnd = *plan;
   atEnd.stopsMm = {120.0, 140.0, 160.0, 180.0, 200.0};
-  const std::vector<double> clamped = loc.followUpStops(atEnd, one, 200.0);
-  CHECK(clamped == std::vector<double>{190.0, 170.0, 150.0, 130.0, 110.0});
+  // The fruit seen at the last stop only (no fit: the paper's candidate).
+  std::vector<localize::LineObservation> lines{lineOf(k.cal, k.center, k.radius, plan->stopsMm[2], 0.4, {}, rng)};
+  lines[0].slideMm = 200.0;
+  const Result<localize::AppleEstimate> one =
+      loc.estimate(*plan, {lineOf(k.cal, k.center, k.radius, plan->stopsMm[2], 0.4, {}, rng)});
+  REQUIRE(one.isOk());
+  const std::vector<double> clamped = loc.followUpStops(atEnd, lines, one, 200.0);
+  // 186.7 and 193.3 below it; the two beyond the stroke land on 200 and are dropped.
+  REQUIRE(clamped.size() == 2);
+  CHECK(clamped[0] == Approx(200.0 - 20.0 / 3.0));
+  CHECK(clamped[1] == Approx(200.0 - 40.0 / 3.0));
 }
 
 TEST_CASE("Scan parameters are validated", "[localize]") {
@@ -356,6 +417,9 @@ TEST_CASE("Scan parameters are validated", "[localize]") {
   p = {};
   p.followUpMaxStops = 17;
   CHECK(p.validate().reason().find("follow_up_max_stops") != std::string::npos);
+  p = {};
+  p.followUpHiddenPct = 101.0;
+  CHECK(p.validate().reason().find("follow_up_hidden_pct") != std::string::npos);
   p = {};
   p.followUpDiameterSigmaMm = -1.0;
   CHECK(p.validate().reason().find("follow_up_diameter_sigma_mm") != std::string::npos);

@@ -55,6 +55,7 @@ struct Options {
   double spacingMm = 0.0;                 // 0: ScanParams' default
   int metering = 1;                       // the exposure metered from laser-off frames (the daemon's default)
   std::string lighting = "overcast";
+  std::string world = "benchmark";  // benchmark|benchmark-hard|holdout (sim/orchard.h)
   double exposureX = 1.0;  // the exposure: this × the auto exposure (at most 3000 us)
   std::string exportDir;
   bool replay = false;
@@ -173,8 +174,10 @@ void scaleCamera(sim::SimScene& scene, int widthPx, int heightPx) {
 
 double caseDistanceMm(int c) { return 1000.0 + 100.0 * (c % 5); }
 
-Result<sim::OrchardCase> orchardCase(int c, sim::LightingKind lighting = sim::LightingKind::kOvercast) {
+Result<sim::OrchardCase> orchardCase(int c, sim::LightingKind lighting = sim::LightingKind::kOvercast,
+                                     sim::World world = sim::World::kBenchmark) {
   sim::CaseSpec spec;
+  spec.world = world;
   spec.distanceMm = caseDistanceMm(c);
   spec.occluded = true;
   spec.lighting = lighting;
@@ -214,11 +217,17 @@ int simulatedCycle(const Options& o) {
     std::fprintf(stderr, "alacs_cycle: --lighting: %s\n", lighting.status().reason().c_str());
     return 2;
   }
+  Result<sim::World> world = sim::parseWorld(o.world);
+  if (!world) {
+    std::fprintf(stderr, "alacs_cycle: --world: %s\n", world.status().reason().c_str());
+    return 2;
+  }
   std::printf(
-      "localize cycle: %d orchard cases (1.0-1.4 m, occluded, %s, exposure %.1f × auto), motor %.0f mm/s, "
+      "localize cycle: %d orchard cases of the %s world (1.0-1.4 m, occluded, %s, exposure %.1f × auto), motor %.0f "
+      "mm/s, "
       "%.0f mm/s², %.0f steps/mm, slide parked -20/-5/+5/+20 mm from the scan's first stop, metering %s\n",
-      o.cases, o.lighting.c_str(), o.exposureX, limits.maxSpeedMmPerS, limits.accelMmPerS2, limits.stepsPerMm,
-      o.metering != 0 ? "on" : "off");
+      o.cases, o.world.c_str(), o.lighting.c_str(), o.exposureX, limits.maxSpeedMmPerS, limits.accelMmPerS2,
+      limits.stepsPerMm, o.metering != 0 ? "on" : "off");
   const std::string modes = o.modes.empty() ? "both" : o.modes;
   for (const char* mode : {"stop-and-go", "continuous"}) {
     if (modes != "both" && modes != mode) continue;
@@ -226,7 +235,7 @@ int simulatedCycle(const Options& o) {
     std::vector<Trial> trials;
     std::vector<double> laserOffFrames;
     for (int c = 0; c < o.cases; ++c) {
-      Result<sim::OrchardCase> oc = orchardCase(c, *lighting);
+      Result<sim::OrchardCase> oc = orchardCase(c, *lighting, *world);
       if (!oc) continue;
       sim::SimScene scene = oc->scene;
       scaleCamera(scene, o.widthPx, o.heightPx);
@@ -432,6 +441,7 @@ int main(int argc, char** argv) {
   app.add_option("--metering", o.metering, "1: meter the exposure from laser-off frames (the daemon's default), 0: off")
       ->capture_default_str();
   app.add_option("--lighting", o.lighting, "lab|overcast|direct|sun")->capture_default_str();
+  app.add_option("--world", o.world, "benchmark|benchmark-hard|holdout: whose orchard cases")->capture_default_str();
   app.add_option("--exposure-x", o.exposureX,
                  "the exposure: this × the auto exposure, at most 3000 us (the hard "
                  "worlds fix it at 1.6-2.6 × in sun)")

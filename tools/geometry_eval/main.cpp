@@ -290,7 +290,7 @@ int localizeEval(const std::string& calPath, int cases, const std::vector<double
         };
         scanStops(plan->stopsMm);
         // The adaptive second pass, as the daemon's scan worker takes it.
-        scanStops(loc.followUpStops(*plan, loc.estimate(*plan, lines), strokeMm));
+        scanStops(loc.followUpStops(*plan, lines, loc.estimate(*plan, lines), strokeMm));
         if (debug) {
           std::printf("case %d at %.0f: %s\n  rough err %.1f mm, target c (%.1f %.1f %.1f) r %.1f\n", k, dist,
                       oc->description.c_str(), (oc->roughMm - target.centerMm).norm(), target.centerMm.x(),

@@ -9,11 +9,15 @@
 //   --metering 0|1 (1), --meter-target-dn, --meter-subtract-above-dn: the daemon's exposure
 //              metering from laser-off frames (localize/exposure.h), which every scan
 //              follows: laser-off frames first, then the laser frames at the chosen exposure.
+//   The localize scans take the daemon's adaptive second pass (Localizer::followUpStops,
+//              its default parameters): the first pass is observed as `process` will, and
+//              the frames of the second pass it asks for are rendered too (tag "follow_up").
 #include <cmath>
 #include <cstdio>
 #include <sys/stat.h>
 
 #include "localize/exposure.h"
+#include "localize/localizer.h"
 #include "sim/orchard.h"
 #include "sim/renderer.h"
 #include "sim/scan_export.h"
@@ -52,6 +56,7 @@ struct Metered {
   std::vector<cv::Mat> rendered;           // theirs
   std::vector<uint64_t> frameIndices;      // their noise seeds
   localize::MeteringDecision decision;
+  cv::Mat subtract;  // the render region of the frame to subtract (empty: none)
 };
 
 // The daemon's acquisition (app/scan_worker.cpp, meterExposure): laser-off frames of the
@@ -92,7 +97,61 @@ Metered meterScene(const sim::SimScene& scene, const std::shared_ptr<const sim::
         return localize::LaserOffFrame{render(us, use == localize::LaserOffUse::kMetering ? "meter" : "ambient"), us};
       });
   out.decision = run.decision;  // (a render cannot fail, nor can add(): the ROI is inside the region)
+  if (run.hasLaserOff) out.subtract = out.rendered.back();  // the last frame taken (MeteringRun)
   return out;
+}
+
+// A laser frame a pass takes, appended by the caller to the scan's frames: its manifest
+// entry and noise seed.
+struct FrameTaken {
+  sim::ExportFrame frame;
+  uint64_t frameIndex = 0;
+};
+
+image::ImageView viewOf(const cv::Mat& m) { return {m.data, m.cols, m.rows, m.step[0], image::PixelFormat::kBgr888}; }
+
+// The daemon's two passes (twoPassScan, the localizer's defaults) on the scene, so that the
+// scan holds the second pass's frames where the localizer asks for them: each laser frame
+// the passes take is rendered (the render region) and observed as `process` will read it
+// back (a frame zero outside the region, the laser-off frame subtracted when metering kept
+// one). Returns the renders in the order taken, for exportScan.
+std::vector<cv::Mat> scanTwoPasses(const sim::SimScene& scene, const std::shared_ptr<const sim::RayTable>& rays,
+                                   const RenderPlan& rp, const cv::Mat& subtract,
+                                   const std::function<FrameTaken(double slideMm, int pass)>& take) {
+  std::vector<cv::Mat> renders;
+  const localize::Localizer loc(scene.truth, image::LleParams{}, localize::ScanParams{});
+  Result<localize::ScanPlan> plan = loc.plan(rp.plan.roughMm, 200.0);
+  if (!plan) {
+    // (The paper's plan was made; the default one differs only in its stops.)
+    plan = rp.plan;
+  }
+  plan->stopsMm = rp.plan.stopsMm;
+  sim::Renderer renderer(scene, rays);
+  const cv::Mat blank(scene.truth.camera.heightPx, scene.truth.camera.widthPx, CV_8UC3, cv::Scalar::all(0));
+  cv::Mat full = blank.clone();
+  cv::Mat off;
+  image::ImageView offView{};
+  if (!subtract.empty()) {
+    off = blank.clone();
+    subtract.copyTo(off(rp.region));
+    offView = viewOf(off);
+  }
+  image::LleWorkspace ws;
+  twoPassScan(loc, *plan, 200.0, true, [&](double slideMm, int pass) {
+    const FrameTaken f = take(slideMm, pass);
+    sim::FrameRequest req;
+    req.slideStartMm = f.frame.slideStartMm;
+    req.slideEndMm = f.frame.slideEndMm;
+    req.laserFraction = 1.0;
+    req.exposureUs = f.frame.exposureUs > 0 ? f.frame.exposureUs : scene.sensor.exposureUs;
+    req.frameIndex = f.frameIndex;
+    renders.emplace_back();
+    renderer.renderRegion(req, rp.region, renders.back());
+    renders.back().copyTo(full(rp.region));
+    const double recordedMm = 0.5 * (f.frame.slideStartMm + f.frame.slideEndMm);
+    return loc.observe(viewOf(full), *plan, recordedMm, ws, off.empty() ? nullptr : &offView);
+  });
+  return renders;
 }
 
 }  // namespace
@@ -241,6 +300,8 @@ int generateMain(const Args& args) {
           frames.push_back(f);
           frameIndices.push_back(index++);
         };
+        std::vector<cv::Mat> laserRenders;  // the passes' frames, rendered to observe them
+        int followUpFrames = 0;
         if (job.single) {
           // The laser somewhere across the target's central 60 %.
           sim::CaseRng rng(job.seed ^ 0x5EEDULL);
@@ -250,10 +311,14 @@ int generateMain(const Args& args) {
           laserFrame(s - 0.5 * smearMm, s + 0.5 * smearMm, "stop");
         } else {
           info.stopsMm = rp->plan.stopsMm;
-          for (double s : rp->plan.stopsMm) {
-            laserFrame(s - 0.5 * smearMm, s + 0.5 * smearMm, "stop");
+          // The first pass at the plan's stops, then the second pass where the localizer
+          // asks for one (tag "follow_up"), as the daemon scans.
+          laserRenders = scanTwoPasses(scene, rays, *rp, metered.subtract, [&](double s, int pass) {
+            laserFrame(s - 0.5 * smearMm, s + 0.5 * smearMm, pass == 1 ? "stop" : "follow_up");
+            followUpFrames += pass == 2 ? 1 : 0;
             t += 0.25;  // a stop every 250 ms (move, settle, expose)
-          }
+            return FrameTaken{frames.back(), frameIndices.back()};
+          });
           // The paper's single-line experiment: the laser aimed at the marker on the
           // apple's face (the truth's approach point), not planned from the rough position.
           const double aimed = scene.truth.laser.slideForPoint(sim::approachPoint(target));
@@ -264,7 +329,8 @@ int generateMain(const Args& args) {
           opt.renderRegion = rp->region;
           opt.frameIndices = frameIndices;
           opt.rendered = metered.rendered;
-          opt.rendered.resize(frames.size());  // the laser frames are rendered by exportScan
+          opt.rendered.insert(opt.rendered.end(), laserRenders.begin(), laserRenders.end());
+          opt.rendered.resize(frames.size());  // the others are rendered by exportScan
           if (Status s = sim::exportScan(scene, rays, dir, info, frames, opt); !s)
             return Status(s.code(), job.name + ": " + s.reason());
         }
@@ -281,6 +347,7 @@ int generateMain(const Args& args) {
             {"laser_exposure_us", static_cast<long long>(exposureUs)},
             {"laser_off_frames", metered.laserOff.size()},
             {"laser_off_subtracted", metered.decision.subtract},
+            {"follow_up_frames", followUpFrames},
             {"bandpass_nm", tools::jsonNumber(scene.sensor.bandpassFwhmNm, "%.0f")},
             {"diameter_mm", tools::jsonNumber(2.0 * target.radiusMm, "%.2f")},
             {"world", sim::worldName(job.spec.world)},

@@ -2,9 +2,12 @@
 // it live: the localizer plans the stops from the scan's rough position, the exposure is
 // metered from the scan's laser-off frames (and a laser-off frame kept for subtraction
 // when the meter asks for it), a ReplaySource serves the frame recorded nearest each stop
-// and its recorded position, the localizer observes each frame and fuses the lines. One JSON line per scan on stdout:
+// and its recorded position, the localizer observes each frame and fuses the lines, and
+// takes the adaptive second pass where it asks for one (twoPassScan). One JSON line per scan on stdout:
 //   {"scan", "kind", "roi", "frames": [{"slide_mm", "valid", "rows"?, "curve"?}],
-//    "multi": estimate, "single": estimate (the stop nearest the rough position only)}
+//    "multi": estimate (both passes), "first_pass": estimate, "follow_up_stops",
+//    "follow_up_missing" (second-pass stops the scan holds no frame for),
+//    "single": estimate (the stop nearest the rough position only)}
 #include <algorithm>
 #include <chrono>
 #include <cmath>
@@ -181,7 +184,6 @@ int processMain(const Args& args) {
                                             metered.laserOff.step[0], image::PixelFormat::kBgr888};
         const image::ImageView* laserOff = metered.laserOff.empty() ? nullptr : &laserOffView;
         image::LleWorkspace ws;
-        std::vector<localize::LineObservation> obs;
         double observeMs = 0.0;
         // One frame through the camera port and the localizer, as the scan worker does.
         tools::Json frameJson = tools::Json::array();
@@ -232,10 +234,18 @@ int processMain(const Args& args) {
         int aimed = -1;
         for (size_t k = 0; k < m.frames.size(); ++k)
           if (m.frames[k].tag == "aimed" && m.frames[k].laserOn) aimed = static_cast<int>(k);
-        for (size_t k = 0; k < stops.size(); ++k) {
-          Result<localize::LineObservation> ob = run(stops[k]);
-          if (ob) obs.push_back(std::move(*ob));
-        }
+        // The recorded first pass, then the second pass the localizer asks for: the
+        // generator rendered its frames for the same decision (a stop the scan holds no
+        // frame for gets the nearest one, already seen, and counts as missing).
+        localize::ScanPlan recorded = *plan;
+        recorded.stopsMm = stops;
+        int missing = 0;
+        const TwoPassScan scanned = twoPassScan(loc, recorded, 200.0, m.scan.kind != "lle", [&](double at, int pass) {
+          Result<localize::LineObservation> ob = run(at);
+          if (pass == 2 && std::abs((*src)->lastSlideMm() - at) > 0.05) ++missing;
+          return ob;
+        });
+        const std::vector<localize::LineObservation>& obs = scanned.lines;
         // The single line: the frame aimed at the marker if the scan has one, else the stop
         // nearest the rough position.
         std::optional<localize::LineObservation> single;
@@ -251,7 +261,10 @@ int processMain(const Args& args) {
         o["frames"] = std::move(frameJson);
         o["observe_ms"] = tools::jsonNumber(observeMs);
         if (m.scan.kind != "lle") {
-          o["multi"] = estimateJson(loc.estimate(*plan, obs));
+          o["multi"] = estimateJson(scanned.estimate);
+          o["first_pass"] = estimateJson(scanned.firstPass);
+          o["follow_up_stops"] = scanned.followUpMm.size();
+          o["follow_up_missing"] = missing;
           o["single_source"] = singleSource;
           if (single) {
             o["single_slide_mm"] = tools::jsonNumber(single->slideMm);

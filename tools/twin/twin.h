@@ -66,6 +66,22 @@ struct MeteringArgs {
 };
 Result<MeteringArgs> meteringArgs(const Args& args);
 
+// The scan worker's passes (app/scan_worker.cpp, doLocalize) without its devices: the
+// plan's stops (pass 1), the estimate, and when `followUp` and the localizer asks for them
+// (Localizer::followUpStops) its second pass's stops (pass 2), all the lines fused again.
+// `observeAt` gives the line of a frame at a slide position (an error: no line). The twin's
+// generator renders the second pass's frames because this asks for them; `process` then
+// finds them in the scan and takes the same decision.
+using ObserveAt = std::function<Result<localize::LineObservation>(double slideMm, int pass)>;
+struct TwoPassScan {
+  std::vector<localize::LineObservation> lines;  // both passes', in scan order
+  Result<localize::AppleEstimate> firstPass{Error::kNotFound, "not scanned"};
+  Result<localize::AppleEstimate> estimate{Error::kNotFound, "not scanned"};  // from all the lines
+  std::vector<double> followUpMm;  // the second pass's stops (empty: none taken)
+};
+TwoPassScan twoPassScan(const localize::Localizer& loc, const localize::ScanPlan& plan, double strokeMm, bool followUp,
+                        const ObserveAt& observeAt);
+
 // A vector as a JSON array of three numbers ("%.6f" as printed before; null when not finite).
 tools::Json jsonVec(const Eigen::Vector3d& v);
 

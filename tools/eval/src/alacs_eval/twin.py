@@ -46,6 +46,7 @@ def run_lines(cmd: list[str], total: int, desc: str, quiet: bool = False) -> lis
 
 
 GENERATOR_SOURCES = ("edge/sim", "edge/replay", "tools/twin/generate.cpp", "tools/twin/calibration_scans.cpp",
+                     "tools/twin/two_pass.cpp",
                      "tools/twin/main.cpp", "edge/localize/localizer.cpp", "edge/localize/localizer.h",
                      "edge/geometry/calibration.cpp", "edge/geometry/calibration.h", "edge/geometry/triangulation.cpp",
                      "edge/localize/exposure.cpp", "edge/localize/exposure.h")
