@@ -141,7 +141,8 @@ struct FollowUpNeed {
   bool unsureSize = false;   // the diameter's σ above followUpDiameterSigmaMm
   bool hidden = false;       // the fruit's expected rows mostly hidden
   bool twoSurfaces = false;  // another object explains the lines about as well
-  bool any() const { return fewLines || unsureSize || hidden || twoSurfaces; }
+  bool farFromRough = false;  // the fit is more likely another object, away from the rough position
+  bool any() const { return fewLines || unsureSize || hidden || twoSurfaces || farFromRough; }
   // Only the size in doubt: the fit is trusted where the fruit is.
   bool sizeOnly() const { return unsureSize && !fewLines && !hidden && !twoSurfaces; }
 };
@@ -175,6 +176,7 @@ std::vector<double> Localizer::followUpStops(const ScanPlan& plan, const std::ve
   need.unsureSize = scan_.followUpDiameterSigmaMm > 0.0 && first->diameterSigmaMm > scan_.followUpDiameterSigmaMm;
   need.hidden = scan_.followUpHiddenPct > 0.0 && first->sphereFit && first->occlusionPct >= scan_.followUpHiddenPct;
   need.twoSurfaces = first->doubt == AppleEstimate::Doubt::kTwoSurfaces;
+  need.farFromRough = first->doubt == AppleEstimate::Doubt::kFarFromRough;
   if (!need.any()) return {};
   std::vector<double> taken = plan.stopsMm;
   std::sort(taken.begin(), taken.end());
@@ -204,7 +206,17 @@ std::vector<double> Localizer::followUpStops(const ScanPlan& plan, const std::ve
   }
   double fromMm = -std::numeric_limits<double>::infinity();
   double toMm = std::numeric_limits<double>::infinity();
-  if (seen > 0) {
+  if (need.farFromRough) {
+    // What the lines saw is likely another object (a neighbour): the target may show
+    // through the gaps round the rough position instead, across a fruit's width.
+    const double a = cal_.laser.slideForPoint(plan.roughMm - scan_.maxAppleRadiusMm * n);
+    const double b = cal_.laser.slideForPoint(plan.roughMm + scan_.maxAppleRadiusMm * n);
+    if (std::isfinite(a) && std::isfinite(b)) {
+      fromMm = std::min(a, b);
+      toMm = std::max(a, b);
+    }
+    seen = 0;  // (nearest the rough position's slide first, below)
+  } else if (seen > 0) {
     fromMm = seenLo - spacingMm;
     toMm = seenHi + spacingMm;
   }

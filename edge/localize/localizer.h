@@ -73,6 +73,8 @@ struct ScanParams {
   //   - the fruit is mostly hidden: at least `followUpHiddenPct` of its expected rows did
   //     not reach the fit (0: not a reason);
   //   - another object explains the same lines about as well (Doubt::kTwoSurfaces);
+  //   - the fit is more likely another object, away from the rough position
+  //     (Doubt::kFarFromRough): the new stops then go round the rough position instead;
   //   - its diameter's 1σ above `followUpDiameterSigmaMm` (0, the default: not a reason;
   //     three lines far away leave the diameter to ±4 mm and more).
   // The new stops are denser (a third of the spacing) and placed where the first pass saw

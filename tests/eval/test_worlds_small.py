@@ -60,3 +60,21 @@ def test_the_section_is_written_and_survives_the_report(run, tmp_path):
     # Writing the section again replaces it rather than appending a second one.
     worlds.insert(doc, worlds.section_of(doc))
     assert doc.read_text().count(worlds.BEGIN) == 1
+
+
+def test_the_scans_hold_the_second_pass_the_localizer_asks_for(run):
+    """The generator renders the adaptive second pass where its localizer asks for one, and
+    `process`, taking the same decision on the stored frames, finds every such frame."""
+    res = json.loads((run / "results.json").read_text())
+    for world in worlds.WORLDS:
+        assert res[world]["loc"]["second_pass"]["missing_frames"] == 0, world
+    # The second world hides up to 95 % of the fruit: some of its scans take the second pass,
+    # and their frames are in the scans, tagged follow_up.
+    assert res["holdout"]["loc"]["second_pass"]["share"] > 0
+    cases = [json.loads(line) for line in (run / "holdout" / "loc" / "set.jsonl").read_text().splitlines()]
+    taken = [c for c in cases if c["follow_up_frames"] > 0]
+    assert taken
+    manifest = json.loads((Path(taken[0]["dir"]) / "manifest.json").read_text())
+    tags = [f.get("tag") for f in manifest["frames"]]
+    assert tags.count("follow_up") == taken[0]["follow_up_frames"]
+    assert "second pass taken" in (run / "evaluation.md").read_text()

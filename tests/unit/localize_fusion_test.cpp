@@ -330,7 +330,8 @@ TEST_CASE("The adaptive second pass: denser stops where the first pass saw the f
   CHECK(two[1] == Approx(middle - third));
 }
 
-TEST_CASE("The second pass's reasons: a mostly hidden fruit, two surfaces, an unsure size", "[localize]") {
+TEST_CASE("The second pass's reasons: a mostly hidden fruit, two surfaces, far from the rough position, an unsure size",
+          "[localize]") {
   Case k;
   std::mt19937 rng(37);
   const localize::Localizer loc(k.cal, image::LleParams{}, k.scan);
@@ -368,6 +369,19 @@ TEST_CASE("The second pass's reasons: a mostly hidden fruit, two surfaces, an un
   localize::AppleEstimate rival = sure;
   rival.doubt = localize::AppleEstimate::Doubt::kTwoSurfaces;
   CHECK(loc.followUpStops(*plan, lines, rival, 200.0) == fromTwo);
+  // A fit more likely a neighbour, away from the rough position: the new stops look for the
+  // target across a fruit's width round the rough position, not where the neighbour was seen.
+  localize::AppleEstimate far = sure;
+  far.doubt = localize::AppleEstimate::Doubt::kFarFromRough;
+  const std::vector<double> around = loc.followUpStops(*plan, lines, far, 200.0);
+  REQUIRE_FALSE(around.empty());
+  const Eigen::Vector3d& n = k.cal.laser.planeNormal;
+  const double a = k.cal.laser.slideForPoint(plan->roughMm - k.scan.maxAppleRadiusMm * n);
+  const double b = k.cal.laser.slideForPoint(plan->roughMm + k.scan.maxAppleRadiusMm * n);
+  for (double s : around) {
+    CHECK(s >= std::min(a, b) - 1e-9);
+    CHECK(s <= std::max(a, b) + 1e-9);
+  }
   localize::ScanParams notHidden = k.scan;
   notHidden.followUpHiddenPct = 0.0;  // not a reason
   CHECK(localize::Localizer(k.cal, image::LleParams{}, notHidden).followUpStops(*plan, lines, hidden, 200.0).empty());
