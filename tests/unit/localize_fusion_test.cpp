@@ -278,23 +278,33 @@ TEST_CASE("A line seen twice (a replay serving a recorded frame again) counts on
   CHECK_FALSE(loc.followUpStops(*plan, twice, again, 200.0).empty());
 }
 
+// The paper's scan planned on the Case's fruit (the second pass's tests).
+struct PaperScan {
+  Case k;
+  localize::Localizer loc{k.cal, image::LleParams{}, k.scan};
+  localize::ScanPlan plan;
+  PaperScan() {
+    Result<localize::ScanPlan> p = loc.plan(k.center, 200.0);
+    REQUIRE(p.isOk());
+    plan = *p;
+  }
+};
+
 TEST_CASE("The adaptive second pass: denser stops where the first pass saw the fruit, only when it is in doubt",
           "[localize]") {
   // The hidden-fruit case of the paper's scan: a leaf leaves one line on the target.
-  Case k;
+  const PaperScan c;
+  const auto& [k, loc, plan] = c;
   std::mt19937 rng(31);
-  const localize::Localizer loc(k.cal, image::LleParams{}, k.scan);
-  auto plan = loc.plan(k.center, 200.0);
-  REQUIRE(plan.isOk());
-  REQUIRE(plan->stopsMm.size() == 5);
-  const double s0 = plan->stopsMm.front();
-  const double middle = plan->stopsMm[2];
+  REQUIRE(plan.stopsMm.size() == 5);
+  const double s0 = plan.stopsMm.front();
+  const double middle = plan.stopsMm[2];
   REQUIRE(middle == Approx(s0 + 40.0));
   std::vector<localize::LineObservation> lines{lineOf(k.cal, k.center, k.radius, middle, 0.4, {}, rng)};
-  const Result<localize::AppleEstimate> one = loc.estimate(*plan, lines);
+  const Result<localize::AppleEstimate> one = loc.estimate(plan, lines);
   REQUIRE(one.isOk());
   REQUIRE(one->linesUsed == 1);
-  const std::vector<double> more = loc.followUpStops(*plan, lines, one, 200.0);
+  const std::vector<double> more = loc.followUpStops(plan, lines, one, 200.0);
   // The fruit was seen at the middle stop only: the thirds of the spacing within one
   // spacing of it, none where the first pass's other stops saw nothing; one sweep back
   // from the far end (the first pass went forward).
@@ -304,7 +314,7 @@ TEST_CASE("The adaptive second pass: denser stops where the first pass saw the f
   for (size_t i = 0; i < more.size(); ++i) CHECK(more[i] == Approx(expected[i]).margin(1e-9));
   // Those stops give the fruit the lines it lacked: the estimate now rests on several.
   for (double s : more) lines.push_back(lineOf(k.cal, k.center, k.radius, s, 0.4, {}, rng));
-  const Result<localize::AppleEstimate> all = loc.estimate(*plan, lines);
+  const Result<localize::AppleEstimate> all = loc.estimate(plan, lines);
   REQUIRE(all.isOk());
   CHECK(all->sphereFit);
   CHECK(all->linesUsed >= 4);
@@ -314,17 +324,17 @@ TEST_CASE("The adaptive second pass: denser stops where the first pass saw the f
   // (nothing lit near the rough position): nothing more either. Off: nothing.
   REQUIRE(all->occlusionPct < k.scan.followUpHiddenPct);
   REQUIRE(all->doubt == localize::AppleEstimate::Doubt::kNone);
-  CHECK(loc.followUpStops(*plan, lines, all, 200.0).empty());
-  CHECK(loc.followUpStops(*plan, lines, Result<localize::AppleEstimate>(Status(Error::kNotFound, "none")), 200.0)
-            .empty());
+  CHECK(loc.followUpStops(plan, lines, all, 200.0).empty());
+  CHECK(
+      loc.followUpStops(plan, lines, Result<localize::AppleEstimate>(Status(Error::kNotFound, "none")), 200.0).empty());
   localize::ScanParams off = k.scan;
   off.followUpMaxStops = 0;
-  CHECK(localize::Localizer(k.cal, image::LleParams{}, off).followUpStops(*plan, lines, one, 200.0).empty());
+  CHECK(localize::Localizer(k.cal, image::LleParams{}, off).followUpStops(plan, lines, one, 200.0).empty());
   // At most followUpMaxStops, the ones nearest the middle of what was seen.
   localize::ScanParams few = k.scan;
   few.followUpMaxStops = 2;
   const std::vector<double> two =
-      localize::Localizer(k.cal, image::LleParams{}, few).followUpStops(*plan, {lines[0]}, one, 200.0);
+      localize::Localizer(k.cal, image::LleParams{}, few).followUpStops(plan, {lines[0]}, one, 200.0);
   REQUIRE(two.size() == 2);
   CHECK(two[0] == Approx(middle + third));
   CHECK(two[1] == Approx(middle - third));
@@ -332,27 +342,25 @@ TEST_CASE("The adaptive second pass: denser stops where the first pass saw the f
 
 TEST_CASE("The second pass's reasons: a mostly hidden fruit, two surfaces, far from the rough position, an unsure size",
           "[localize]") {
-  Case k;
+  const PaperScan c;
+  const auto& [k, loc, plan] = c;
   std::mt19937 rng(37);
-  const localize::Localizer loc(k.cal, image::LleParams{}, k.scan);
-  auto plan = loc.plan(k.center, 200.0);
-  REQUIRE(plan.isOk());
-  const double s0 = plan->stopsMm.front();
+  const double s0 = plan.stopsMm.front();
   // Two stops see the fruit (s0 + 20 and s0 + 40), the three others nothing: a leaf.
   std::vector<localize::LineObservation> lines;
-  for (double s : plan->stopsMm) {
+  for (double s : plan.stopsMm) {
     localize::LineObservation l = lineOf(k.cal, k.center, k.radius, s, 0.4, {}, rng);
-    if (s != plan->stopsMm[1] && s != plan->stopsMm[2]) {
+    if (s != plan.stopsMm[1] && s != plan.stopsMm[2]) {
       l.pointsMm.clear();
       l.pixels.clear();
     }
     lines.push_back(std::move(l));
   }
-  Result<localize::AppleEstimate> est = loc.estimate(*plan, lines);
+  Result<localize::AppleEstimate> est = loc.estimate(plan, lines);
   REQUIRE(est.isOk());
   REQUIRE(est->linesUsed == 2);
   // Few lines: the thirds from one spacing below the first seen stop to one above the last.
-  const std::vector<double> fromTwo = loc.followUpStops(*plan, lines, est, 200.0);
+  const std::vector<double> fromTwo = loc.followUpStops(plan, lines, est, 200.0);
   REQUIRE(fromTwo.size() == 6);
   for (double s : fromTwo) {
     CHECK(s > s0 - 1e-9);
@@ -362,35 +370,35 @@ TEST_CASE("The second pass's reasons: a mostly hidden fruit, two surfaces, far f
   localize::AppleEstimate sure = *est;
   sure.linesUsed = 4;
   sure.occlusionPct = k.scan.followUpHiddenPct - 1.0;
-  CHECK(loc.followUpStops(*plan, lines, sure, 200.0).empty());
+  CHECK(loc.followUpStops(plan, lines, sure, 200.0).empty());
   localize::AppleEstimate hidden = sure;
   hidden.occlusionPct = k.scan.followUpHiddenPct;
-  CHECK(loc.followUpStops(*plan, lines, hidden, 200.0) == fromTwo);
+  CHECK(loc.followUpStops(plan, lines, hidden, 200.0) == fromTwo);
   localize::AppleEstimate rival = sure;
   rival.doubt = localize::AppleEstimate::Doubt::kTwoSurfaces;
-  CHECK(loc.followUpStops(*plan, lines, rival, 200.0) == fromTwo);
+  CHECK(loc.followUpStops(plan, lines, rival, 200.0) == fromTwo);
   // A fit more likely a neighbour, away from the rough position: the new stops look for the
   // target across a fruit's width round the rough position, not where the neighbour was seen.
   localize::AppleEstimate far = sure;
   far.doubt = localize::AppleEstimate::Doubt::kFarFromRough;
-  const std::vector<double> around = loc.followUpStops(*plan, lines, far, 200.0);
+  const std::vector<double> around = loc.followUpStops(plan, lines, far, 200.0);
   REQUIRE_FALSE(around.empty());
   const Eigen::Vector3d& n = k.cal.laser.planeNormal;
-  const double a = k.cal.laser.slideForPoint(plan->roughMm - k.scan.maxAppleRadiusMm * n);
-  const double b = k.cal.laser.slideForPoint(plan->roughMm + k.scan.maxAppleRadiusMm * n);
+  const double a = k.cal.laser.slideForPoint(plan.roughMm - k.scan.maxAppleRadiusMm * n);
+  const double b = k.cal.laser.slideForPoint(plan.roughMm + k.scan.maxAppleRadiusMm * n);
   for (double s : around) {
     CHECK(s >= std::min(a, b) - 1e-9);
     CHECK(s <= std::max(a, b) + 1e-9);
   }
   localize::ScanParams notHidden = k.scan;
   notHidden.followUpHiddenPct = 0.0;  // not a reason
-  CHECK(localize::Localizer(k.cal, image::LleParams{}, notHidden).followUpStops(*plan, lines, hidden, 200.0).empty());
+  CHECK(localize::Localizer(k.cal, image::LleParams{}, notHidden).followUpStops(plan, lines, hidden, 200.0).empty());
   // Only the size in doubt: the stops whose plane cuts the fruit well inside its limb.
   localize::ScanParams unsure = k.scan;
   unsure.followUpDiameterSigmaMm = 0.01;
   const localize::Localizer sizeLoc(k.cal, image::LleParams{}, unsure);
   REQUIRE(sure.diameterSigmaMm > 0.01);
-  const std::vector<double> inside = sizeLoc.followUpStops(*plan, lines, sure, 200.0);
+  const std::vector<double> inside = sizeLoc.followUpStops(plan, lines, sure, 200.0);
   CHECK_FALSE(inside.empty());
   const double centreSlide = k.cal.laser.slideForPoint(sure.centerMm);
   const double limbSlide = 0.8 * 0.5 * sure.diameterMm / std::abs(k.cal.laser.planeNormal.x());
@@ -399,18 +407,16 @@ TEST_CASE("The second pass's reasons: a mostly hidden fruit, two surfaces, far f
 }
 
 TEST_CASE("The second pass at the end of the stroke: clamped, never twice the same stop", "[localize]") {
-  Case k;
+  const PaperScan c;
+  const auto& [k, loc, plan] = c;
   std::mt19937 rng(43);
-  const localize::Localizer loc(k.cal, image::LleParams{}, k.scan);
-  auto plan = loc.plan(k.center, 200.0);
-  REQUIRE(plan.isOk());
-  localize::ScanPlan atEnd = *plan;
+  localize::ScanPlan atEnd = plan;
   atEnd.stopsMm = {120.0, 140.0, 160.0, 180.0, 200.0};
   // The fruit seen at the last stop only (no fit: the paper's candidate).
-  std::vector<localize::LineObservation> lines{lineOf(k.cal, k.center, k.radius, plan->stopsMm[2], 0.4, {}, rng)};
+  std::vector<localize::LineObservation> lines{lineOf(k.cal, k.center, k.radius, plan.stopsMm[2], 0.4, {}, rng)};
   lines[0].slideMm = 200.0;
   const Result<localize::AppleEstimate> one =
-      loc.estimate(*plan, {lineOf(k.cal, k.center, k.radius, plan->stopsMm[2], 0.4, {}, rng)});
+      loc.estimate(plan, {lineOf(k.cal, k.center, k.radius, plan.stopsMm[2], 0.4, {}, rng)});
   REQUIRE(one.isOk());
   const std::vector<double> clamped = loc.followUpStops(atEnd, lines, one, 200.0);
   // 186.7 and 193.3 below it; the two beyond the stroke land on 200 and are dropped.
