@@ -30,6 +30,8 @@ Status LleParams::validate() const {
     return bad(Error::kInvalidArgument, "robustThresholdPct must be in 10..100");
   if (weakLineThresholdPct < 10 || weakLineThresholdPct > 100)
     return bad(Error::kInvalidArgument, "weakLineThresholdPct must be in 10..100");
+  if (subtractedLineThresholdPct < 10 || subtractedLineThresholdPct > 100)
+    return bad(Error::kInvalidArgument, "subtractedLineThresholdPct must be in 10..100");
   if (weakLineExcessDn < 0 || weakLineExcessDn > 255)
     return bad(Error::kInvalidArgument, "weakLineExcessDn must be in 0..255");
   if (weakThresholdPct < 10 || weakThresholdPct > 100)

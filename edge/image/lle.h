@@ -77,6 +77,10 @@ struct LleParams {
                              // rows below this, DN, or no line), run again with the strong
                              // threshold at weakLineThresholdPct of brceThreshold (0: off, ..255)
   int weakLineThresholdPct = 60;  // (10..100)
+  // The rerun's threshold instead, when a laser-off frame was subtracted (10..100): ambient
+  // light is gone from the difference, so only its noise (1-3 DN in full sun) sets how low
+  // it may go (docs/lle.md).
+  int subtractedLineThresholdPct = 25;
   int weakThresholdPct = 75; // hysteresis: candidates at this share of the strong threshold; a
                              // segment needs two rows, and a quarter of its rows, whose margin
                              // exceeds the strong threshold itself (10..100; 100: no hysteresis)

@@ -950,10 +950,12 @@ void extractRobust(const ImageView& frame, const ImageView* laserOff, const Roi&
                    const SimdKernels* kernels, LleWorkspace& ws, LaserLine& out) {
   candidateMask(frame, laserOff, roi, p, kernels, ws);
   const int strength = focusRobust<A>(frame, laserOff, roi, p, ws, out);
-  if (p.weakLineExcessDn <= 0 || strength >= p.weakLineExcessDn || p.weakLineThresholdPct >= p.robustThresholdPct)
-    return;
+  // With the laser-off frame subtracted, what is left besides the line is noise, not
+  // ambient texture: the rerun may go lower there (docs/lle.md "weak line").
+  const int lowPct = laserOff != nullptr ? p.subtractedLineThresholdPct : p.weakLineThresholdPct;
+  if (p.weakLineExcessDn <= 0 || strength >= p.weakLineExcessDn || lowPct >= p.robustThresholdPct) return;
   LleParams low = p;
-  low.robustThresholdPct = p.weakLineThresholdPct;
+  low.robustThresholdPct = lowPct;
   reserveOutput(roi, low, out);
   candidateMask(frame, laserOff, roi, low, kernels, ws);
   focusRobust<A>(frame, laserOff, roi, low, ws, out);

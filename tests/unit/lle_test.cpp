@@ -351,6 +351,38 @@ TEST_CASE("Subtracting the laser-off frame removes ambient structure that bRCE w
   for (const auto& r : diff.rows) CHECK(std::abs(r.column - 90.0F) < 0.05F);
 }
 
+TEST_CASE("In full sun, a faint line in the laser-off difference is found at the subtracted-line threshold",
+          "[lle][ambient]") {
+  // Sunlit skin (red 180) with shot noise in both frames, and a faint laser line (peak
+  // 14 DN) in one: in the difference only the line and ~2.8 DN of noise are left.
+  std::mt19937 rng(11);
+  std::normal_distribution<double> noise(0.0, 2.0);
+  Rgb off(160, 120), on(160, 120), flat(160, 120);
+  for (int y = 0; y < 120; ++y)
+    for (int x = 0; x < 160; ++x) {
+      off.red(x, y) = static_cast<uint8_t>(std::lround(180.0 + noise(rng)));
+      on.red(x, y) = static_cast<uint8_t>(std::lround(180.0 + noise(rng)));
+      flat.red(x, y) = static_cast<uint8_t>(std::lround(180.0 + noise(rng)));
+    }
+  addLine(
+      on, [](int y) { return 70.0 + 0.05 * y; }, 1.3, 14);
+  const ImageView offView = off.view();
+  LleParams p;
+  const LaserLine l = run(on, p, nullptr, &offView);
+  REQUIRE(l.valid);
+  CHECK(l.inliers >= 100);
+  double err = 0.0;
+  for (const auto& r : l.rows)
+    if (r.inlier) err += std::abs(r.column - (70.0 + 0.05 * r.row));
+  CHECK(err / l.inliers < 0.3);
+  // At the weak-line rerun's threshold for unsubtracted frames (24 DN) it is not found.
+  LleParams high = p;
+  high.subtractedLineThresholdPct = p.weakLineThresholdPct;
+  CHECK_FALSE(run(on, high, nullptr, &offView).valid);
+  // Noise alone at the low threshold makes no line.
+  CHECK(run(flat, p, nullptr, &offView).rows.empty());
+}
+
 TEST_CASE("A clipped line core still gives its centre; it is flagged and trusted less", "[lle][saturation]") {
   Rgb img = lineImage(120, 60, [](int) { return 60.4; }, 1.6, 600, 60);  // clipped over ~5 px
   const LaserLine l = run(img);

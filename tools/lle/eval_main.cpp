@@ -173,6 +173,8 @@ bool setParam(image::LleParams& p, const std::string& kv) {
   else if (k == "robustpct") p.robustThresholdPct = iv;
   else if (k == "weakline") p.weakLineExcessDn = iv;
   else if (k == "weaklinepct") p.weakLineThresholdPct = iv;
+  else if (k == "subtractedpct")
+    p.subtractedLineThresholdPct = iv;
   else if (k == "edge") p.edgeRatio = iv;
   else if (k == "edgeagree") p.edgeAgreePx = v;
   else return false;
@@ -539,7 +541,8 @@ int main(int argc, char** argv) {
   app.add_option("--rows", gRowsCase, "print the rows of case ID");
   app.add_option("--set", overrides,
                  "KEY=VALUE parameter override (repeatable), KEY one of step th theta gamma order outlier minrows "
-                 "peaks jump gap minseg bridge bridgerow smooth sorder weak robustpct weakline weaklinepct edge edgeagree");
+                 "peaks jump gap minseg bridge bridgerow smooth sorder weak robustpct weakline weaklinepct "
+                 "subtractedpct edge edgeagree");
   if (const int rc = tools::parseCommandLine(app, argc, argv); rc >= 0) return rc;
   jobs = std::max(1, jobs);
   for (const std::string& kv : overrides)

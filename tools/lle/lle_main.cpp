@@ -97,6 +97,9 @@ int parseArgs(int argc, char** argv, Options& o) {
       ->capture_default_str();
   app.add_option("--weak-pct", p.weakLineThresholdPct, "the threshold of the weak-line rerun, % of --th")
       ->capture_default_str();
+  app.add_option("--subtracted-pct", p.subtractedLineThresholdPct,
+                 "the weak-line rerun's threshold with --laser-off subtracted, % of --th")
+      ->capture_default_str();
   bool onlyLine = false, scalar = false;
   app.add_flag("--only-line", onlyLine, "no other segments");
   app.add_flag("--scalar", scalar, "scalar kernels");

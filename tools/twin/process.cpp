@@ -110,6 +110,11 @@ int processMain(const Args& args) {
   image::LleParams lle;
   lle.brceStep = static_cast<int>(args.integer("brce-step", lle.brceStep));
   lle.brceThreshold = static_cast<int>(args.integer("brce-threshold", lle.brceThreshold));
+  lle.smoothRows = static_cast<int>(args.integer("lle-smooth-rows", lle.smoothRows));
+  lle.edgeRatio = static_cast<int>(args.integer("lle-edge-ratio", lle.edgeRatio));
+  lle.weakLineThresholdPct = static_cast<int>(args.integer("lle-weak-line-pct", lle.weakLineThresholdPct));
+  lle.subtractedLineThresholdPct =
+      static_cast<int>(args.integer("lle-subtracted-line-pct", lle.subtractedLineThresholdPct));
   if (Status s = lle.validate(); !s) {
     std::fprintf(stderr, "alacs-twin process: %s\n", s.reason().c_str());
     return 2;
@@ -215,7 +220,8 @@ int processMain(const Args& args) {
           fo["points"] = ob->pointsMm.size();
           if (wantRows) {
             tools::Json rows = tools::Json::array();
-            for (const auto& r : line.rows) rows.push_back({r.row, tools::jsonNumber(r.column), r.inlier ? 1 : 0});
+            for (const auto& r : line.rows)
+              rows.push_back({r.row, tools::jsonNumber(r.column), r.inlier ? 1 : 0, static_cast<int>(r.status)});
             fo["rows"] = std::move(rows);
             // What the localizer keeps of the frame: the samples gated in 3D around the target.
             tools::Json kept = tools::Json::array();
