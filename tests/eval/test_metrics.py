@@ -93,3 +93,27 @@ def test_paper_candidate_prefers_long_lines_near_the_expected_centre():
     face, centre = est
     assert abs(face @ cal.normal - cal.plane_offset(70.0)) < 1e-6
     assert np.linalg.norm(centre - face) == pytest.approx(paper_method.NOMINAL_RADIUS_MM)
+
+
+def test_confidence_against_error_strict_within_noise_and_by_rank():
+    from alacs_eval import worlds
+
+    rng = np.random.default_rng(1)
+    conf = rng.uniform(0, 100, 400)
+
+    def cov(errors):
+        return worlds.coverage([{"approach": float(e), "sigma": 2.0, "confidence": float(c)}
+                                for c, e in zip(conf, errors)])
+
+    # Error falling with confidence: monotone by every measure, strongly negative rank correlation.
+    falling = cov((100 - conf) / 10 + rng.normal(0, 0.3, conf.size))
+    assert falling["confidence_monotone"] and falling["confidence_monotone_2se"]
+    assert falling["confidence_spearman"] < -0.9
+    # Error rising with confidence: refused by every measure.
+    rising = cov(conf / 10 + rng.normal(0, 0.3, conf.size))
+    assert not rising["confidence_monotone"] and not rising["confidence_monotone_2se"]
+    assert rising["confidence_spearman"] > 0.9
+    # Errors unrelated to the confidence: no rise beyond noise, and no rank correlation either.
+    noise = cov(rng.exponential(1.0, conf.size))
+    assert noise["confidence_monotone_2se"]
+    assert abs(noise["confidence_spearman"]) < 0.15

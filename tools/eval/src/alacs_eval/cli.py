@@ -6,6 +6,8 @@
     alacs-eval report --small    the CI set (a few minutes), into build/eval-small
     alacs-eval calibration       corner detectors and the calibration's 3D error on the
                                  twin's calibration worlds (docs/calibration.md)
+    alacs-eval diagnose          where the LLE loses on a tuning world, frame by frame
+                                 (never the second world)
 """
 
 from __future__ import annotations
@@ -16,7 +18,7 @@ import sys
 import time
 from pathlib import Path
 
-from alacs_eval import calibration, evaluate, report, twin, worlds
+from alacs_eval import calibration, diagnose, evaluate, report, twin, worlds
 
 ROOT = twin.ROOT
 
@@ -85,6 +87,21 @@ def _worlds(a: argparse.Namespace) -> int:
     return 0
 
 
+def _diagnose(a: argparse.Namespace) -> int:
+    """Where the LLE loses on a tuning world: worst frames, rows next to gaps, missed rows."""
+    work = Path(a.work) if a.work else ROOT / "build" / "diagnose"
+    extra = tuple(x for x in a.process_args if x != "--")
+    cfg = diagnose.Config(world=a.world, seed=a.seed, count=a.count, work=work, twin=twin.find_twin(a.twin),
+                          jobs=a.jobs, process_args=extra, worst=a.worst, quiet=a.quiet)
+    try:
+        res = diagnose.run(cfg)
+    except ValueError as e:
+        print(f"alacs-eval diagnose: {e}", file=sys.stderr)
+        return 2
+    print(diagnose.text(res))
+    return 0
+
+
 def _calibration(a: argparse.Namespace) -> int:
     """Corner detectors on the tuning and holdout sets; 3D error per board, tilt and view count."""
     work = Path(a.work) if a.work else ROOT / "build" / ("calibration-quick" if a.quick else "calibration")
@@ -123,6 +140,18 @@ def main(argv: list[str] | None = None) -> int:
     v.add_argument("--regenerate", action="store_true", help="write every world's scans again")
     v.add_argument("--other-object-prior", type=float, help="the localizer's ScanParams::otherObjectPrior (0: the fit's σ alone)")
     v.set_defaults(func=_worlds)
+    g = sub.add_parser("diagnose", help="where the LLE loses on a tuning world, frame by frame (not the second world)")
+    g.add_argument("--world", default="benchmark-hard", help="benchmark or benchmark-hard (the second world is refused)")
+    g.add_argument("--seed", type=int, default=3, help="the tuning seed (default 3)")
+    g.add_argument("--count", type=int, default=160, help="LLE frames (default 160)")
+    g.add_argument("--worst", type=int, default=10, help="how many of the worst frames to list")
+    g.add_argument("--work", help="default build/diagnose")
+    g.add_argument("--twin", help="the alacs-twin binary (default $ALACS_TWIN or the newest build/*/tools/twin)")
+    g.add_argument("--jobs", type=int, default=2)
+    g.add_argument("--quiet", action="store_true", help="no progress bars")
+    g.add_argument("process_args", nargs=argparse.REMAINDER,
+                   help="after --: options for `alacs-twin process` (e.g. --lle-subtracted-line-pct 20)")
+    g.set_defaults(func=_diagnose)
     c = sub.add_parser("calibration", help="corner detectors and the calibration's 3D error (issue 17, item 6)")
     c.add_argument("--quick", action="store_true", help="the corner sets only, 4 views and 5 placements each, the default detector (CI)")
     c.add_argument("--study-only", action="store_true", help="the 3D error study only, not the corner sets")

@@ -92,7 +92,7 @@ def _line_alone(raw: dict, truth: np.ndarray) -> float:
     frames = raw.get("frames", [])
     if len(vis) == 0 or not frames:
         return 0.0
-    cols = {int(round(r)): c for r, c, inlier in frames[0].get("rows", []) if inlier}
+    cols = {int(round(r[0])): r[1] for r in frames[0].get("rows", []) if r[2]}
     hit = sum(1 for r, c in zip(vis["row"], vis["column"])
               if int(round(r)) in cols and abs(cols[int(round(r))] - c) <= 2.0)
     return hit / len(vis)
@@ -237,6 +237,20 @@ def coverage(rows: list[dict]) -> dict[str, Any]:
                                            "beyond_20mm": int(np.sum(err[m] > metrics.TOLERANCE_MM))})
     means = [b["mean_error"] for b in out["confidence_bins"]]
     out["confidence_monotone"] = all(a >= b for a, b in zip(means, means[1:]))
+    # The strict test above fails on a difference of a tenth of a millimetre between two
+    # bins of 1 mm errors, well inside their sampling noise. Beside it: whether any bin's
+    # mean exceeds the next lower bin's by more than two standard errors of the difference,
+    # and the rank correlation of confidence with error over all results (Spearman; ties are
+    # rare in both), negative when the error falls as the confidence rises.
+    stderr = []
+    for lo, hi in zip(CONFIDENCE_BINS[:-1], CONFIDENCE_BINS[1:]):
+        m = (conf >= lo) & (conf < hi)
+        if m.any():
+            stderr.append(float(np.std(err[m], ddof=1) / math.sqrt(m.sum())) if m.sum() > 1 else math.inf)
+    out["confidence_monotone_2se"] = all(b - a <= 2.0 * math.hypot(sa, sb)
+                                         for a, b, sa, sb in zip(means, means[1:], stderr, stderr[1:]))
+    rc, re = np.argsort(np.argsort(conf)), np.argsort(np.argsort(err))
+    out["confidence_spearman"] = float(np.corrcoef(rc, re)[0, 1]) if n > 2 else math.nan
     out["scatter"] = [[float(s), float(e)] for s, e in zip(sig, err)]
     return out
 
@@ -299,8 +313,23 @@ RULES = [
     "saw the fruit, round the rough position for a fit far from it; docs/geometry.md) and the shape term of σ "
     "(the radius's σ in the approach point's) were chosen on the benchmark's hard cases alone (seed 3, 200 "
     "scans); the hidden-share reason's 60 % was set a priori. The second world's aggregates were read once, in "
-    "this run, after they were fixed; a first run of the same change without the far-from-rough reason was "
-    "stopped before it reached the second world.",
+    "that run, after they were fixed; a first run of the same change without the far-from-rough reason was "
+    "stopped before it reached the second world. Then the hard cases themselves were widened towards kinds of "
+    "difficulty the issue names and they lacked (`kTuningHardSettings`: neighbours up to a quarter of their "
+    "direction in front of the target, 0–6 mm apart, hiding up to 10 %; laser 7–26 mW; the exposure fixed in "
+    "direct light as in sun; stems up to 55°), because the second world's aggregate LLE error in lab and direct "
+    "light (0.6–0.7 px against 0.1) said the tuning world lacked something; its cases were not opened. The "
+    "widened hard cases show the same kind of failure (a neighbour's line taken in the target's few visible "
+    "rows) and the sun's missing rows; the weak-line threshold after laser-off subtraction "
+    "(`LleParams::subtractedLineThresholdPct`, 25 %: tried 60, 30, 25, 20, 15) was chosen on them (seed 3, 160 "
+    "LLE frames) and the benchmark (seed 3, 120 frames) alone: the most rows found in sun with no frame added "
+    "beyond 0.6 px. The second world's aggregates were read once, in this run, after it was fixed.",
+    "",
+    "**Looking closer, on tuning worlds only.** `tools/eval/run.sh diagnose --world benchmark-hard --seed 3` "
+    "lists a tuning world's worst LLE frames with their scenes, the row error against the distance to the "
+    "nearest gap in the line, and why the target's visible rows were missed; options after `--` go to "
+    "`alacs-twin process` (e.g. `-- --lle-subtracted-line-pct 20`) to compare settings on the same frames. It "
+    "refuses `--world holdout`.",
 ]
 
 
@@ -386,7 +415,12 @@ def markdown(res: dict[str, Any], figure: str | None, command: str) -> str:
     for label, key, fmt in (("within 2σ", "within_2sigma", _pct), ("within 3σ", "within_3sigma", _pct),
                             ("within 20 mm (all scans)", "within_20mm", _pct),
                             ("beyond 20 mm at confidence ≥ 80 %", "confident_misses", str),
-                            ("mean error falls as confidence rises", "confidence_monotone", lambda v: "yes" if v else "no")):
+                            ("mean error falls as confidence rises, bin by bin", "confidence_monotone",
+                             lambda v: "yes" if v else "no"),
+                            ("... or no rise beyond 2 standard errors", "confidence_monotone_2se",
+                             lambda v: "–" if v is None or v != v else ("yes" if v else "no")),
+                            ("rank correlation of confidence and error (Spearman)", "confidence_spearman",
+                             lambda v: _f(v, "{:.2f}"))):
         L.append(f"| {label} | " + " | ".join(fmt(c.get(key, math.nan)) for c in cov) + " |")
     L += ["", "Confidence against error (mean, 95th percentile, cases beyond 20 mm):", "",
           "| world | confidence | n | mean error (mm) | p95 (mm) | beyond 20 mm |", "| --- | --- | --- | --- | --- | --- |"]

@@ -1,0 +1,42 @@
+"""`alacs-eval diagnose`: the frame-by-frame look at a tuning world's LLE refuses the
+second world, and on a few hard frames reports what the aggregates hide."""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+
+import pytest
+
+from alacs_eval import cli, diagnose, twin
+
+
+def test_the_second_world_is_refused(tmp_path, capsys):
+    assert cli.main(["diagnose", "--world", "holdout", "--work", str(tmp_path), "--count", "2",
+                     "--twin", os.environ.get("ALACS_TWIN", "/bin/true")]) == 2
+    assert "kept out of tuning" in capsys.readouterr().err
+    assert not any(tmp_path.iterdir())  # nothing generated
+
+
+def test_a_few_hard_frames_are_diagnosed(tmp_path):
+    tw = os.environ.get("ALACS_TWIN")
+    if not tw:
+        pytest.fail("set ALACS_TWIN to the alacs-twin binary (tests/eval/run.sh does)")
+    cfg = diagnose.Config(world="benchmark-hard", seed=3, count=8, work=tmp_path, twin=twin.find_twin(tw),
+                          quiet=True, worst=3)
+    res = diagnose.run(cfg)
+    assert res["frames"] == 8
+    assert len(res["worst"]) == 3
+    assert res["worst"][0]["worst"] >= res["worst"][-1]["worst"]
+    # Every visible row is either found or missed for a named reason.
+    found_rows = sum(g["n"] for g in res["gap"])
+    assert found_rows > 0
+    assert res["missed"]["visible_rows"] > 0
+    assert all(k in diagnose.STATUS.values() or k in ("no sample", "only another surface's sample",
+                                                      "a sample not kept", "visible_rows") for k in res["missed"])
+    # The same frames with another setting: the options reach `alacs-twin process`.
+    again = diagnose.run(dataclasses.replace(cfg, process_args=("--lle-smooth-rows", "0")))
+    assert again["process_args"] == ["--lle-smooth-rows", "0"]
+    assert again["segments"] != res["segments"]
+    text = diagnose.text(res)
+    assert "worst frames:" in text and "not found, by reason:" in text

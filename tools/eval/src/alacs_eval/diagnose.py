@@ -1,0 +1,157 @@
+"""Where the LLE loses on a tuning world, case by case (issue 17).
+
+`alacs-eval diagnose --world benchmark-hard --seed 3` generates (or reuses) a world's
+single LLE frames, runs our pipeline on them as `worlds` does (the localizer's 3D-gated
+samples), and prints what the aggregates of `worlds` hide:
+
+- the mean per light, and the frames whose worst central segment is beyond 0.6 px;
+- the worst frames, with the generator's note (light, distance, neighbours, occlusion);
+- the row error against the distance (rows) to the nearest end of the kept run: partial
+  occlusion and laser shadow bias the rows next to a gap;
+- why the target's visible rows were not found: no sample at all, a sample the 3D gate
+  dropped, one marked at an occluding edge (kEdge) or rejected by the fit.
+
+It works on the worlds parameters may be tuned on only: the second world (`holdout`) is
+refused, because its cases are not to be looked at while a parameter is chosen
+(docs/evaluation.md "The second world"). Extra `alacs-twin process` options (for example
+`--lle-subtracted-line-pct 20`) go after `--`, to compare settings on the same frames.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections import Counter
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from alacs_eval import evaluate, metrics, twin, worlds
+from alacs_eval.scans import Scan
+
+TUNING_WORLDS = ("benchmark", "benchmark-hard")
+WORST_PX = 0.6  # the issue's worst-case bound for one frame
+GAP_BINS = (1, 2, 3, 4, 6, 8, 12, 10**9)
+# LaserLine RowStatus, as `alacs-twin process --rows` writes it (image/lle.h).
+STATUS = {0: "a sample the 3D gate dropped", 1: "rejected by the line's fit", 2: "another segment, dropped",
+          3: "at an occluding edge (kEdge)"}
+
+
+@dataclasses.dataclass
+class Config:
+    world: str
+    seed: int
+    count: int
+    work: Path
+    twin: Path
+    jobs: int = 2
+    process_args: tuple[str, ...] = ()
+    worst: int = 10
+    quiet: bool = False
+
+
+def _gap_distance(row: int, rows: set[int]) -> int:
+    """Rows from `row` to the nearest row of the run without a sample (1: next to a gap)."""
+    k = 1
+    while (row - k) in rows and (row + k) in rows and k <= GAP_BINS[-2]:
+        k += 1
+    return k
+
+
+def _miss_reason(row: int, column: float, samples: dict[int, list]) -> str:
+    near = [s for s in samples.get(row, []) if abs(s[1] - column) <= 2.0]
+    if near:
+        return STATUS.get(int(near[0][3]) if len(near[0]) > 3 else -1, "a sample not kept")
+    return "only another surface's sample" if samples.get(row) else "no sample"
+
+
+def run(cfg: Config) -> dict[str, Any]:
+    if cfg.world not in TUNING_WORLDS:
+        raise ValueError(f"diagnose looks at tuning worlds only ({', '.join(TUNING_WORLDS)}); "
+                         f"'{cfg.world}' is kept out of tuning (docs/evaluation.md \"The second world\")")
+    out = cfg.work / f"{cfg.world}-{cfg.seed}" / "lle"
+    cases = twin.generate(cfg.twin, out, "lle", {"world": cfg.world, "count": cfg.count, "seed": cfg.seed,
+                                                 "jobs": cfg.jobs},
+                          cfg.count, f"{cfg.world}: generating", cfg.quiet, sources=worlds.WORLD_SOURCES)
+    dirs = [c["dir"] for c in cases]
+    step, th = evaluate.DEFAULT_COMBO
+    cmd = [str(cfg.twin), "process", "--jobs", str(cfg.jobs), "--rows", "--brce-step", str(step),
+           "--brce-threshold", str(th), *cfg.process_args, *dirs]
+    raw = {r["scan"]: r for r in twin.run_lines(cmd, len(dirs), f"{cfg.world}: our LLE", cfg.quiet)}
+    truths = {}
+    for d in dirs:
+        s = Scan.load(d)
+        truths[d] = s.truth_rows(next(f for f in s.frames if f.laser_on), s.target_id)
+    ours = evaluate._ours_lle(raw, truths)
+
+    frames, by_light = [], {}
+    gap_err: dict[int, list[float]] = {b: [] for b in GAP_BINS}
+    missed: Counter = Counter()
+    visible = 0
+    for c in cases:
+        d = c["dir"]
+        disp = ours[d]["disp"]
+        finite = [v for v in disp.values() if math.isfinite(v)]
+        frames.append({"case": c["case"], "lighting": c["lighting"], "worst": max(finite) if finite else math.nan,
+                       "mean50": disp[50], "found80": ours[d]["cover"][80], "note": Scan.load(d).note})
+        by_light.setdefault(c["lighting"], []).append(frames[-1])
+        f = raw.get(d, {}).get("frames", [{}])[0]
+        kept: dict[int, float] = {}
+        for row, col in f.get("kept", []):
+            kept.setdefault(int(round(row)), float(col))
+        samples: dict[int, list] = {}
+        for s in f.get("rows", []):
+            samples.setdefault(int(s[0]), []).append(s)
+        vis = metrics.visible_rows(truths[d])
+        if len(vis) < 3:
+            continue
+        centre, half = 0.5 * (vis["row"][0] + vis["row"][-1]), 0.5 * (vis["row"][-1] - vis["row"][0])
+        keys = set(kept)
+        for row, col in zip(vis["row"], vis["column"]):
+            r = int(round(row))
+            if r in kept:
+                g = _gap_distance(r, keys)
+                gap_err[next(b for b in GAP_BINS if g <= b)].append(abs(kept[r] - col))
+            if abs(row - centre) <= 0.8 * half + 1e-9:
+                visible += 1
+                if r not in kept:
+                    missed[_miss_reason(r, float(col), samples)] += 1
+    frames.sort(key=lambda x: -x["worst"] if math.isfinite(x["worst"]) else math.inf)
+    return {
+        "world": cfg.world, "seed": cfg.seed, "frames": len(frames), "process_args": list(cfg.process_args),
+        "segments": {s: float(np.nanmean([ours[d]["disp"][s] for d in dirs])) for s in metrics.SEGMENTS},
+        "found80": float(np.mean([ours[d]["cover"][80] for d in dirs])),
+        "beyond": sum(1 for x in frames if math.isfinite(x["worst"]) and x["worst"] > WORST_PX),
+        "by_light": {k: {"n": len(v), "mean50": float(np.nanmean([x["mean50"] for x in v])),
+                         "found80": float(np.mean([x["found80"] for x in v]))} for k, v in sorted(by_light.items())},
+        "worst": frames[:cfg.worst],
+        "gap": [{"upto": b, "n": len(v), "mean": float(np.mean(v)) if v else math.nan,
+                 "beyond": int(np.sum(np.asarray(v) > WORST_PX))} for b, v in gap_err.items()],
+        "missed": {"visible_rows": visible, **dict(missed.most_common())},
+    }
+
+
+def text(res: dict[str, Any]) -> str:
+    f2 = lambda x: "–" if not math.isfinite(x) else f"{x:.3f}"  # noqa: E731
+    args = " ".join(res["process_args"]) or "defaults"
+    L = [f"{res['world']}, seed {res['seed']}: {res['frames']} LLE frames ({args})",
+         "mean per central segment (px): " + " ".join(f"{s}% {f2(v)}" for s, v in res["segments"].items()),
+         f"rows found (central 80 %): {100 * res['found80']:.1f} %; frames whose worst segment is beyond "
+         f"{WORST_PX} px: {res['beyond']}", "", "by light:"]
+    L += [f"  {k}: n {v['n']}, mean at 50 % {f2(v['mean50'])} px, found {100 * v['found80']:.1f} %"
+          for k, v in res["by_light"].items()]
+    L += ["", "worst frames:"]
+    L += [f"  {x['case']} worst {f2(x['worst'])} px, at 50 % {f2(x['mean50'])}, found {100 * x['found80']:.0f} %: "
+          f"{x['note']}" for x in res["worst"]]
+    L += ["", "row error against the distance to the kept run's nearest gap (rows):"]
+    lo = 1
+    for g in res["gap"]:
+        label = f"{lo}" if g["upto"] == lo else (f"{lo}-{g['upto']}" if g["upto"] < 10**9 else f">={lo}")
+        L.append(f"  {label:>6}: n {g['n']:6d}, mean {f2(g['mean'])} px, beyond {WORST_PX} px: {g['beyond']}")
+        lo = g["upto"] + 1
+    m = dict(res["missed"])
+    total = m.pop("visible_rows")
+    L += ["", f"visible rows of the target (central 80 %): {total}; not found, by reason:"]
+    L += [f"  {100 * n / max(total, 1):5.1f} %  {k}" for k, n in m.items()]
+    return "\n".join(L)
