@@ -4,7 +4,8 @@
 // when the meter asks for it), a ReplaySource serves the frame recorded nearest each stop
 // and its recorded position, the localizer observes each frame and fuses the lines, and
 // takes the adaptive second pass where it asks for one (twoPassScan). One JSON line per scan on stdout:
-//   {"scan", "kind", "roi", "frames": [{"slide_mm", "valid", "rows"?, "curve"?}],
+//   {"scan", "kind", "roi", "frames": [{"slide_mm", "valid", "rows"?, "kept"?, "curve"?}],
+//    (--rows: "rows" [row, column, inlier 0|1, image::RowStatus], "kept" [row, column]),
 //    "multi": estimate (both passes), "first_pass": estimate, "follow_up_stops",
 //    "follow_up_missing" (second-pass stops the scan holds no frame for),
 //    "single": estimate (the stop nearest the rough position only)}

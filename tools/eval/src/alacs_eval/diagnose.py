@@ -76,13 +76,13 @@ def run(cfg: Config) -> dict[str, Any]:
                           cfg.count, f"{cfg.world}: generating", cfg.quiet, sources=worlds.WORLD_SOURCES)
     dirs = [c["dir"] for c in cases]
     step, th = evaluate.DEFAULT_COMBO
-    cmd = [str(cfg.twin), "process", "--jobs", str(cfg.jobs), "--rows", "--brce-step", str(step),
-           "--brce-threshold", str(th), *cfg.process_args, *dirs]
-    raw = {r["scan"]: r for r in twin.run_lines(cmd, len(dirs), f"{cfg.world}: our LLE", cfg.quiet)}
-    truths = {}
+    raw = twin.process(cfg.twin, dirs, cfg.jobs, f"{cfg.world}: our LLE", rows=True, step=step, threshold=th,
+                       quiet=cfg.quiet, extra=cfg.process_args)
+    truths, notes = {}, {}
     for d in dirs:
         s = Scan.load(d)
         truths[d] = s.truth_rows(next(f for f in s.frames if f.laser_on), s.target_id)
+        notes[d] = s.note
     ours = evaluate._ours_lle(raw, truths)
 
     frames, by_light = [], {}
@@ -94,7 +94,7 @@ def run(cfg: Config) -> dict[str, Any]:
         disp = ours[d]["disp"]
         finite = [v for v in disp.values() if math.isfinite(v)]
         frames.append({"case": c["case"], "lighting": c["lighting"], "worst": max(finite) if finite else math.nan,
-                       "mean50": disp[50], "found80": ours[d]["cover"][80], "note": Scan.load(d).note})
+                       "mean50": disp[50], "found80": ours[d]["cover"][80], "note": notes[d]})
         by_light.setdefault(c["lighting"], []).append(frames[-1])
         f = raw.get(d, {}).get("frames", [{}])[0]
         kept: dict[int, float] = {}

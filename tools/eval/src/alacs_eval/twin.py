@@ -88,8 +88,9 @@ def generate(twin: Path, out: Path, set_name: str, args: dict[str, str], total: 
 
 def process(twin: Path, dirs: list[str], jobs: int, desc: str, rows: bool = False, step: int | None = None,
             threshold: int | None = None, calibration: str | None = None, quiet: bool = False,
-            other_object_prior: float | None = None) -> dict[str, dict]:
-    cmd = [str(twin), "process", "--jobs", str(jobs)]
+            other_object_prior: float | None = None, extra: tuple[str, ...] = ()) -> dict[str, dict]:
+    """`alacs-twin process` on `dirs`; `extra`: further options of its own (e.g. --lle-smooth-rows 0)."""
+    cmd = [str(twin), "process", "--jobs", str(jobs), *extra]
     if other_object_prior is not None:
         cmd += ["--other-object-prior", str(other_object_prior)]
     if rows:

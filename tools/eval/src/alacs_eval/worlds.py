@@ -234,7 +234,9 @@ def coverage(rows: list[dict]) -> dict[str, Any]:
             out["confidence_bins"].append({"lo": lo, "hi": min(hi, 100.0), "n": int(m.sum()),
                                            "mean_error": float(np.mean(err[m])),
                                            "p95_error": float(np.percentile(err[m], 95)),
-                                           "beyond_20mm": int(np.sum(err[m] > metrics.TOLERANCE_MM))})
+                                           "beyond_20mm": int(np.sum(err[m] > metrics.TOLERANCE_MM)),
+                                           "stderr": (float(np.std(err[m], ddof=1) / math.sqrt(m.sum()))
+                                                      if m.sum() > 1 else math.inf)})
     means = [b["mean_error"] for b in out["confidence_bins"]]
     out["confidence_monotone"] = all(a >= b for a, b in zip(means, means[1:]))
     # The strict test above fails on a difference of a tenth of a millimetre between two
@@ -242,11 +244,7 @@ def coverage(rows: list[dict]) -> dict[str, Any]:
     # mean exceeds the next lower bin's by more than two standard errors of the difference,
     # and the rank correlation of confidence with error over all results (Spearman; ties are
     # rare in both), negative when the error falls as the confidence rises.
-    stderr = []
-    for lo, hi in zip(CONFIDENCE_BINS[:-1], CONFIDENCE_BINS[1:]):
-        m = (conf >= lo) & (conf < hi)
-        if m.any():
-            stderr.append(float(np.std(err[m], ddof=1) / math.sqrt(m.sum())) if m.sum() > 1 else math.inf)
+    stderr = [b["stderr"] for b in out["confidence_bins"]]
     out["confidence_monotone_2se"] = all(b - a <= 2.0 * math.hypot(sa, sb)
                                          for a, b, sa, sb in zip(means, means[1:], stderr, stderr[1:]))
     rc, re = np.argsort(np.argsort(conf)), np.argsort(np.argsort(err))
