@@ -74,6 +74,7 @@ Status configFromJson(const Json& json, DaemonConfig& c) {
     s->number("outside_gate_confidence_pct", c.scan.outsideGateConfidencePct, Need::kOptional, 0, 100);
     s->number("rough_sigma_mm", c.scan.roughSigmaMm, Need::kOptional, 0, 500);
     s->number("other_object_prior", c.scan.otherObjectPrior, Need::kOptional, 0, 0.99);
+    s->boolean("rough_when_far_from_rough", c.scan.roughWhenFarFromRough);
     s->number("line_bias_px", c.scan.lineBiasPx, Need::kOptional, 0, 5);
     s->integer("follow_up_min_lines", c.scan.followUpMinLines, Need::kOptional, 1, 15);
     s->number("follow_up_hidden_pct", c.scan.followUpHiddenPct, Need::kOptional, 0, 100);
@@ -148,6 +149,7 @@ OrderedJson configToJson(const DaemonConfig& c) {
                {"outside_gate_confidence_pct", c.scan.outsideGateConfidencePct},
                {"rough_sigma_mm", c.scan.roughSigmaMm},
                {"other_object_prior", c.scan.otherObjectPrior},
+               {"rough_when_far_from_rough", c.scan.roughWhenFarFromRough},
                {"line_bias_px", c.scan.lineBiasPx},
                {"follow_up_min_lines", c.scan.followUpMinLines},
                {"follow_up_hidden_pct", c.scan.followUpHiddenPct},

@@ -54,6 +54,8 @@ struct RunSums {
   int32_t excess = 0; // largest excess (DN)
   int32_t margin = 0; // largest bRCE margin min(c - l, c - r) over the run (the red bRCE saw)
   bool saturated = false;
+  bool clipped = false;  // laser-off subtracted, and the ambient alone is at full scale within the peak's
+                         // window: the difference there is what clipping left of the line, not the line
   bool edge = false;   // the background steps across the run (an occluder's edge)
 };
 
@@ -97,7 +99,11 @@ inline RunSums runSums(const uint8_t* on, const uint8_t* off, int redOffset, int
     s.sumW += wq;
     s.sumXW += wq * x;
   }
-  for (int x = a; x <= b; ++x) s.saturated = s.saturated || on[3U * static_cast<size_t>(x) + static_cast<size_t>(redOffset)] == 255;
+  const auto onRed = [&](int x) { return on[3U * static_cast<size_t>(x) + static_cast<size_t>(redOffset)]; };
+  for (int x = a; x <= b; ++x) s.saturated = s.saturated || onRed(x) == 255;
+  if (off != nullptr)
+    for (int x = xl; x <= xr; ++x)
+      s.clipped = s.clipped || off[3U * static_cast<size_t>(x) + static_cast<size_t>(redOffset)] == 255;
   s.area = static_cast<int32_t>(s.sumW / span);
   s.excess = static_cast<int32_t>(maxW / span);
   return s;
@@ -407,7 +413,7 @@ void findPeaks(const ImageView& frame, const ImageView* laserOff, const Roi& roi
         b = focus::nextClear(bits, w, nx) - 1;
       }
       const RunSums s = runSums(on, off, redOff, w, a, b, step, p.edgeRatio);
-      if (s.area <= 0) continue;
+      if (s.area <= 0 || s.clipped) continue;
       if (n == kMax && s.area <= row[n - 1].area) continue;
       int i = n < kMax ? n++ : n - 1;
       while (i > 0 && row[i - 1].area < s.area) {

@@ -401,6 +401,23 @@ AppleEstimate Localizer::roughEstimate(const ScanPlan& plan) const {
   return est;
 }
 
+namespace {
+// Points within the gate, off the fruit the widened search found, from which the rough
+// position's surroundings count as occupied (what the fit needs of one line): estimate().
+constexpr size_t kOccupiedGatePoints = 8;
+// Off that fruit: farther from its fitted sphere than this (its spheroid's shape, lumps).
+constexpr double kOffFruitMm = 6.0;
+
+size_t otherPointsInGate(const std::vector<LineObservation>& lines, const AppleEstimate& found) {
+  const double radiusMm = 0.5 * found.diameterMm;
+  size_t n = 0;
+  for (const LineObservation& l : lines)
+    for (const Eigen::Vector3d& p : l.pointsMm)
+      n += std::abs((p - found.centerMm).norm() - radiusMm) > kOffFruitMm ? 1U : 0U;
+  return n;
+}
+}  // namespace
+
 Result<AppleEstimate> Localizer::estimate(const ScanPlan& plan, const std::vector<LineObservation>& observed) const {
   constexpr double kSameStopMm = 0.05;
   std::vector<LineObservation> lines;
@@ -409,14 +426,27 @@ Result<AppleEstimate> Localizer::estimate(const ScanPlan& plan, const std::vecto
     if (std::none_of(lines.begin(), lines.end(),
                      [&](const LineObservation& l) { return std::abs(l.slideMm - o.slideMm) < kSameStopMm; }))
       lines.push_back(o);
+  // More likely another object than the target: where that object is says nothing better
+  // about the target than the rough position does.
+  const auto targetOrRough = [&](Result<AppleEstimate> e) -> Result<AppleEstimate> {
+    if (!e || e->doubt != AppleEstimate::Doubt::kFarFromRough || !scan_.roughWhenFarFromRough) return e;
+    AppleEstimate rough = roughEstimate(plan);
+    rough.doubt = AppleEstimate::Doubt::kFarFromRough;
+    rough.targetPct = e->targetPct;
+    return rough;
+  };
   Result<AppleEstimate> est = estimateFused(plan, lines, scan_.roughSigmaMm);
   // Nothing within the gate, or one line only: the lines the scan saw, tested against the
   // fruit model wherever they are (within searchMm).
   if (scan_.searchMm > 0.0 && (!est || !est->sphereFit)) {
     Result<AppleEstimate> wide = estimateWidened(plan, lines);
     if (wide) {
+      // When the gate saw nothing but the fruit found, the rough position is in empty air: it
+      // is off, and that fruit goes out as found, however far (issue 16). When the lines lit
+      // something else round it (leaves, another fruit's skin), the target may well be
+      // there, hidden, and a fruit far beyond is more likely a neighbour.
       weighDoubt(plan, scan_.searchMm, *wide);
-      return wide;
+      return otherPointsInGate(lines, *wide) >= kOccupiedGatePoints ? targetOrRough(std::move(wide)) : wide;
     }
   }
   // One line (or the paper's candidate) that puts the centre far beyond the rough
@@ -426,7 +456,7 @@ Result<AppleEstimate> Localizer::estimate(const ScanPlan& plan, const std::vecto
     return roughEstimate(plan);
   // What one line says may be another surface just as a fit may be another object.
   if (est) weighDoubt(plan, scan_.gateMm, *est);
-  return est;
+  return targetOrRough(std::move(est));
 }
 
 double Localizer::systematicSigmaMm(const Eigen::Vector3d& approachMm) const {

@@ -90,6 +90,16 @@ struct ScanParams {
   // the confidence is multiplied by the chance. Set a priori, not tuned on a benchmark.
   // 0: off (σ and confidence from the fit alone).
   double otherObjectPrior = 0.1;
+  // A fit within the gate that is more likely another object than the target (its centre
+  // far from the rough position: Doubt::kFarFromRough) locates that other object, not the
+  // target. The best estimate of the target is then the rough position's own (its σ, low
+  // confidence), and the bus says ROUGH_ONLY with reason FAR_FROM_ROUGH. On the tuning
+  // worlds not one such fit was within 20 mm of the target (docs/geometry.md). false: the
+  // fit goes out, AMBIGUOUS (before issue 17's last change). A fit of the widened search
+  // (OUTSIDE_GATE) is treated alike when the lines lit something within the gate (the
+  // target may be there, hidden); when the gate saw nothing at all, the rough position is
+  // what is off, and the fruit found beyond goes out as found (issue 16).
+  bool roughWhenFarFromRough = true;
   // What no fit's covariance holds, because it does not average out over a line's points:
   // a bias of the whole laser line in the image (the LLE's mean error on the twin's tuning
   // worlds is 0.09-0.11 px, docs/lle.md), carried through the triangulation at the

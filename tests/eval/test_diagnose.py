@@ -40,3 +40,28 @@ def test_a_few_hard_frames_are_diagnosed(tmp_path):
     assert again["segments"] != res["segments"]
     text = diagnose.text(res)
     assert "worst frames:" in text and "not found, by reason:" in text
+
+
+def test_the_localization_look_refuses_the_second_world_too(tmp_path, capsys):
+    assert cli.main(["diagnose", "--loc", "--world", "holdout", "--work", str(tmp_path), "--per-cell", "1",
+                     "--twin", os.environ.get("ALACS_TWIN", "/bin/true")]) == 2
+    assert "kept out of tuning" in capsys.readouterr().err
+    assert not any(tmp_path.iterdir())
+
+
+def test_a_few_hard_scans_are_diagnosed(tmp_path):
+    tw = os.environ.get("ALACS_TWIN")
+    if not tw:
+        pytest.fail("set ALACS_TWIN to the alacs-twin binary (tests/eval/run.sh does)")
+    cfg = diagnose.Config(world="benchmark-hard", seed=3, count=0, work=tmp_path, twin=twin.find_twin(tw),
+                          quiet=True, worst=0)
+    res = diagnose.run_loc(cfg, per_cell=1)
+    assert res["scans"] == 8
+    assert set(res["cells"]) == {f"{o} {d}" for o in ("clear", "occluded") for d in (1000, 1200, 1400, 1600)}
+    # Every miss listed is one, worst first, and says what the fit took for the target.
+    errors = [m["approach"] for m in res["misses"]]
+    assert all(e > diagnose.LOC_MISS_MM for e in errors) and errors == sorted(errors, reverse=True)
+    assert sum(res["misses_by_fitted"].values()) == len(res["misses"])
+    assert 0.0 <= res["within20"] <= 1.0
+    text = diagnose.text_loc(res)
+    assert "within 20 mm" in text and "worst cases:" in text

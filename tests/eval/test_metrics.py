@@ -117,3 +117,17 @@ def test_confidence_against_error_strict_within_noise_and_by_rank():
     noise = cov(rng.exponential(1.0, conf.size))
     assert noise["confidence_monotone_2se"]
     assert abs(noise["confidence_spearman"]) < 0.15
+
+
+def test_a_target_without_visible_rows_has_nothing_to_find():
+    # Leaves hide every row the line crosses: no displacement and no share found (NaN), so the
+    # frame is left out of the mean share found rather than counted as 0 %.
+    rows = np.arange(0, 50)
+    hidden = truth(rows, np.full(len(rows), 20.0), [1] * len(rows))
+    seg = metrics.segment_metrics(hidden, lambda r: np.full(len(r), 20.0), segments=(50,))
+    assert math.isnan(seg[50][0]) and math.isnan(seg[50][1])
+    # With rows to find and no line, it is a miss.
+    seen = truth(rows, np.full(len(rows), 20.0))
+    assert metrics.segment_metrics(seen, None, segments=(50,))[50][1] == 0.0
+    assert metrics.mean_found([1.0, 0.0, math.nan]) == pytest.approx(0.5)
+    assert math.isnan(metrics.mean_found([math.nan]))

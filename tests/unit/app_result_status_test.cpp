@@ -37,9 +37,15 @@ TEST_CASE("Result status: each kind of estimate says what it is", "[app][result]
   }
   SECTION("without a sphere fit it is never a measurement") {
     est.sphereFit = false;
-    est.doubt = localize::AppleEstimate::Doubt::kFarFromRough;
     const app::ResultClass rc = app::classifyEstimate(est);
     CHECK(rc.status == ResultStatus::kRoughOnly);
     CHECK(rc.reason == ResultReason::kTooFewLines);
+  }
+  SECTION("the rough position in place of a fit that was another object says why") {
+    est.sphereFit = false;
+    est.doubt = localize::AppleEstimate::Doubt::kFarFromRough;
+    const app::ResultClass rc = app::classifyEstimate(est);
+    CHECK(rc.status == ResultStatus::kRoughOnly);
+    CHECK(rc.reason == ResultReason::kFarFromRough);
   }
 }

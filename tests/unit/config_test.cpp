@@ -35,6 +35,12 @@ TEST_CASE("Config: defaults, overrides and errors that name the key", "[config]"
   CHECK(ok->scan.followUpMinLines == 3);
   CHECK(ok->scan.followUpMaxStops == 6);
   CHECK(ok->scan.followUpDiameterSigmaMm == 0.0);
+  CHECK(ok->scan.roughWhenFarFromRough);
+  auto fitOut = app::loadConfig(write(R"({"scan": {"rough_when_far_from_rough": false}})"));
+  REQUIRE(fitOut.isOk());
+  CHECK_FALSE(fitOut->scan.roughWhenFarFromRough);
+  auto notBool = app::loadConfig(write(R"({"scan": {"rough_when_far_from_rough": 1}})"));
+  CHECK(notBool.status().reason().find("scan.rough_when_far_from_rough") != std::string::npos);
   auto tooMany = app::loadConfig(write(R"({"scan": {"follow_up_max_stops": 40}})"));
   CHECK(tooMany.status().reason().find("scan.follow_up_max_stops") != std::string::npos);
   // A component's cross-field rule broken in a file is bad input naming the keys (the

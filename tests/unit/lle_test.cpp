@@ -383,6 +383,30 @@ TEST_CASE("In full sun, a faint line in the laser-off difference is found at the
   CHECK(run(flat, p, nullptr, &offView).rows.empty());
 }
 
+TEST_CASE("Where the ambient alone is at full scale, the difference is no measurement of the line",
+          "[lle][ambient][saturation]") {
+  // Sunlit glare saturates red left of the line in rows 40-79: there the laser frame is at
+  // 255 as well, and on - off keeps only the line's right flank, whose centroid lies ~1 px
+  // right of the line. Those rows give no sample; the others are found where the line is.
+  Rgb off(160, 120, 0);
+  for (int y = 0; y < 120; ++y)
+    for (int x = 0; x < 160; ++x) off.red(x, y) = (y >= 40 && y < 80 && x <= 70) ? 255 : 150;
+  Rgb on = off;
+  addLine(
+      on, [](int) { return 71.0; }, 1.3, 60);  // clips at 255
+  const ImageView offView = off.view();
+  const LaserLine l = run(on, {}, nullptr, &offView);
+  int found = 0;
+  for (const auto& r : l.rows) {
+    if (!r.valid()) continue;
+    INFO("row " << r.row << " column " << r.column);
+    CHECK(std::abs(r.column - 71.0F) < 0.1F);
+    CHECK((r.row < 40 || r.row >= 80));
+    ++found;
+  }
+  CHECK(found >= 70);
+}
+
 TEST_CASE("A clipped line core still gives its centre; it is flagged and trusted less", "[lle][saturation]") {
   Rgb img = lineImage(120, 60, [](int) { return 60.4; }, 1.6, 600, 60);  // clipped over ~5 px
   const LaserLine l = run(img);

@@ -210,9 +210,11 @@ TEST_CASE("One line far beyond the rough position's error is not the target", "[
   const Eigen::Vector3d other = k.center + Eigen::Vector3d(80.0, 0.0, 5.0);
   const double slide = k.cal.laser.slideForPoint(other);
   std::vector<localize::LineObservation> lines{lineOf(k.cal, other, 36.0, slide, 0.3, {}, rng)};
-  // The localizer without the gate takes the line's fruit.
+  // The localizer without the gate (nor the rough position for a fit that is another
+  // object) takes the line's fruit.
   localize::ScanParams open = k.scan;
   open.roughGateSigmas = 0.0;
+  open.roughWhenFarFromRough = false;
   auto taken = localize::Localizer(k.cal, image::LleParams{}, open).estimate(*plan, lines);
   REQUIRE(taken.isOk());
   INFO("ungated centre " << taken->centerMm.transpose());
@@ -488,6 +490,9 @@ TEST_CASE("Nothing within the gate: the widened search fits the lines the scan s
   CHECK(localize::Localizer(k.cal, image::LleParams{}, gateOnly).estimate(*plan, lines).status().code() ==
         Error::kNotFound);
 
+  // The fruit it finds goes out as found, though far beyond the RGB-D camera's error: unlike
+  // a fit within the gate (ScanParams::roughWhenFarFromRough), finding what the rough
+  // position missed is what the search is for.
   auto est = loc.estimate(*plan, lines);
   REQUIRE(est.isOk());
   INFO("centre error " << (est->centerMm - k.center).norm() << " mm, d " << est->diameterMm << ", conf "
@@ -513,6 +518,76 @@ TEST_CASE("Nothing within the gate: the widened search fits the lines the scan s
   REQUIRE(plain.isOk());
   CHECK(plain->doubt == localize::AppleEstimate::Doubt::kNone);
   CHECK(plain->sigmaMm < 2.0);
+  // The same fruit beyond the gate, but the lines also lit a leaf round the rough position:
+  // the target may be behind it, and the far fruit is more likely a neighbour. The rough
+  // position goes out (ROUGH_ONLY, FAR_FROM_ROUGH); the fit only with the option off.
+  std::vector<localize::LineObservation> leafy = lines;
+  for (int i = 0; i < 20; ++i) {
+    const Eigen::Vector3d onLeaf = rough + Eigen::Vector3d(0.5 * i - 5.0, 1.5 * i - 15.0, -20.0);
+    leafy[2].pointsMm.push_back(onLeaf);
+    leafy[2].pixels.push_back(geometry::projectPoint(k.cal.camera, onLeaf));
+  }
+  auto occupied = loc.estimate(*plan, leafy);
+  REQUIRE(occupied.isOk());
+  CHECK_FALSE(occupied->sphereFit);
+  CHECK(occupied->doubt == localize::AppleEstimate::Doubt::kFarFromRough);
+  CHECK((occupied->centerMm - rough).norm() < 1e-9);
+  localize::ScanParams fitOut = k.scan;
+  fitOut.roughWhenFarFromRough = false;
+  auto asFound = localize::Localizer(k.cal, image::LleParams{}, fitOut).estimate(*plan, leafy);
+  REQUIRE(asFound.isOk());
+  CHECK(asFound->outsideGate);
+  CHECK((asFound->centerMm - k.center).norm() < 2.0);
+  // A rough position known to be this poor (a less accurate camera: σ 60 mm per axis) lets
+  // the fit be the target: MEASURED, OUTSIDE_GATE.
+  localize::ScanParams poorRough = k.scan;
+  poorRough.roughSigmaMm = 60.0;
+  auto believed = localize::Localizer(k.cal, image::LleParams{}, poorRough).estimate(*plan, lines);
+  REQUIRE(believed.isOk());
+  CHECK(believed->sphereFit);
+  CHECK(believed->outsideGate);
+  CHECK(believed->doubt == localize::AppleEstimate::Doubt::kNone);
+  CHECK((believed->centerMm - k.center).norm() < 2.0);
+}
+
+TEST_CASE("A neighbour in full view, the target hidden: the rough position, not the neighbour's centre",
+          "[localize][doubt]") {
+  // Every line lies on a fruit 63 mm below where the rough position says the target is
+  // (within the 90 mm gate): a sphere well fitted on five lines, and far more likely a
+  // neighbour than the target (the RGB-D error is 15 mm per axis). Its centre would put the
+  // arm 63 mm off; the rough position is the better estimate of the target.
+  Case k;
+  std::mt19937 rng(37);
+  const Eigen::Vector3d neighbour = k.center + Eigen::Vector3d(0.0, 62.0, -10.0);
+  const double neighbourRadiusMm = 36.0;
+  localize::Localizer loc(k.cal, image::LleParams{}, k.scan);
+  auto plan = loc.plan(neighbour, 200.0);
+  REQUIRE(plan.isOk());
+  plan->roughMm = k.center;
+  std::vector<localize::LineObservation> lines;
+  for (double s : plan->stopsMm) {
+    lines.push_back(lineOf(k.cal, neighbour, neighbourRadiusMm, s, 0.3, {}, rng));
+    applyGate(lines.back(), k.center, k.scan);
+  }
+  auto est = loc.estimate(*plan, lines);
+  INFO("centre " << est->centerMm.transpose() << ", lines " << est->linesUsed << ", target " << est->targetPct << " %");
+  REQUIRE(est.isOk());
+  CHECK_FALSE(est->sphereFit);
+  CHECK(est->linesUsed == 0);
+  CHECK(est->doubt == localize::AppleEstimate::Doubt::kFarFromRough);
+  CHECK(est->targetPct < 50.0);
+  CHECK((est->centerMm - k.center).norm() < 1e-9);
+  CHECK(est->sigmaMm >= std::sqrt(3.0) * k.scan.roughSigmaMm);
+  CHECK(est->confidencePct < 50.0);
+  // Off, the neighbour's fit goes out (AMBIGUOUS on the bus), its σ spanning the distance.
+  localize::ScanParams fitOut = k.scan;
+  fitOut.roughWhenFarFromRough = false;
+  auto fit = localize::Localizer(k.cal, image::LleParams{}, fitOut).estimate(*plan, lines);
+  REQUIRE(fit.isOk());
+  CHECK(fit->sphereFit);
+  CHECK(fit->doubt == localize::AppleEstimate::Doubt::kFarFromRough);
+  CHECK((fit->centerMm - neighbour).norm() < 3.0);
+  CHECK(fit->sigmaMm > 0.5 * (neighbour - k.center).norm());
 }
 
 TEST_CASE("The widened search takes no flat surface for a fruit", "[localize][widened]") {

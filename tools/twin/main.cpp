@@ -264,6 +264,8 @@ int main(int argc, char** argv) {
                {"rows", Kind::kFlag, "every frame's rows, kept pixels and curve"},
                {"other-object-prior", Kind::kNumber,
                 "ScanParams::otherObjectPrior (0: σ and confidence from the fit alone)"},
+               {"fit-when-far-from-rough", Kind::kFlag,
+                "ScanParams::roughWhenFarFromRough off: a fit more likely another object goes out (AMBIGUOUS)"},
                {"metering", Kind::kInteger, "1: meter on the scan's laser-off frames and subtract as alacsd (default)"},
                {"meter-target-dn", Kind::kInteger, "metering.target_dn (default: the daemon's)"},
                {"meter-subtract-above-dn", Kind::kInteger, "metering.subtract_above_dn (default: the daemon's)"},

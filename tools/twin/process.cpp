@@ -35,6 +35,8 @@ tools::Json estimateJson(const Result<localize::AppleEstimate>& e) {
           {"outside_gate", e->outsideGate},
           {"fit_sigma_mm", tools::jsonNumber(e->fitSigmaMm)},
           {"target_pct", tools::jsonNumber(e->targetPct)},
+          {"rival_share", tools::jsonNumber(e->rivalShare)},
+          {"rival_center_mm", jsonVec(e->rivalCenterMm)},
           {"doubt", e->doubt == localize::AppleEstimate::Doubt::kTwoSurfaces    ? "TWO_SURFACES"
                     : e->doubt == localize::AppleEstimate::Doubt::kFarFromRough ? "FAR_FROM_ROUGH"
                                                                                 : "NONE"},
@@ -122,6 +124,7 @@ int processMain(const Args& args) {
   }
   localize::ScanParams scan;
   scan.otherObjectPrior = args.num("other-object-prior", scan.otherObjectPrior);
+  if (args.has("fit-when-far-from-rough")) scan.roughWhenFarFromRough = false;
   if (Status s = scan.validate(); !s) {
     std::fprintf(stderr, "alacs-twin process: %s\n", s.reason().c_str());
     return 2;

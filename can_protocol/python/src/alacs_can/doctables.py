@@ -102,9 +102,11 @@ MEANINGS: dict[type[IntEnum], dict[str, str]] = {
         "FIT_FAILED": "the fit found no sphere of an apple's size in the points",
         "TWO_SURFACES": "two objects (the target and a neighbour or a leaf) explain the lines about "
                         "equally well (AMBIGUOUS)",
-        "FAR_FROM_ROUGH": "the fit lies farther from the rough position than the RGB-D camera's error "
-                          "makes likely: more likely a neighbour (AMBIGUOUS), or the one line taken "
-                          "was (ROUGH_ONLY)",
+        "FAR_FROM_ROUGH": "what the lines saw lies farther from the rough position than the RGB-D "
+                          "camera's error makes likely: more likely a neighbour. ROUGH_ONLY: the rough "
+                          "position goes out in its place (`scan.rough_when_far_from_rough`, the "
+                          "default); AMBIGUOUS: the fit goes out (a fruit the widened search found "
+                          "where the gate saw nothing else, or with that option off)",
         "CAMERA_FAULT": "camera timeout or corrupt frames",
         "MOTION_FAULT": "slide fault (limit hit, homing lost)",
         "LASER_FAULT": "laser on-time limit hit",

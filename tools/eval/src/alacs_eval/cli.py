@@ -6,7 +6,7 @@
     alacs-eval report --small    the CI set (a few minutes), into build/eval-small
     alacs-eval calibration       corner detectors and the calibration's 3D error on the
                                  twin's calibration worlds (docs/calibration.md)
-    alacs-eval diagnose          where the LLE loses on a tuning world, frame by frame
+    alacs-eval diagnose          where the LLE (--loc: the localization) loses on a tuning world, case by case
                                  (never the second world)
 """
 
@@ -94,11 +94,11 @@ def _diagnose(a: argparse.Namespace) -> int:
     cfg = diagnose.Config(world=a.world, seed=a.seed, count=a.count, work=work, twin=twin.find_twin(a.twin),
                           jobs=a.jobs, process_args=extra, worst=a.worst, quiet=a.quiet)
     try:
-        res = diagnose.run(cfg)
+        res = diagnose.run_loc(cfg, a.per_cell) if a.loc else diagnose.run(cfg)
     except ValueError as e:
         print(f"alacs-eval diagnose: {e}", file=sys.stderr)
         return 2
-    print(diagnose.text(res))
+    print(diagnose.text_loc(res) if a.loc else diagnose.text(res))
     return 0
 
 
@@ -140,11 +140,13 @@ def main(argv: list[str] | None = None) -> int:
     v.add_argument("--regenerate", action="store_true", help="write every world's scans again")
     v.add_argument("--other-object-prior", type=float, help="the localizer's ScanParams::otherObjectPrior (0: the fit's σ alone)")
     v.set_defaults(func=_worlds)
-    g = sub.add_parser("diagnose", help="where the LLE loses on a tuning world, frame by frame (not the second world)")
+    g = sub.add_parser("diagnose", help="where the LLE (--loc: the localization) loses on a tuning world, case by case (not the second world)")
     g.add_argument("--world", default="benchmark-hard", help="benchmark or benchmark-hard (the second world is refused)")
     g.add_argument("--seed", type=int, default=3, help="the tuning seed (default 3)")
     g.add_argument("--count", type=int, default=160, help="LLE frames (default 160)")
-    g.add_argument("--worst", type=int, default=10, help="how many of the worst frames to list")
+    g.add_argument("--worst", type=int, default=10, help="how many of the worst frames (--loc: scans beyond 20 mm) to list")
+    g.add_argument("--loc", action="store_true", help="localization: five-stop scans, the cases beyond 20 mm")
+    g.add_argument("--per-cell", type=int, default=40, help="--loc: scans per distance and occlusion (default 40)")
     g.add_argument("--work", help="default build/diagnose")
     g.add_argument("--twin", help="the alacs-twin binary (default $ALACS_TWIN or the newest build/*/tools/twin)")
     g.add_argument("--jobs", type=int, default=2)

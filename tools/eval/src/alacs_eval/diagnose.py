@@ -28,7 +28,7 @@ from typing import Any
 import numpy as np
 
 from alacs_eval import evaluate, metrics, twin, worlds
-from alacs_eval.scans import Scan
+from alacs_eval.scans import Scan, target_truth
 
 TUNING_WORLDS = ("benchmark", "benchmark-hard")
 WORST_PX = 0.6  # the issue's worst-case bound for one frame
@@ -121,10 +121,11 @@ def run(cfg: Config) -> dict[str, Any]:
     return {
         "world": cfg.world, "seed": cfg.seed, "frames": len(frames), "process_args": list(cfg.process_args),
         "segments": {s: float(np.nanmean([ours[d]["disp"][s] for d in dirs])) for s in metrics.SEGMENTS},
-        "found80": float(np.mean([ours[d]["cover"][80] for d in dirs])),
+        "found80": metrics.mean_found(ours[d]["cover"][80] for d in dirs),
+        "no_rows_to_find": sum(1 for d in dirs if len(metrics.visible_rows(truths[d])) < metrics.MIN_VISIBLE_ROWS),
         "beyond": sum(1 for x in frames if math.isfinite(x["worst"]) and x["worst"] > WORST_PX),
         "by_light": {k: {"n": len(v), "mean50": float(np.nanmean([x["mean50"] for x in v])),
-                         "found80": float(np.mean([x["found80"] for x in v]))} for k, v in sorted(by_light.items())},
+                         "found80": metrics.mean_found(x["found80"] for x in v)} for k, v in sorted(by_light.items())},
         "worst": frames[:cfg.worst],
         "gap": [{"upto": b, "n": len(v), "mean": float(np.mean(v)) if v else math.nan,
                  "beyond": int(np.sum(np.asarray(v) > WORST_PX))} for b, v in gap_err.items()],
@@ -137,7 +138,9 @@ def text(res: dict[str, Any]) -> str:
     args = " ".join(res["process_args"]) or "defaults"
     L = [f"{res['world']}, seed {res['seed']}: {res['frames']} LLE frames ({args})",
          "mean per central segment (px): " + " ".join(f"{s}% {f2(v)}" for s, v in res["segments"].items()),
-         f"rows found (central 80 %): {100 * res['found80']:.1f} %; frames whose worst segment is beyond "
+         f"rows found (central 80 %): {100 * res['found80']:.1f} % (frames with fewer than "
+         f"{metrics.MIN_VISIBLE_ROWS} visible rows of the target, left out: {res['no_rows_to_find']}); "
+         f"frames whose worst segment is beyond "
          f"{WORST_PX} px: {res['beyond']}", "", "by light:"]
     L += [f"  {k}: n {v['n']}, mean at 50 % {f2(v['mean50'])} px, found {100 * v['found80']:.1f} %"
           for k, v in res["by_light"].items()]
@@ -154,4 +157,95 @@ def text(res: dict[str, Any]) -> str:
     total = m.pop("visible_rows")
     L += ["", f"visible rows of the target (central 80 %): {total}; not found, by reason:"]
     L += [f"  {100 * n / max(total, 1):5.1f} %  {k}" for k, n in m.items()]
+    return "\n".join(L)
+
+
+# ---- localization ---------------------------------------------------------------------
+
+LOC_MISS_MM = 20.0  # the end effector's tolerance: a miss beyond it is what the arm feels
+
+
+def _what_was_fitted(centre: np.ndarray, scene: dict, target_id: int) -> str:
+    """Which apple of the scene the fitted centre is nearest (within its radius), if any."""
+    best, best_d = None, math.inf
+    for a in scene["apples"]:
+        d = float(np.linalg.norm(centre - np.asarray(a["center_mm"])))
+        if d < best_d:
+            best, best_d = a, d
+    if best is None or best_d > best["radius_mm"]:
+        return "no apple (leaves, or pieces of two objects)"
+    return "the target" if best["id"] == target_id else "a neighbour"
+
+
+def run_loc(cfg: Config, per_cell: int = 40) -> dict[str, Any]:
+    """A tuning world's five-stop scans (`per_cell` per distance and occlusion), processed as
+    `worlds` does; the cases beyond 20 mm with their scenes and what the fit took for the target."""
+    if cfg.world not in TUNING_WORLDS:
+        raise ValueError(f"diagnose looks at tuning worlds only ({', '.join(TUNING_WORLDS)}); "
+                         f"'{cfg.world}' is kept out of tuning (docs/evaluation.md \"The second world\")")
+    out = cfg.work / f"{cfg.world}-{cfg.seed}" / "loc"
+    total = per_cell * len(evaluate.DISTANCES) * 2
+    cases = twin.generate(cfg.twin, out, "loc", {"world": cfg.world, "count": per_cell, "seed": cfg.seed,
+                                                 "jobs": cfg.jobs},
+                          total, f"{cfg.world}: generating", cfg.quiet, sources=worlds.WORLD_SOURCES)
+    dirs = [c["dir"] for c in cases]
+    raw = twin.process(cfg.twin, dirs, cfg.jobs, f"{cfg.world}: our localization", quiet=cfg.quiet,
+                       extra=cfg.process_args)
+    rows = []
+    for c in cases:
+        d = c["dir"]
+        s = Scan.load(d)
+        centre, _, approach = target_truth(s)
+        r = raw.get(d, {})
+        e, first = r.get("multi", {}), r.get("first_pass", r.get("multi", {}))
+        row = {"case": c["case"], "occluded": bool(c["occluded"]), "distance": int(c["distance_mm"]),
+               "note": s.note, "stops": int(r.get("follow_up_stops", 0)), "ok": bool(e.get("ok")),
+               "first": (float(np.linalg.norm(np.asarray(first["approach_mm"]) - approach))
+                         if first.get("ok") else math.nan)}
+        if e.get("ok"):
+            fitted = np.asarray(e["center_mm"])
+            row.update({"approach": float(np.linalg.norm(np.asarray(e["approach_mm"]) - approach)),
+                        "sigma": float(e["sigma_mm"]), "confidence": float(e["confidence_pct"]),
+                        "lines": int(e["lines_used"]), "doubt": e.get("doubt", "NONE"),
+                        "fitted": _what_was_fitted(fitted, s.truth_scene(), s.target_id),
+                        "rival": (f"{_what_was_fitted(np.asarray(e['rival_center_mm']), s.truth_scene(), s.target_id)} "
+                                  f"({100 * float(e['rival_share']):.0f} %)" if e.get("rival_share", 0) > 0
+                                  else "none")})
+        else:
+            row.update({"approach": math.nan, "sigma": math.nan, "confidence": 0.0, "lines": 0,
+                        "doubt": e.get("error", "none"), "fitted": "no result", "rival": "none"})
+        rows.append(row)
+    res = [x for x in rows if x["ok"]]
+    misses = sorted((x for x in res if x["approach"] > LOC_MISS_MM), key=lambda x: -x["approach"])
+    cells = {}
+    for occ in (False, True):
+        for dist in evaluate.DISTANCES:
+            sel = [x["approach"] for x in res if x["occluded"] == occ and x["distance"] == dist]
+            cells[f"{'occluded' if occ else 'clear'} {dist}"] = float(np.mean(sel)) if sel else math.nan
+    return {
+        "world": cfg.world, "seed": cfg.seed, "scans": len(rows), "results": len(res),
+        "process_args": list(cfg.process_args), "cells": cells,
+        "within20": float(np.mean([x["ok"] and x["approach"] <= LOC_MISS_MM for x in rows])),
+        "within2sigma": float(np.mean([x["approach"] <= 2.0 * x["sigma"] for x in res])) if res else math.nan,
+        "confident_misses": sum(1 for x in misses if x["confidence"] >= 80.0),
+        "misses_by_fitted": dict(Counter(x["fitted"] for x in misses).most_common()),
+        "misses_by_lines": dict(sorted(Counter(x["lines"] for x in misses).items())),
+        "misses": misses[:cfg.worst] if cfg.worst else misses,
+    }
+
+
+def text_loc(res: dict[str, Any]) -> str:
+    args = " ".join(res["process_args"]) or "defaults"
+    L = [f"{res['world']}, seed {res['seed']}: {res['scans']} scans, {res['results']} results ({args})",
+         "approach error, mean (mm): " + ", ".join(f"{k} {v:.1f}" for k, v in res["cells"].items()),
+         f"within 20 mm (all scans): {100 * res['within20']:.1f} %; within 2σ: {100 * res['within2sigma']:.1f} %; "
+         f"beyond 20 mm at confidence >= 80 %: {res['confident_misses']}",
+         "beyond 20 mm, what the fit took for the target: "
+         + ", ".join(f"{k} {n}" for k, n in res["misses_by_fitted"].items()),
+         "beyond 20 mm, by lines in the fit: " + ", ".join(f"{k}: {n}" for k, n in res["misses_by_lines"].items()),
+         "", "worst cases:"]
+    L += [f"  {x['case']} {x['approach']:.1f} mm (first pass {x['first']:.1f}, +{x['stops']} stops), σ {x['sigma']:.1f}, "
+          f"confidence {x['confidence']:.0f} %, {x['lines']} lines, {x['doubt']}, fitted {x['fitted']}, "
+          f"rival {x['rival']}: {x['note']}"
+          for x in res["misses"]]
     return "\n".join(L)

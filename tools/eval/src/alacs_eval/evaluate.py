@@ -123,14 +123,18 @@ def _paper_loc_case(task: tuple[str, str | None]) -> dict[str, Any]:
 
 def _ours_lle(results: dict[str, dict], truths: dict[str, np.ndarray]) -> dict[str, dict]:
     """Our line per row: the samples the localizer keeps of the frame (its LLE, gated in 3D
-    around the rough position), the first where a row has several."""
+    around the rough position); where a row has several, the LLE's line's (RowStatus kLine,
+    when `process --rows` gave the statuses), else the first."""
     out = {}
     for d, r in results.items():
         frames = r.get("frames", [])
         f = frames[0] if frames else {}
+        on_line = {(int(round(s[0])), round(float(s[1]), 3)) for s in f.get("rows", []) if len(s) > 3 and s[3] == 0}
         kept: dict[int, float] = {}
         for row, col in f.get("kept", []):
-            kept.setdefault(int(round(row)), float(col))
+            key = int(round(row))
+            if key not in kept or (key, round(float(col), 3)) in on_line:
+                kept[key] = float(col)
         predict = None
         if kept:
             def predict(rows: np.ndarray, kept=kept) -> np.ndarray:
@@ -292,7 +296,7 @@ def assemble(cfg: Config, lle_cases: list[dict], loc_cases: list[dict], ours_lle
         return {int(k): v for k, v in paper_lle_res[d]["combos"][combo]["disp"].items()}
 
     def cover_table(per_case: list[dict[int, float]]) -> dict[str, float]:
-        return {str(sg): float(np.mean([c[sg] for c in per_case])) for sg in metrics.SEGMENTS}
+        return {str(sg): metrics.mean_found(c[sg] for c in per_case) for sg in metrics.SEGMENTS}
 
     res: dict[str, Any] = {
         "meta": {

@@ -29,6 +29,18 @@ PAPER_LOC = {
 PAPER_LOC_RANGE = {("single", False): (2.5, 5.8), ("multi", False): (5.5, 9.1)}
 
 
+# Fewer visible, laser-lit rows of the target than this: no central segments, nothing to
+# find (the frame is left out of the rows-found share, and counted beside it).
+MIN_VISIBLE_ROWS = 3
+
+
+def mean_found(shares: Iterable[float]) -> float:
+    """The mean share of rows found over the frames that had rows to find (NaN: none had)."""
+    v = np.asarray(list(shares), float)
+    v = v[np.isfinite(v)]
+    return float(v.mean()) if len(v) else math.nan
+
+
 def visible_rows(truth: np.ndarray) -> np.ndarray:
     """The visible, laser-lit truth rows, one per image row (the first where the arc turns back)."""
     vis = truth[truth["flags"] == 0]
@@ -45,10 +57,14 @@ def segment_metrics(truth: np.ndarray, predict: Callable[[np.ndarray], np.ndarra
     true column| (px) over the visible truth rows the prediction covers, and the share of
     those rows it covers. A method's line exists only over the rows where it found it
     (`predict` returns NaN elsewhere): the paper compares "the points on each row" of both
-    lines. (NaN, 0) when there is no prediction in the segment."""
+    lines. (NaN, 0) when there is no prediction in the segment; (NaN, NaN) when the target
+    has fewer than MIN_VISIBLE_ROWS visible, laser-lit rows (or none in the segment): there
+    is nothing to find, and 0 of 0 rows is not a miss (leaves hid where the line crossed)."""
     vis = visible_rows(truth)
     out: dict[int, tuple[float, float]] = {}
-    if len(vis) < 3 or predict is None:
+    if len(vis) < MIN_VISIBLE_ROWS:
+        return {s: (math.nan, math.nan) for s in segments}
+    if predict is None:
         return {s: (math.nan, 0.0) for s in segments}
     r0, r1 = float(vis["row"][0]), float(vis["row"][-1])
     centre, half = 0.5 * (r0 + r1), 0.5 * (r1 - r0)
@@ -56,7 +72,7 @@ def segment_metrics(truth: np.ndarray, predict: Callable[[np.ndarray], np.ndarra
         sel = np.abs(vis["row"] - centre) <= s / 100.0 * half + 1e-9
         rows = vis[sel]
         if len(rows) == 0:
-            out[s] = (math.nan, 0.0)
+            out[s] = (math.nan, math.nan)
             continue
         pred = np.asarray(predict(rows["row"].astype(float)), float)
         ok = np.isfinite(pred)
