@@ -11,18 +11,23 @@ import pytest
 from alacs_eval import cli, diagnose, twin
 
 
-def test_the_second_world_is_refused(tmp_path, capsys):
-    assert cli.main(["diagnose", "--world", "holdout", "--work", str(tmp_path), "--count", "2",
+@pytest.mark.parametrize("look", [["--count", "2"], ["--loc", "--per-cell", "1"]], ids=["lle", "localization"])
+def test_the_second_world_is_refused(tmp_path, capsys, look):
+    assert cli.main(["diagnose", *look, "--world", "holdout", "--work", str(tmp_path),
                      "--twin", os.environ.get("ALACS_TWIN", "/bin/true")]) == 2
     assert "kept out of tuning" in capsys.readouterr().err
     assert not any(tmp_path.iterdir())  # nothing generated
 
 
-def test_a_few_hard_frames_are_diagnosed(tmp_path):
+def _twin():
     tw = os.environ.get("ALACS_TWIN")
     if not tw:
         pytest.fail("set ALACS_TWIN to the alacs-twin binary (tests/eval/run.sh does)")
-    cfg = diagnose.Config(world="benchmark-hard", seed=3, count=8, work=tmp_path, twin=twin.find_twin(tw),
+    return twin.find_twin(tw)
+
+
+def test_a_few_hard_frames_are_diagnosed(tmp_path):
+    cfg = diagnose.Config(world="benchmark-hard", seed=3, count=8, work=tmp_path, twin=_twin(),
                           quiet=True, worst=3)
     res = diagnose.run(cfg)
     assert res["frames"] == 8
@@ -42,18 +47,8 @@ def test_a_few_hard_frames_are_diagnosed(tmp_path):
     assert "worst frames:" in text and "not found, by reason:" in text
 
 
-def test_the_localization_look_refuses_the_second_world_too(tmp_path, capsys):
-    assert cli.main(["diagnose", "--loc", "--world", "holdout", "--work", str(tmp_path), "--per-cell", "1",
-                     "--twin", os.environ.get("ALACS_TWIN", "/bin/true")]) == 2
-    assert "kept out of tuning" in capsys.readouterr().err
-    assert not any(tmp_path.iterdir())
-
-
 def test_a_few_hard_scans_are_diagnosed(tmp_path):
-    tw = os.environ.get("ALACS_TWIN")
-    if not tw:
-        pytest.fail("set ALACS_TWIN to the alacs-twin binary (tests/eval/run.sh does)")
-    cfg = diagnose.Config(world="benchmark-hard", seed=3, count=0, work=tmp_path, twin=twin.find_twin(tw),
+    cfg = diagnose.Config(world="benchmark-hard", seed=3, count=0, work=tmp_path, twin=_twin(),
                           quiet=True, worst=0)
     res = diagnose.run_loc(cfg, per_cell=1)
     assert res["scans"] == 8
