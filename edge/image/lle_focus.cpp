@@ -99,11 +99,12 @@ inline RunSums runSums(const uint8_t* on, const uint8_t* off, int redOffset, int
     s.sumW += wq;
     s.sumXW += wq * x;
   }
-  const auto onRed = [&](int x) { return on[3U * static_cast<size_t>(x) + static_cast<size_t>(redOffset)]; };
-  for (int x = a; x <= b; ++x) s.saturated = s.saturated || onRed(x) == 255;
+  const auto red = [&](const uint8_t* px, int x) {
+    return px[3U * static_cast<size_t>(x) + static_cast<size_t>(redOffset)];
+  };
+  for (int x = a; x <= b; ++x) s.saturated = s.saturated || red(on, x) == 255;
   if (off != nullptr)
-    for (int x = xl; x <= xr; ++x)
-      s.clipped = s.clipped || off[3U * static_cast<size_t>(x) + static_cast<size_t>(redOffset)] == 255;
+    for (int x = xl; x <= xr; ++x) s.clipped = s.clipped || red(off, x) == 255;
   s.area = static_cast<int32_t>(s.sumW / span);
   s.excess = static_cast<int32_t>(maxW / span);
   return s;

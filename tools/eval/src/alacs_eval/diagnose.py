@@ -66,10 +66,14 @@ def _miss_reason(row: int, column: float, samples: dict[int, list]) -> str:
     return "only another surface's sample" if samples.get(row) else "no sample"
 
 
-def run(cfg: Config) -> dict[str, Any]:
-    if cfg.world not in TUNING_WORLDS:
+def _refuse_second_world(world: str) -> None:
+    if world not in TUNING_WORLDS:
         raise ValueError(f"diagnose looks at tuning worlds only ({', '.join(TUNING_WORLDS)}); "
-                         f"'{cfg.world}' is kept out of tuning (docs/evaluation.md \"The second world\")")
+                         f"'{world}' is kept out of tuning (docs/evaluation.md \"The second world\")")
+
+
+def run(cfg: Config) -> dict[str, Any]:
+    _refuse_second_world(cfg.world)
     out = cfg.work / f"{cfg.world}-{cfg.seed}" / "lle"
     cases = twin.generate(cfg.twin, out, "lle", {"world": cfg.world, "count": cfg.count, "seed": cfg.seed,
                                                  "jobs": cfg.jobs},
@@ -122,7 +126,7 @@ def run(cfg: Config) -> dict[str, Any]:
         "world": cfg.world, "seed": cfg.seed, "frames": len(frames), "process_args": list(cfg.process_args),
         "segments": {s: float(np.nanmean([ours[d]["disp"][s] for d in dirs])) for s in metrics.SEGMENTS},
         "found80": metrics.mean_found(ours[d]["cover"][80] for d in dirs),
-        "no_rows_to_find": sum(1 for d in dirs if len(metrics.visible_rows(truths[d])) < metrics.MIN_VISIBLE_ROWS),
+        "no_rows_to_find": sum(not metrics.has_rows_to_find(truths[d]) for d in dirs),
         "beyond": sum(1 for x in frames if math.isfinite(x["worst"]) and x["worst"] > WORST_PX),
         "by_light": {k: {"n": len(v), "mean50": float(np.nanmean([x["mean50"] for x in v])),
                          "found80": metrics.mean_found(x["found80"] for x in v)} for k, v in sorted(by_light.items())},
@@ -162,7 +166,7 @@ def text(res: dict[str, Any]) -> str:
 
 # ---- localization ---------------------------------------------------------------------
 
-LOC_MISS_MM = 20.0  # the end effector's tolerance: a miss beyond it is what the arm feels
+LOC_MISS_MM = metrics.TOLERANCE_MM  # the end effector's tolerance: a miss beyond it is what the arm feels
 
 
 def _what_was_fitted(centre: np.ndarray, scene: dict, target_id: int) -> str:
@@ -180,9 +184,7 @@ def _what_was_fitted(centre: np.ndarray, scene: dict, target_id: int) -> str:
 def run_loc(cfg: Config, per_cell: int = 40) -> dict[str, Any]:
     """A tuning world's five-stop scans (`per_cell` per distance and occlusion), processed as
     `worlds` does; the cases beyond 20 mm with their scenes and what the fit took for the target."""
-    if cfg.world not in TUNING_WORLDS:
-        raise ValueError(f"diagnose looks at tuning worlds only ({', '.join(TUNING_WORLDS)}); "
-                         f"'{cfg.world}' is kept out of tuning (docs/evaluation.md \"The second world\")")
+    _refuse_second_world(cfg.world)
     out = cfg.work / f"{cfg.world}-{cfg.seed}" / "loc"
     total = per_cell * len(evaluate.DISTANCES) * 2
     cases = twin.generate(cfg.twin, out, "loc", {"world": cfg.world, "count": per_cell, "seed": cfg.seed,
@@ -203,12 +205,12 @@ def run_loc(cfg: Config, per_cell: int = 40) -> dict[str, Any]:
                "first": (float(np.linalg.norm(np.asarray(first["approach_mm"]) - approach))
                          if first.get("ok") else math.nan)}
         if e.get("ok"):
-            fitted = np.asarray(e["center_mm"])
+            fitted, scene = np.asarray(e["center_mm"]), s.truth_scene()
             row.update({"approach": float(np.linalg.norm(np.asarray(e["approach_mm"]) - approach)),
                         "sigma": float(e["sigma_mm"]), "confidence": float(e["confidence_pct"]),
                         "lines": int(e["lines_used"]), "doubt": e.get("doubt", "NONE"),
-                        "fitted": _what_was_fitted(fitted, s.truth_scene(), s.target_id),
-                        "rival": (f"{_what_was_fitted(np.asarray(e['rival_center_mm']), s.truth_scene(), s.target_id)} "
+                        "fitted": _what_was_fitted(fitted, scene, s.target_id),
+                        "rival": (f"{_what_was_fitted(np.asarray(e['rival_center_mm']), scene, s.target_id)} "
                                   f"({100 * float(e['rival_share']):.0f} %)" if e.get("rival_share", 0) > 0
                                   else "none")})
         else:

@@ -41,6 +41,11 @@ def mean_found(shares: Iterable[float]) -> float:
     return float(v.mean()) if len(v) else math.nan
 
 
+def has_rows_to_find(truth: np.ndarray) -> bool:
+    """Whether the laser lights at least MIN_VISIBLE_ROWS visible rows of the target."""
+    return len(visible_rows(truth)) >= MIN_VISIBLE_ROWS
+
+
 def visible_rows(truth: np.ndarray) -> np.ndarray:
     """The visible, laser-lit truth rows, one per image row (the first where the arc turns back)."""
     vis = truth[truth["flags"] == 0]

@@ -125,7 +125,7 @@ def _lle(cfg: Config, world: str, cases: list[dict]) -> tuple[dict[str, Any], li
     alone = [a for a in alone if math.isfinite(a)]
     out["alone"] = {"target_line": float(np.mean([a >= 0.5 for a in alone])) if alone else math.nan,
                     "rows_matched": float(np.mean(alone)) if alone else math.nan}
-    out["no_rows_to_find"] = sum(1 for d in dirs if len(metrics.visible_rows(truths[d])) < metrics.MIN_VISIBLE_ROWS)
+    out["no_rows_to_find"] = sum(not metrics.has_rows_to_find(truths[d]) for d in dirs)
     for s in metrics.SEGMENTS:
         o = metrics.summarize(ours[d]["disp"][s] for d in dirs)
         p = metrics.summarize(paper[d]["combos"][key]["disp"][str(s)] if str(s) in paper[d]["combos"][key]["disp"]
@@ -224,7 +224,7 @@ def _loc_summary(rows: list[dict]) -> dict[str, Any]:
     out["shapes"] = {s: sum(r["shape"] == s for r in rows) for s in sorted({r["shape"] for r in rows})}
     for label, sel in (("measurable", [r for r in rows if r.get("measurable", True)]),
                        ("unmeasurable", [r for r in rows if not r.get("measurable", True)])):
-        out[label] = {"n": len(sel), "within20": float(np.mean([r["approach"] <= 20.0 for r in sel])) if sel else math.nan,
+        out[label] = {"n": len(sel), "within20": float(np.mean([r["approach"] <= metrics.TOLERANCE_MM for r in sel])) if sel else math.nan,
                       "occluded": sum(r["occluded"] for r in sel)}
     out["second_pass"] = {"share": float(np.mean([r["follow_up_stops"] > 0 for r in rows])),
                           "stops_per_scan": float(np.mean([r["follow_up_stops"] for r in rows])),
