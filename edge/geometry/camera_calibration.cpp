@@ -1,10 +1,14 @@
 #include "geometry/camera_calibration.h"
 
+#include <algorithm>
+
 #include <opencv2/calib3d.hpp>
 
 #include <Eigen/Dense>
 #include <cmath>
 #include <string>
+
+#include "geometry/triangulation.h"
 
 namespace alacs::geometry {
 
@@ -130,8 +134,11 @@ std::vector<Eigen::Vector3d> checkerboardCorners(int cols, int rows, double pitc
   return out;
 }
 
-Result<CameraFit> calibrateCamera(const std::vector<TargetView>& views, int widthPx, int heightPx,
-                                  const CameraFitOptions& options) {
+namespace {
+
+// One calib3d solve over every corner of every view.
+Result<CameraFit> solveCamera(const std::vector<TargetView>& views, int widthPx, int heightPx,
+                              const CameraFitOptions& options) {
   if (views.size() < options.minViews)
     return Status(Error::kBadInput, "camera calibration needs at least " + std::to_string(options.minViews) +
                                         " target views, got " + std::to_string(views.size()));
@@ -198,6 +205,84 @@ Result<CameraFit> calibrateCamera(const std::vector<TargetView>& views, int widt
     fit.poses.push_back(pose);
   }
   return fit;
+}
+
+}  // namespace
+
+size_t CornerOutliers::count() const {
+  size_t n = 0;
+  for (const auto& v : perView) n += v.size();
+  return n;
+}
+
+std::vector<TargetView> withoutCorners(const std::vector<TargetView>& views, const CornerOutliers& outliers) {
+  std::vector<TargetView> out;
+  out.reserve(views.size());
+  for (size_t v = 0; v < views.size(); ++v) {
+    const std::vector<size_t>* drop = v < outliers.perView.size() ? &outliers.perView[v] : nullptr;
+    if (drop == nullptr || drop->empty()) {
+      out.push_back(views[v]);
+      continue;
+    }
+    TargetView kept;
+    for (size_t k = 0; k < views[v].objectMm.size(); ++k) {
+      if (std::find(drop->begin(), drop->end(), k) != drop->end()) continue;
+      kept.objectMm.push_back(views[v].objectMm[k]);
+      kept.imagePx.push_back(views[v].imagePx[k]);
+    }
+    out.push_back(std::move(kept));
+  }
+  return out;
+}
+
+CornerOutliers findCornerOutliers(const std::vector<TargetView>& views, const CameraFit& fit,
+                                  const CameraFitOptions& options) {
+  CornerOutliers out;
+  out.perView.resize(views.size());
+  if (!(options.outlierSigmas > 0.0) || fit.poses.size() != views.size()) return out;
+  std::vector<std::vector<double>> residuals(views.size());
+  std::vector<double> all;
+  for (size_t v = 0; v < views.size(); ++v) {
+    std::vector<Eigen::Vector3d> camPts;
+    camPts.reserve(views[v].objectMm.size());
+    for (const auto& p : views[v].objectMm) camPts.push_back(fit.poses[v].rotation * p + fit.poses[v].translationMm);
+    const std::vector<PixelPoint> proj = projectPoints(fit.camera, camPts);
+    for (size_t k = 0; k < proj.size(); ++k) {
+      const double r = std::hypot(proj[k].columnPx - views[v].imagePx[k].x(), proj[k].rowPx - views[v].imagePx[k].y());
+      residuals[v].push_back(r);
+      all.push_back(r);
+    }
+  }
+  if (all.empty()) return out;
+  auto mid = all.begin() + static_cast<std::ptrdiff_t>(all.size() / 2);
+  std::nth_element(all.begin(), mid, all.end());
+  // The norm of a 2D Gaussian residual (σ per axis) is Rayleigh: its median is 1.1774 σ.
+  out.sigmaPx = *mid / 1.1774;
+  out.boundPx = std::max(options.outlierMinPx, options.outlierSigmas * out.sigmaPx);
+  for (size_t v = 0; v < views.size(); ++v) {
+    std::vector<size_t> far;
+    for (size_t k = 0; k < residuals[v].size(); ++k)
+      if (residuals[v][k] > out.boundPx) far.push_back(k);
+    // A view that would keep too few corners keeps them all (the solve needs them; its own
+    // RMS then shows it).
+    if (residuals[v].size() - far.size() >= options.minCornersPerView) out.perView[v] = std::move(far);
+  }
+  return out;
+}
+
+Result<CameraFit> calibrateCamera(const std::vector<TargetView>& views, int widthPx, int heightPx,
+                                  const CameraFitOptions& options) {
+  Result<CameraFit> first = solveCamera(views, widthPx, heightPx, options);
+  if (!first || !(options.outlierSigmas > 0.0)) return first;
+  CornerOutliers outliers = findCornerOutliers(views, *first, options);
+  if (outliers.count() == 0) {
+    first->outliers = std::move(outliers);
+    return first;
+  }
+  Result<CameraFit> second = solveCamera(withoutCorners(views, outliers), widthPx, heightPx, options);
+  if (!second) return second;
+  second->outliers = std::move(outliers);
+  return second;
 }
 
 Result<TargetPose> locateTarget(const CameraIntrinsics& camera, const TargetView& view) {

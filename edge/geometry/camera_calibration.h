@@ -39,7 +39,27 @@ struct CameraFitOptions {
   bool fixTangential = false;
   size_t minViews = 6;
   size_t minCornersPerView = 12;
+  // Corners the detector misplaced: on blurred, noisy views the sector detector puts a few
+  // corners 4-6 px off among ~1,500 within 0.2 px (docs/calibration.md). In calib3d's least
+  // squares one such corner weighs as much as ~1,000 good ones, so after a first solve the
+  // corners whose reprojection residual exceeds max(outlierMinPx, outlierSigmas × σ) are
+  // left out and the camera is solved again (σ: the residuals' robust per-axis spread, from
+  // their median). 0 sigmas: off (every corner is kept).
+  double outlierSigmas = 5.0;
+  double outlierMinPx = 1.0;
 };
+
+// The corners of each view that a solve's residuals mark as misplaced (indices into the
+// view's corners), and the bound they exceeded.
+struct CornerOutliers {
+  double boundPx = 0.0;
+  double sigmaPx = 0.0;  // the residuals' robust per-axis σ the bound was set from
+  std::vector<std::vector<size_t>> perView;
+  size_t count() const;
+};
+
+// The views without the corners `outliers` names (a view's corners keep their order).
+std::vector<TargetView> withoutCorners(const std::vector<TargetView>& views, const CornerOutliers& outliers);
 
 // Order of the intrinsic parameters in a covariance: fx, fy, cx, cy, k1, k2, p1, p2, k3.
 using IntrinsicsCovariance = Eigen::Matrix<double, 9, 9>;
@@ -60,12 +80,23 @@ struct CameraFit {
   // together: a common focal-length error is a depth-scale error).
   IntrinsicsCovariance covariance = IntrinsicsCovariance::Zero();
   std::vector<TargetPose> poses;           // one per view, in input order
+  // The corners left out as misplaced before the final solve (CameraFitOptions::
+  // outlierSigmas); their poses and σ are those of the views without them.
+  CornerOutliers outliers;
 };
 
-// cv::calibrateCamera over all views. Errors: kBadInput for too few views or corners,
-// mismatched sizes, or when calib3d fails.
+// cv::calibrateCamera over all views; with outlierSigmas > 0, solved again without the
+// corners the first solve marks as misplaced (CameraFit::outliers; a view keeps all its
+// corners when fewer than minCornersPerView would be left). Errors: kBadInput for too few
+// views or corners, mismatched sizes, or when calib3d fails.
 Result<CameraFit> calibrateCamera(const std::vector<TargetView>& views, int widthPx, int heightPx,
                                   const CameraFitOptions& options = {});
+
+// The corners whose reprojection residual under `fit` (its camera and poses, one per view)
+// exceeds max(options.outlierMinPx, options.outlierSigmas × σ), σ the residuals' robust
+// per-axis spread (median norm / 1.1774, the Rayleigh median). Empty with outlierSigmas 0.
+CornerOutliers findCornerOutliers(const std::vector<TargetView>& views, const CameraFit& fit,
+                                  const CameraFitOptions& options);
 
 // Pose of a planar target seen by a calibrated camera (IPPE start, LM refinement).
 // Errors: kBadInput for fewer than 4 corners or a failed solve.

@@ -5,6 +5,7 @@
 #include <catch2/catch.hpp>
 
 #include <Eigen/Geometry>
+#include <algorithm>
 #include <cstdio>
 #include <fstream>
 #include <random>
@@ -242,6 +243,65 @@ TEST_CASE("Camera intrinsics and distortion come back from checkerboard views", 
     CHECK((fit->poses[i].planeNormal() - poses[i].planeNormal()).norm() < 2e-3);
   }
   CHECK(calibrateCamera({views[0], views[1]}, 2048, 1536).status().code() == Error::kBadInput);
+}
+
+TEST_CASE("Misplaced corners are left out before the final solve", "[calibration]") {
+  Rig rig;
+  std::mt19937 rng(12);
+  std::vector<TargetView> views;
+  for (int i = 0; i < 12; ++i) {
+    const double yaw = -30.0 + 60.0 * (i % 5) / 4.0;
+    const double pitch = -25.0 + 50.0 * (i % 3) / 2.0;
+    const Eigen::Vector2d off(-150.0 + 300.0 * (i % 4) / 3.0, -100.0 + 200.0 * (i % 2));
+    views.push_back(
+        viewOf(rig.truth.camera, makePose(600.0 + 40.0 * i, yaw, pitch, off, rig.gridCentre), rig.corners, 0.15, rng));
+  }
+  // What the sector detector does on a blurred view: a few corners 4-6 px off.
+  std::vector<TargetView> bad = views;
+  const std::vector<std::pair<size_t, size_t>> moved{{0, 3}, {2, 17}, {5, 40}, {5, 41}, {9, 8}, {11, 30}};
+  std::uniform_real_distribution<double> angle(0.0, 2.0 * M_PI);
+  for (const auto& [v, k] : moved) {
+    const double a = angle(rng);
+    bad[v].imagePx[k] += (4.0 + static_cast<double>(k % 3)) * Eigen::Vector2d(std::cos(a), std::sin(a));
+  }
+  const int w = rig.truth.camera.widthPx;
+  const int h = rig.truth.camera.heightPx;
+  CameraFitOptions keep;
+  keep.outlierSigmas = 0.0;
+  auto clean = calibrateCamera(views, w, h, keep);
+  auto kept = calibrateCamera(bad, w, h, keep);
+  auto rejected = calibrateCamera(bad, w, h);  // the default: outliers left out
+  REQUIRE(clean.isOk());
+  REQUIRE(kept.isOk());
+  REQUIRE(rejected.isOk());
+  CHECK(kept->outliers.count() == 0);
+  // Exactly the moved corners, and no good one (the bound: 1 px, 5 robust sigmas of 0.15 px).
+  REQUIRE(rejected->outliers.perView.size() == views.size());
+  CHECK(rejected->outliers.count() == moved.size());
+  for (const auto& [v, k] : moved) {
+    const auto& list = rejected->outliers.perView[v];
+    CHECK(std::find(list.begin(), list.end(), k) != list.end());
+  }
+  CHECK(rejected->outliers.boundPx == Approx(1.0));
+  CHECK(rejected->outliers.sigmaPx == Approx(0.15).margin(0.03));
+  // Kept, the six corners double the RMS and move the focal length and principal point by
+  // more than the clean fit's own error; left out, the fit is the clean one.
+  INFO("rms clean " << clean->rmsPx << " kept " << kept->rmsPx << " rejected " << rejected->rmsPx);
+  CHECK(kept->rmsPx > 1.5 * clean->rmsPx);
+  CHECK(rejected->rmsPx == Approx(clean->rmsPx).margin(0.01));
+  const auto err = [&](const CameraFit& f) {
+    return std::hypot(f.camera.fxPx - rig.truth.camera.fxPx, f.camera.cxPx - rig.truth.camera.cxPx) +
+           std::hypot(f.camera.fyPx - rig.truth.camera.fyPx, f.camera.cyPx - rig.truth.camera.cyPx);
+  };
+  INFO("intrinsics error clean " << err(*clean) << " kept " << err(*kept) << " rejected " << err(*rejected) << " px");
+  CHECK(std::abs(err(*rejected) - err(*clean)) < 0.1 * err(*clean) + 0.05);
+  CHECK(rejected->sigmaPx[0] < kept->sigmaPx[0]);
+  // The views without them keep their order and every other corner.
+  const std::vector<TargetView> without = withoutCorners(bad, rejected->outliers);
+  REQUIRE(without.size() == bad.size());
+  CHECK(without[5].imagePx.size() == bad[5].imagePx.size() - 2);
+  CHECK(without[1].imagePx.size() == bad[1].imagePx.size());
+  CHECK(without[5].imagePx[40] == bad[5].imagePx[42]);
 }
 
 TEST_CASE("A target's pose in a calibrated camera", "[calibration]") {

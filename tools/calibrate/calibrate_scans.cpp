@@ -53,6 +53,7 @@ Result<CalibrationRun> runCalibration(const CalibrationInput& in, const ImageLoa
   }
   std::vector<geometry::TargetView> views;
   std::vector<int> viewOfName(names.size(), -1);
+  std::vector<std::string> nameOfView;
   for (size_t i = 0; i < names.size(); ++i) {
     Result<cv::Mat> img = load(names[i]);
     if (!img) return img.status();
@@ -68,11 +69,21 @@ Result<CalibrationRun> runCalibration(const CalibrationInput& in, const ImageLoa
       continue;
     }
     viewOfName[i] = static_cast<int>(views.size());
+    nameOfView.push_back(names[i]);
     views.push_back(std::move(*v));
   }
   Result<geometry::CameraFit> cam = geometry::calibrateCamera(views, in.widthPx, in.heightPx, in.cameraOptions);
   if (!cam) return Status(cam.status().code(), "camera: " + cam.status().reason());
   run.camera = *cam;
+  if (cam->outliers.count() > 0) {
+    // The placements' poses below are taken from the same corners the camera was solved on.
+    views = geometry::withoutCorners(views, cam->outliers);
+    for (size_t v = 0; v < cam->outliers.perView.size(); ++v)
+      if (!cam->outliers.perView[v].empty())
+        run.log.push_back("camera: " + nameOfView[v] + ": " + std::to_string(cam->outliers.perView[v].size()) + " of " +
+                          std::to_string(views[v].objectMm.size() + cam->outliers.perView[v].size()) +
+                          " corners left out as misplaced");
+  }
   run.log.push_back("camera: " + std::to_string(views.size()) +
                     " views (corners: " + geometry::cornerMethodName(in.corners.method) + "), reprojection RMS " +
                     fmt("%.3f px", cam->rmsPx));

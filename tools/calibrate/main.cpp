@@ -101,6 +101,11 @@ int main(int argc, char** argv) {
                  "corner detector: sb, sb-accuracy, classic-subpix or sb-subpix (docs/calibration.md, measured "
                  "against the twin's exact corners)")
       ->capture_default_str();
+  app.add_option("--corner-outlier-sigmas", input.cameraOptions.outlierSigmas,
+                 "corners whose residual after a first solve exceeds this many robust sigmas (and 1 px) are left "
+                 "out and the camera solved again; 0 keeps every corner (docs/calibration.md)")
+      ->capture_default_str()
+      ->check(CLI::Range(0.0, 100.0));
   app.add_flag("--verbose", verbose, "where the total sigma comes from, per working distance");
   if (const int rc = tools::parseCommandLine(app, argc, argv); rc >= 0) return rc;
   if (!board.empty()) {
@@ -221,6 +226,11 @@ int main(int argc, char** argv) {
   }
   if (verbose)
     for (const auto& line : run->log) std::printf("  %s\n", line.c_str());
+  if (const geometry::CornerOutliers& o = run->camera.outliers; o.count() > 0)
+    std::printf(
+        "alacs_calibrate: %zu misplaced corners left out (residual > %.2f px; robust sigma %.3f px), "
+        "the camera solved again\n",
+        o.count(), o.boundPx, o.sigmaPx);
   geometry::Calibration cal = run->calibration;
   const auto& c = cal.camera;
   const auto& l = cal.laser;

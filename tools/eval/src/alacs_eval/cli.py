@@ -108,7 +108,8 @@ def _calibration(a: argparse.Namespace) -> int:
     tw = twin.find_twin(a.twin)
     tools = Path(a.tools_build) if a.tools_build else tw.parent.parent.parent
     cfg = calibration.Config(work=work, twin=tw, tools=tools, jobs=a.jobs, quick=a.quick, quiet=a.quiet,
-                             corners=not a.study_only, detector=a.corners)
+                             corners=not a.study_only, detector=a.corners, outlier_sigmas=a.corner_outlier_sigmas,
+                             study_world=a.study_world)
     res = calibration.run(cfg)
     (work / "results.json").write_text(json.dumps(res, indent=1, default=float))
     (work / "calibration.md").write_text("\n".join(cfg.log) + "\n")
@@ -158,6 +159,11 @@ def main(argv: list[str] | None = None) -> int:
     c.add_argument("--quick", action="store_true", help="the corner sets only, 4 views and 5 placements each, the default detector (CI)")
     c.add_argument("--study-only", action="store_true", help="the 3D error study only, not the corner sets")
     c.add_argument("--corners", help="alacs_calibrate --corners for the study (default: its own default)")
+    c.add_argument("--corner-outlier-sigmas", type=float,
+                   help="alacs_calibrate --corner-outlier-sigmas for the study (0: every corner kept; default: its own)")
+    c.add_argument("--study-world", choices=("holdout", "tuning"), default="holdout",
+                   help="the study's sets: the holdout's boards, tilts and view counts (reported only), or the "
+                        "issue's board at 12-60 views on the tuning world, seeds 3-5 (where choices are made)")
     c.add_argument("--work", help="default build/calibration (--quick: build/calibration-quick)")
     c.add_argument("--twin", help="the alacs-twin binary (default $ALACS_TWIN or the newest build/*/tools/twin)")
     c.add_argument("--tools-build", help="the build holding alacs_calibrate and alacs_geometry_eval (default: the twin's)")
