@@ -18,7 +18,7 @@ import re
 import shutil
 import statistics
 import subprocess
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 from alacs_eval import twin
@@ -180,7 +180,7 @@ def run(cfg: Config) -> dict:
     out: dict = {"corners": {}, "study": []}
     sets = {"tuning": TUNING, "holdout": HOLDOUT}
     if cfg.quick:
-        sets = {k: CalibSet(v.world, v.seed, 4, v.board, v.margin_mm, positions="0,100,200") for k, v in sets.items()}
+        sets = {k: replace(v, views=4, positions="0,100,200") for k, v in sets.items()}
     for key, s in sets.items() if cfg.corners else []:
         res = corners(cfg, scans(cfg, s))
         out["corners"][key] = {"set": s.name(), "dir": str(cfg.work / s.name()), **res}
@@ -191,7 +191,7 @@ def run(cfg: Config) -> dict:
     for s in study:
         runs = []
         for seed in seeds:
-            one = CalibSet(s.world, seed, s.views, s.board, s.margin_mm, s.tilt_deg, s.positions)
+            one = replace(s, seed=seed)
             r = calibrate(cfg, scans(cfg, one), one)
             r["set"] = one.name()
             runs.append(r)
