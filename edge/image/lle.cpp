@@ -32,6 +32,7 @@ Status LleParams::validate() const {
     return bad(Error::kInvalidArgument, "weakLineThresholdPct must be in 10..100");
   if (subtractedLineThresholdPct < 10 || subtractedLineThresholdPct > 100)
     return bad(Error::kInvalidArgument, "subtractedLineThresholdPct must be in 10..100");
+  if (subtractedRows != 1 && subtractedRows != 3) return bad(Error::kInvalidArgument, "subtractedRows must be 1 or 3");
   if (weakLineExcessDn < 0 || weakLineExcessDn > 255)
     return bad(Error::kInvalidArgument, "weakLineExcessDn must be in 0..255");
   if (weakThresholdPct < 10 || weakThresholdPct > 100)
@@ -132,7 +133,7 @@ Status extractLine(const ImageView& frame, const Roi& roi, const LleParams& para
   detail::reserveOutput(roi, params, out);
   const detail::SimdKernels* kernels = params.kernels == LleKernels::kAuto ? detail::simdKernels() : nullptr;
   if (params.method == LleMethod::kPaper) {
-    detail::candidateMask(frame, laserOff, roi, params, kernels, ws);
+    detail::candidateMask(frame, laserOff, roi, params, kernels, ws, 1);
     detail::focusPaper<detail::FixedArith>(roi, params, ws, out);
   } else {
     detail::extractRobust<detail::FixedArith>(frame, laserOff, roi, params, kernels, ws, out);

@@ -81,6 +81,13 @@ struct LleParams {
   // light is gone from the difference, so only its noise (1-3 DN in full sun) sets how low
   // it may go (docs/lle.md).
   int subtractedLineThresholdPct = 25;
+  // ... and that rerun decides on the difference averaged over this many rows (1: the row
+  // alone; 3: [1 2 1]/4 of the rows above, at and below, within the ROI), for its peaks'
+  // sums as well: the difference's noise falls by 0.6 while a near-vertical line's signal
+  // stays. The first pass, and every frame without a laser-off frame, use the row alone.
+  // 3 with the threshold at 15 finds more of a sunlit line, but on the worlds it also lets
+  // in other surfaces' weak segments: not the default (docs/lle.md).
+  int subtractedRows = 1;
   int weakThresholdPct = 75; // hysteresis: candidates at this share of the strong threshold; a
                              // segment needs two rows, and a quarter of its rows, whose margin
                              // exceeds the strong threshold itself (10..100; 100: no hysteresis)
@@ -177,6 +184,7 @@ struct LaserLine {
 // Reusable buffers (internal layout). Not thread-safe: one per worker. Copyable.
 struct LleWorkspace {
   std::vector<uint8_t> red;          // one padded red row
+  std::vector<uint8_t> redRows;      // the last three rows of the difference (averaged rerun)
   std::vector<uint8_t> validLanes;   // 0xFF where bRCE may fire
   std::vector<uint16_t> counts;      // per column candidate counts of the current band
   std::vector<uint8_t> counts8;      // the same over the last < 256 rows

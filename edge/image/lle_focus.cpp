@@ -59,54 +59,67 @@ struct RunSums {
   bool edge = false;   // the background steps across the run (an occluder's edge)
 };
 
-inline int redAt(const uint8_t* on, const uint8_t* off, int redOffset, int x) {
-  const size_t i = 3U * static_cast<size_t>(x) + static_cast<size_t>(redOffset);
-  return off == nullptr ? on[i] : static_cast<int>(on[i]) - static_cast<int>(off[i]);
-}
+// The rows a peak's sums read: the row alone, or with a laser-off frame and the averaged
+// rerun, the rows above and below as well (clamped to the ROI), as candidateMask read them.
+struct PeakRows {
+  const uint8_t* on[3] = {};   // above, at, below
+  const uint8_t* off[3] = {};  // the laser-off frame's, or nullptr
+  int redOffset = 0;
+  bool averaged = false;
 
-// The red value bRCE compares (the laser-off frame subtracted with saturation at 0).
-inline int brceRedAt(const uint8_t* on, const uint8_t* off, int redOffset, int x) {
-  return std::max(0, redAt(on, off, redOffset, x));
-}
+  int red(const uint8_t* px, int x) const { return px[3U * static_cast<size_t>(x) + static_cast<size_t>(redOffset)]; }
+  int difference(int k, int x) const { return off[k] == nullptr ? red(on[k], x) : red(on[k], x) - red(off[k], x); }
+  // The red value bRCE compared: the difference saturated at 0, averaged as averageRowsScalar.
+  int brce(int x) const {
+    const int mid = std::max(0, difference(1, x));
+    if (!averaged) return mid;
+    const int outer = (std::max(0, difference(0, x)) + std::max(0, difference(2, x)) + 1) >> 1;
+    return (outer + mid + 1) >> 1;
+  }
+  // The signed red the sums weigh, `scale` times over: [1 2 1] when averaged.
+  int value(int x) const {
+    return averaged ? difference(0, x) + 2 * difference(1, x) + difference(2, x) : difference(1, x);
+  }
+  int scale() const { return averaged ? 4 : 1; }
+  // The ambient alone at full scale at x, in any row the sums read.
+  bool clipped(int x) const {
+    if (off[1] == nullptr) return false;
+    if (red(off[1], x) == 255) return true;
+    return averaged && (red(off[0], x) == 255 || red(off[2], x) == 255);
+  }
+};
 
-inline RunSums runSums(const uint8_t* on, const uint8_t* off, int redOffset, int w, int a, int b, int step,
-                       int edgeRatio) {
+inline RunSums runSums(const PeakRows& px, int w, int a, int b, int step, int edgeRatio) {
   RunSums s;
   for (int x = std::max(a, step); x <= std::min(b, w - 1 - step); ++x) {
-    const int c = brceRedAt(on, off, redOffset, x);
-    s.margin = std::max(s.margin, std::min(c - brceRedAt(on, off, redOffset, x - step),
-                                           c - brceRedAt(on, off, redOffset, x + step)));
+    const int c = px.brce(x);
+    s.margin = std::max(s.margin, std::min(c - px.brce(x - step), c - px.brce(x + step)));
   }
   const int xl = std::max(0, a - step);
   const int xr = std::min(w - 1, b + step);
   const int span = xr - xl;
   if (span <= 1) return s;
-  const int64_t rl = redAt(on, off, redOffset, xl);
-  const int64_t rr = redAt(on, off, redOffset, xr);
+  const int64_t rl = px.value(xl);
+  const int64_t rr = px.value(xr);
   // An occluding edge next to the line: one side's background (a leaf, a gap) is several
   // times darker than the other's (the skin the line is on). Integer test, 8 DN of slack.
-  if (edgeRatio > 0) s.edge = std::max(rl, rr) > edgeRatio * std::max<int64_t>(0, std::min(rl, rr)) + 8;
+  if (edgeRatio > 0) s.edge = std::max(rl, rr) > edgeRatio * std::max<int64_t>(0, std::min(rl, rr)) + 8 * px.scale();
   int64_t maxW = 0;
   for (int x = xl + 1; x < xr; ++x)
-    maxW = std::max(maxW, redAt(on, off, redOffset, x) * static_cast<int64_t>(span) - (rl * (xr - x) + rr * (x - xl)));
+    maxW = std::max(maxW, px.value(x) * static_cast<int64_t>(span) - (rl * (xr - x) + rr * (x - xl)));
   // Weights: the excess above 1/8 of the peak's, so the tails, where speckle and the
   // background estimate dominate, weigh less (measured on the twin: see docs/lle.md).
   const int64_t floorW = maxW >> 3;
   for (int x = xl + 1; x < xr; ++x) {
-    const int64_t wq =
-        redAt(on, off, redOffset, x) * static_cast<int64_t>(span) - (rl * (xr - x) + rr * (x - xl)) - floorW;
+    const int64_t wq = px.value(x) * static_cast<int64_t>(span) - (rl * (xr - x) + rr * (x - xl)) - floorW;
     if (wq <= 0) continue;
     s.sumW += wq;
     s.sumXW += wq * x;
   }
-  const auto red = [&](const uint8_t* px, int x) {
-    return px[3U * static_cast<size_t>(x) + static_cast<size_t>(redOffset)];
-  };
-  for (int x = a; x <= b; ++x) s.saturated = s.saturated || red(on, x) == 255;
-  if (off != nullptr)
-    for (int x = xl; x <= xr; ++x) s.clipped = s.clipped || red(off, x) == 255;
-  s.area = static_cast<int32_t>(s.sumW / span);
-  s.excess = static_cast<int32_t>(maxW / span);
+  for (int x = a; x <= b; ++x) s.saturated = s.saturated || px.red(px.on[1], x) == 255;
+  for (int x = xl; x <= xr; ++x) s.clipped = s.clipped || px.clipped(x);
+  s.area = static_cast<int32_t>(s.sumW / (static_cast<int64_t>(span) * px.scale()));
+  s.excess = static_cast<int32_t>(maxW / (static_cast<int64_t>(span) * px.scale()));
   return s;
 }
 
@@ -385,7 +398,7 @@ RobustArrays<Col> carveArrays(LleWorkspace& ws, int h, int kMax) {
 // speckle, are bridged); its centre is the centroid of the red excess. The strongest
 // kMax peaks of the row go on, ordered by area (ties: leftmost first).
 template <class A>
-void findPeaks(const ImageView& frame, const ImageView* laserOff, const Roi& roi, const LleParams& p,
+void findPeaks(const ImageView& frame, const ImageView* laserOff, const Roi& roi, const LleParams& p, int rows,
                const LleWorkspace& ws, Peak<typename A::Col>* peaks, int32_t* nPeaks) {
   const int w = roi.width;
   const int h = roi.height;
@@ -397,8 +410,14 @@ void findPeaks(const ImageView& frame, const ImageView* laserOff, const Roi& roi
   const int strongTh = p.strongThreshold();
   for (int y = 0; y < h; ++y) {
     const uint64_t* bits = ws.bits.data() + static_cast<size_t>(y) * static_cast<size_t>(words);
-    const uint8_t* on = frame.row(roi.y + y) + static_cast<size_t>(roi.x) * 3U;
-    const uint8_t* off = laserOff != nullptr ? laserOff->row(roi.y + y) + static_cast<size_t>(roi.x) * 3U : nullptr;
+    PeakRows px;
+    px.redOffset = redOff;
+    px.averaged = laserOff != nullptr && rows == 3;
+    for (int k = 0; k < 3; ++k) {
+      const int yk = px.averaged ? std::clamp(y + k - 1, 0, h - 1) : y;
+      px.on[k] = frame.row(roi.y + yk) + static_cast<size_t>(roi.x) * 3U;
+      px.off[k] = laserOff != nullptr ? laserOff->row(roi.y + yk) + static_cast<size_t>(roi.x) * 3U : nullptr;
+    }
     Peak<typename A::Col>* row = peaks + static_cast<size_t>(y) * static_cast<size_t>(kMax);
     int n = 0;
     int x = ws.rowAny[static_cast<size_t>(y)] != 0 ? focus::nextSet(bits, w, 0) : w;
@@ -413,7 +432,7 @@ void findPeaks(const ImageView& frame, const ImageView* laserOff, const Roi& roi
         }
         b = focus::nextClear(bits, w, nx) - 1;
       }
-      const RunSums s = runSums(on, off, redOff, w, a, b, step, p.edgeRatio);
+      const RunSums s = runSums(px, w, a, b, step, p.edgeRatio);
       if (s.area <= 0 || s.clipped) continue;
       if (n == kMax && s.area <= row[n - 1].area) continue;
       int i = n < kMax ? n++ : n - 1;
@@ -925,11 +944,11 @@ int lineStrength(int h, const RobustArrays<Col>& a, bool fitted) {
 // Stages 3-5 of kRobust over the candidate mask in ws.bits. Returns the median peak excess
 // (DN) of the line's kLine rows, 0 without a line: how strong the line is.
 template <class A>
-int focusRobust(const ImageView& frame, const ImageView* laserOff, const Roi& roi, const LleParams& p,
+int focusRobust(const ImageView& frame, const ImageView* laserOff, const Roi& roi, const LleParams& p, int rows,
                 LleWorkspace& ws, LaserLine& out) {
   const int h = roi.height;
   const RobustArrays<typename A::Col> a = carveArrays<typename A::Col>(ws, h, p.maxPeaksPerRow);
-  findPeaks<A>(frame, laserOff, roi, p, ws, a.peaks, a.nPeaks);
+  findPeaks<A>(frame, laserOff, roi, p, rows, ws, a.peaks, a.nPeaks);
   const int nChains = linkChains(p, h, a.peaks, a.nPeaks, a.chains, a.active);
   const int nSeg = segmentsByStrength(p, a.chains, nChains, a.order);
   // The centre prior only where the ROI is a window planned round the target, not the whole frame.
@@ -955,8 +974,8 @@ int focusRobust(const ImageView& frame, const ImageView* laserOff, const Roi& ro
 template <class A>
 void extractRobust(const ImageView& frame, const ImageView* laserOff, const Roi& roi, const LleParams& p,
                    const SimdKernels* kernels, LleWorkspace& ws, LaserLine& out) {
-  candidateMask(frame, laserOff, roi, p, kernels, ws);
-  const int strength = focusRobust<A>(frame, laserOff, roi, p, ws, out);
+  candidateMask(frame, laserOff, roi, p, kernels, ws, 1);
+  const int strength = focusRobust<A>(frame, laserOff, roi, p, 1, ws, out);
   // With the laser-off frame subtracted, what is left besides the line is noise, not
   // ambient texture: the rerun may go lower there (docs/lle.md "weak line").
   const int lowPct = laserOff != nullptr ? p.subtractedLineThresholdPct : p.weakLineThresholdPct;
@@ -964,8 +983,10 @@ void extractRobust(const ImageView& frame, const ImageView* laserOff, const Roi&
   LleParams low = p;
   low.robustThresholdPct = lowPct;
   reserveOutput(roi, low, out);
-  candidateMask(frame, laserOff, roi, low, kernels, ws);
-  focusRobust<A>(frame, laserOff, roi, low, ws, out);
+  // There, too, the difference is averaged over rows where asked: more signal per decision.
+  const int rows = laserOff != nullptr ? p.subtractedRows : 1;
+  candidateMask(frame, laserOff, roi, low, kernels, ws, rows);
+  focusRobust<A>(frame, laserOff, roi, low, rows, ws, out);
 }
 
 template <class A>

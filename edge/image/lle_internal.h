@@ -39,6 +39,9 @@ void redRowScalar(const uint8_t* on, const uint8_t* off, int redOffset, int w, u
 // moves counts8 into wider counters at least every 255 rows (flushCounts).
 void brceRowScalar(const uint8_t* red, int w, int wv, int step, int threshold, BrceForm form,
                    uint8_t* counts8, uint64_t* bits);
+// The [1 2 1]/4 average of three rows, rounded as two rounding halvings:
+// out[x] = avg(avg(above[x], below[x]), mid[x]) with avg(a, b) = (a + b + 1) >> 1, x in [0, w).
+void averageRowsScalar(const uint8_t* above, const uint8_t* mid, const uint8_t* below, int w, uint8_t* out);
 // counts[x] += counts8[x], counts8[x] = 0, for x in [0, wv).
 void flushCounts(uint8_t* counts8, uint16_t* counts, int wv);
 
@@ -49,6 +52,7 @@ struct SimdKernels {
   void (*redRow)(const uint8_t* on, const uint8_t* off, int redOffset, int w, uint8_t* red);
   void (*brceRow)(const uint8_t* red, const uint8_t* validLanes, int wv, int step, int threshold,
                   BrceForm form, uint8_t* counts8, uint64_t* bits);
+  void (*averageRows)(const uint8_t* above, const uint8_t* mid, const uint8_t* below, int w, uint8_t* out);
 };
 
 // The best SIMD kernels this build and CPU can run, or nullptr (no SIMD in this build).
@@ -61,10 +65,11 @@ const SimdKernels* simdKernelsAvx512();
 
 // Stages 1-2 over the ROI: red extraction (minus the laser-off frame), bRCE, noise
 // removal. Leaves the candidate mask in ws.bits (wv/64 words per ROI row) and which rows
-// have any candidate in ws.rowAny. Inputs are
-// validated by the caller. `kernels` nullptr: the scalar reference.
+// have any candidate in ws.rowAny. With a laser-off frame and `rows` 3, bRCE runs on the
+// difference averaged over the rows above, at and below (averageRows; 1: the row alone).
+// Inputs are validated by the caller. `kernels` nullptr: the scalar reference.
 void candidateMask(const ImageView& frame, const ImageView* laserOff, const Roi& roi, const LleParams& p,
-                   const SimdKernels* kernels, LleWorkspace& ws);
+                   const SimdKernels* kernels, LleWorkspace& ws, int rows);
 
 // Checks params, frame(s) and ROI; the errors of extractLine.
 Status validateInputs(const ImageView& frame, const Roi& roi, const LleParams& params, const ImageView* laserOff);

@@ -39,6 +39,13 @@ void redRowScalar(const uint8_t* on, const uint8_t* off, int redOffset, int w, u
   }
 }
 
+void averageRowsScalar(const uint8_t* above, const uint8_t* mid, const uint8_t* below, int w, uint8_t* out) {
+  for (int x = 0; x < w; ++x) {
+    const int outer = (above[x] + below[x] + 1) >> 1;
+    out[x] = static_cast<uint8_t>((outer + mid[x] + 1) >> 1);
+  }
+}
+
 void brceRowScalar(const uint8_t* red, int w, int wv, int step, int threshold, BrceForm form,
                    uint8_t* counts8, uint64_t* bits) {
   std::fill(bits, bits + wv / 64, uint64_t{0});
@@ -106,10 +113,65 @@ void clearBand(const LleParams& p, int w, int wv, int y0, int bandRows, LleWorks
   }
 }
 
+// The red rows bRCE compares, one ROI row at a time: the row's own red (minus the laser-off
+// frame's), or with `rows` 3 and a laser-off frame, the difference averaged over the rows
+// above, at and below (clamped to the ROI). Keeps the last three differences in ws.redRows.
+class RedRows {
+ public:
+  RedRows(const ImageView& frame, const ImageView* laserOff, const Roi& roi, const SimdKernels* kernels,
+          LleWorkspace& ws, int rows)
+      : frame_(frame),
+        off_(laserOff),
+        roi_(roi),
+        kernels_(kernels),
+        averaged_(laserOff != nullptr && rows == 3),
+        redOff_(redOffset(frame.format)) {
+    if (!averaged_) return;
+    slots_ = ws.redRows.data();  // sized by candidateMask
+    difference(0);
+  }
+
+  // Writes row y's red into red[0, w); rows are asked for in order 0, 1, ...
+  void row(int y, uint8_t* red) {
+    if (!averaged_) {
+      difference(y, red);
+      return;
+    }
+    if (y + 1 < roi_.height) difference(y + 1);
+    const uint8_t* mid = slot(y);
+    const uint8_t* above = y > 0 ? slot(y - 1) : mid;
+    const uint8_t* below = y + 1 < roi_.height ? slot(y + 1) : mid;
+    if (kernels_ != nullptr)
+      kernels_->averageRows(above, mid, below, roi_.width, red);
+    else
+      averageRowsScalar(above, mid, below, roi_.width, red);
+  }
+
+ private:
+  uint8_t* slot(int y) const { return slots_ + static_cast<size_t>(y % 3) * static_cast<size_t>(roi_.width); }
+  void difference(int y) { difference(y, slot(y)); }
+  void difference(int y, uint8_t* red) const {
+    const uint8_t* on = frame_.row(roi_.y + y) + static_cast<size_t>(roi_.x) * 3U;
+    const uint8_t* off = off_ != nullptr ? off_->row(roi_.y + y) + static_cast<size_t>(roi_.x) * 3U : nullptr;
+    if (kernels_ != nullptr)
+      kernels_->redRow(on, off, redOff_, roi_.width, red);
+    else
+      redRowScalar(on, off, redOff_, roi_.width, red);
+  }
+
+  const ImageView& frame_;
+  const ImageView* off_;
+  const Roi& roi_;
+  const SimdKernels* kernels_;
+  bool averaged_;
+  int redOff_;
+  uint8_t* slots_ = nullptr;
+};
+
 }  // namespace
 
 void candidateMask(const ImageView& frame, const ImageView* laserOff, const Roi& roi, const LleParams& p,
-                   const SimdKernels* kernels, LleWorkspace& ws) {
+                   const SimdKernels* kernels, LleWorkspace& ws, int rows) {
   const int w = roi.width;
   const int h = roi.height;
   const int wv = paddedWidth(w);
@@ -118,6 +180,9 @@ void candidateMask(const ImageView& frame, const ImageView* laserOff, const Roi&
   // Sizes only grow: a smaller ROI reuses the buffers without allocating.
   const size_t redSize = static_cast<size_t>(wv + 2 * kRedPad);
   if (ws.red.size() < redSize) ws.red.resize(redSize);
+  // Three rows of the difference for the averaged rerun, sized on every path so that a
+  // workspace that has seen a ROI this size allocates nothing whatever the frame needs.
+  if (ws.redRows.size() < 3U * static_cast<size_t>(w)) ws.redRows.resize(3U * static_cast<size_t>(w));
   if (ws.validLanes.size() < static_cast<size_t>(wv)) ws.validLanes.resize(static_cast<size_t>(wv));
   if (ws.counts.size() < static_cast<size_t>(wv)) ws.counts.resize(static_cast<size_t>(wv));
   if (ws.counts8.size() < static_cast<size_t>(wv)) ws.counts8.resize(static_cast<size_t>(wv));
@@ -143,21 +208,17 @@ void candidateMask(const ImageView& frame, const ImageView* laserOff, const Roi&
   const bool denoise = bandRows >= 1 && w / 4 >= 1;
   const int bands = denoise ? h / bandRows : 0;
   const int threshold = p.detectionThreshold();
-  const int redOff = redOffset(frame.format);
+  RedRows source(frame, laserOff, roi, kernels, ws, rows);
   std::fill(ws.counts.begin(), ws.counts.begin() + wv, uint16_t{0});
   std::fill(ws.counts8.begin(), ws.counts8.begin() + wv, uint8_t{0});
   int pending = 0;  // rows in counts8
   for (int y = 0; y < h; ++y) {
-    const uint8_t* on = frame.row(roi.y + y) + static_cast<size_t>(roi.x) * 3U;
-    const uint8_t* off = laserOff != nullptr ? laserOff->row(roi.y + y) + static_cast<size_t>(roi.x) * 3U : nullptr;
     uint64_t* bits = ws.bits.data() + static_cast<size_t>(y) * static_cast<size_t>(words);
-    if (kernels != nullptr) {
-      kernels->redRow(on, off, redOff, w, red);
+    source.row(y, red);
+    if (kernels != nullptr)
       kernels->brceRow(red, ws.validLanes.data(), wv, step, threshold, p.brceForm, ws.counts8.data(), bits);
-    } else {
-      redRowScalar(on, off, redOff, w, red);
+    else
       brceRowScalar(red, w, wv, step, threshold, p.brceForm, ws.counts8.data(), bits);
-    }
     uint64_t any = 0;
     for (int k = 0; k < words; ++k) any |= bits[k];
     ws.rowAny[static_cast<size_t>(y)] = any != 0 ? 1 : 0;

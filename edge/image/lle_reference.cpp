@@ -69,7 +69,7 @@ Status extractLineReference(const ImageView& frame, const Roi& roi, const LlePar
   detail::reserveOutput(roi, params, out);
   LleWorkspace ws;
   if (params.method == LleMethod::kPaper) {
-    detail::candidateMask(frame, laserOff, roi, params, nullptr, ws);
+    detail::candidateMask(frame, laserOff, roi, params, nullptr, ws, 1);
     detail::focusPaper<detail::FloatArith>(roi, params, ws, out);
   } else {
     detail::extractRobust<detail::FloatArith>(frame, laserOff, roi, params, nullptr, ws, out);

@@ -43,6 +43,22 @@ void redRow(const uint8_t* on, const uint8_t* off, int redOffset, int w, uint8_t
   if (x < w) redRowScalar(on + 3 * x, off == nullptr ? nullptr : off + 3 * x, redOffset, w - x, red + x);
 }
 
+void averageRows(const uint8_t* above, const uint8_t* mid, const uint8_t* below, int w, uint8_t* out) {
+  int x = 0;
+  // In 16 bits: outer = (above + below + 1) >> 1, then v_rshr_pack<1> gives (outer + mid + 1) >> 1.
+  const cv::v_uint16 one = cv::vx_setall_u16(1);
+  for (; x <= w - kLanes; x += kLanes) {
+    cv::v_uint16 a0, a1, b0, b1, m0, m1;
+    cv::v_expand(cv::vx_load(above + x), a0, a1);
+    cv::v_expand(cv::vx_load(below + x), b0, b1);
+    cv::v_expand(cv::vx_load(mid + x), m0, m1);
+    const cv::v_uint16 t0 = cv::v_shr<1>(a0 + b0 + one) + m0;
+    const cv::v_uint16 t1 = cv::v_shr<1>(a1 + b1 + one) + m1;
+    cv::v_store(out + x, cv::v_rshr_pack<1>(t0, t1));
+  }
+  if (x < w) averageRowsScalar(above + x, mid + x, below + x, w - x, out + x);
+}
+
 template <bool kLiteral>
 void brceRowT(const uint8_t* red, const uint8_t* validLanes, int wv, int step, int threshold, uint8_t* counts8,
               uint64_t* bits) {
@@ -83,7 +99,7 @@ void brceRow(const uint8_t* red, const uint8_t* validLanes, int wv, int step, in
 }  // namespace
 
 const SimdKernels* kernels() {
-  static const SimdKernels k{LLE_SIMD_NAME, &redRow, &brceRow};
+  static const SimdKernels k{LLE_SIMD_NAME, &redRow, &brceRow, &averageRows};
   return &k;
 }
 

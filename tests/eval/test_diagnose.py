@@ -60,3 +60,7 @@ def test_a_few_hard_scans_are_diagnosed(tmp_path):
     assert 0.0 <= res["within20"] <= 1.0
     text = diagnose.text_loc(res)
     assert "within 20 mm" in text and "worst cases:" in text
+    # Scans rendered by this build have every second-pass stop its localizer asks for; when
+    # they lack some (rendered before a change to the LLE or the plan), the text says so.
+    assert res["stops_missing"] == 0 and "lack" not in text
+    assert "second-pass stops the scans lack: 3" in diagnose.text_loc(dict(res, stops_missing=3))

@@ -102,14 +102,28 @@ TEST_CASE("LLE allocates nothing per frame after warm-up", "[lle][alloc]") {
   std::vector<std::vector<uint8_t>> frames;
   for (uint32_t i = 0; i < 8; ++i) frames.push_back(makeFrame(w, h, i + 1));
   const std::vector<uint8_t> off = makeFrame(w, h, 99);
+  // Sunlit skin and a faint line (12 DN) on it, and the same skin with the laser off: the
+  // first pass finds the line weak and the subtracted rerun averages three rows.
+  std::vector<uint8_t> sunOff(static_cast<size_t>(w) * static_cast<size_t>(h) * 3U);
+  std::mt19937 rng(5);
+  for (auto& v : sunOff) v = static_cast<uint8_t>(175 + rng() % 8);
+  std::vector<uint8_t> sunOn = sunOff;
+  for (int y = 0; y < h; ++y)
+    for (int x = 0; x < w; ++x) {
+      const double d = x - (300.0 + 0.1 * y);
+      uint8_t& red = sunOn[(static_cast<size_t>(y) * static_cast<size_t>(w) + static_cast<size_t>(x)) * 3U + 2U];
+      red = static_cast<uint8_t>(std::min(255.0, red + 12.0 * std::exp(-0.5 * d * d / 2.0)));
+    }
   auto view = [&](const std::vector<uint8_t>& px) {
     return ImageView{px.data(), w, h, static_cast<size_t>(w) * 3U, PixelFormat::kBgr888};
   };
   const ImageView offView = view(off);
+  const ImageView sunOffView = view(sunOff);
   for (LleMethod method : {LleMethod::kRobust, LleMethod::kPaper}) {
     for (LleKernels kernels : {LleKernels::kAuto, LleKernels::kScalar}) {
       LleParams p;
       p.method = method;
+      p.subtractedRows = 3;  // the sun frame's rerun averages three rows
       p.kernels = kernels;
       LleWorkspace ws;
       LaserLine line;
@@ -124,7 +138,9 @@ TEST_CASE("LLE allocates nothing per frame after warm-up", "[lle][alloc]") {
       int failedFrames = 0;
       for (int k = 0; k < 24; ++k) {
         const auto& f = frames[static_cast<size_t>(k) % frames.size()];
-        if (!extractLine(view(f), k % 3 == 0 ? roi : full, p, ws, line, k % 4 == 1 ? &offView : nullptr).isOk())
+        const bool sun = k % 4 == 3;
+        const ImageView* laserOff = sun ? &sunOffView : k % 4 == 1 ? &offView : nullptr;
+        if (!extractLine(sun ? view(sunOn) : view(f), k % 3 == 0 ? roi : full, p, ws, line, laserOff).isOk())
           ++failedFrames;
         rows += line.rows.size();
       }

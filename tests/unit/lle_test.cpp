@@ -383,6 +383,60 @@ TEST_CASE("In full sun, a faint line in the laser-off difference is found at the
   CHECK(run(flat, p, nullptr, &offView).rows.empty());
 }
 
+TEST_CASE("In full sun, a rerun on the difference averaged over three rows keeps noise out at a low threshold",
+          "[lle][ambient]") {
+  // Sunlit skin (red 180) with 3 DN of shot noise in both frames (4.2 DN in the
+  // difference), and a laser line of 8 DN at its peak, slanted 0.4 px per row. At the
+  // subtracted rerun's low threshold one row's decision is mostly noise: the row alone
+  // takes noise peaks for line rows, and noise alone makes segments. The [1 2 1] average
+  // of three rows keeps the line and leaves the noise out.
+  std::mt19937 rng(12);
+  std::normal_distribution<double> noise(0.0, 3.0);
+  const auto truth = [](int y) { return 40.0 + 0.4 * y; };
+  Rgb off(160, 200), on(160, 200), flat(160, 200);
+  for (int y = 0; y < 200; ++y)
+    for (int x = 0; x < 160; ++x) {
+      off.red(x, y) = static_cast<uint8_t>(std::lround(180.0 + noise(rng)));
+      on.red(x, y) = static_cast<uint8_t>(std::lround(180.0 + noise(rng)));
+      flat.red(x, y) = static_cast<uint8_t>(std::lround(180.0 + noise(rng)));
+    }
+  addLine(on, truth, 1.3, 8);
+  const ImageView offView = off.view();
+  struct Found {
+    int inliers = 0;
+    double meanErrPx = 0.0;
+    int astray = 0;  // samples beyond 3 px of the line: noise taken for it
+  };
+  const auto found = [&](const LaserLine& l) {
+    Found f;
+    for (const auto& r : l.rows) {
+      const double e = std::abs(r.column - truth(r.row));
+      f.astray += e > 3.0 ? 1 : 0;
+      if (!r.inlier) continue;
+      ++f.inliers;
+      f.meanErrPx += e;
+    }
+    if (f.inliers > 0) f.meanErrPx /= f.inliers;
+    return f;
+  };
+  LleParams p;
+  p.subtractedRows = 3;
+  p.subtractedLineThresholdPct = 15;
+  LleParams alone = p;
+  alone.subtractedRows = 1;
+  const Found a = found(run(on, p, nullptr, &offView));
+  const Found b = found(run(on, alone, nullptr, &offView));
+  INFO("averaged: " << a.inliers << " rows, mean error " << a.meanErrPx << " px, " << a.astray
+                    << " astray; the row alone: " << b.inliers << ", " << b.meanErrPx << " px, " << b.astray);
+  CHECK(a.inliers >= 150);
+  CHECK(a.meanErrPx < 0.25);
+  CHECK(a.astray <= 2);
+  CHECK((b.inliers < 100 || b.astray >= 20));
+  // Noise alone: no line when averaged; the row alone finds noise segments.
+  CHECK(run(flat, p, nullptr, &offView).rows.empty());
+  CHECK_FALSE(run(flat, alone, nullptr, &offView).rows.empty());
+}
+
 TEST_CASE("Where the ambient alone is at full scale, the difference is no measurement of the line",
           "[lle][ambient][saturation]") {
   // Sunlit glare saturates red left of the line in rows 40-79: there the laser frame is at

@@ -175,6 +175,8 @@ bool setParam(image::LleParams& p, const std::string& kv) {
   else if (k == "weaklinepct") p.weakLineThresholdPct = iv;
   else if (k == "subtractedpct")
     p.subtractedLineThresholdPct = iv;
+  else if (k == "subtractedrows")
+    p.subtractedRows = iv;
   else if (k == "edge") p.edgeRatio = iv;
   else if (k == "edgeagree") p.edgeAgreePx = v;
   else return false;
@@ -542,7 +544,7 @@ int main(int argc, char** argv) {
   app.add_option("--set", overrides,
                  "KEY=VALUE parameter override (repeatable), KEY one of step th theta gamma order outlier minrows "
                  "peaks jump gap minseg bridge bridgerow smooth sorder weak robustpct weakline weaklinepct "
-                 "subtractedpct edge edgeagree");
+                 "subtractedpct subtractedrows edge edgeagree");
   if (const int rc = tools::parseCommandLine(app, argc, argv); rc >= 0) return rc;
   jobs = std::max(1, jobs);
   for (const std::string& kv : overrides)

@@ -100,6 +100,10 @@ int parseArgs(int argc, char** argv, Options& o) {
   app.add_option("--subtracted-pct", p.subtractedLineThresholdPct,
                  "the weak-line rerun's threshold with --laser-off subtracted, % of --th")
       ->capture_default_str();
+  app.add_option("--subtracted-rows", p.subtractedRows,
+                 "rows that rerun averages the difference over: 1 (the row alone) or 3 ([1 2 1]/4)")
+      ->check(CLI::IsMember({1, 3}))
+      ->capture_default_str();
   bool onlyLine = false, scalar = false;
   app.add_flag("--only-line", onlyLine, "no other segments");
   app.add_flag("--scalar", scalar, "scalar kernels");

@@ -50,6 +50,7 @@ Json lleDocument(const LleRun& run, int frameWidth, int frameHeight, const image
                    {"weak_line_excess_dn", p.weakLineExcessDn},
                    {"weak_line_threshold_pct", p.weakLineThresholdPct},
                    {"subtracted_line_threshold_pct", p.subtractedLineThresholdPct},
+                   {"subtracted_rows", p.subtractedRows},
                    {"edge_ratio", p.edgeRatio},
                    {"edge_agree_px", p.edgeAgreePx},
                    {"max_jump_px", jsonNumber(p.maxJumpPx, "%g")},

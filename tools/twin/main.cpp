@@ -261,6 +261,7 @@ int main(int argc, char** argv) {
                {"lle-edge-ratio", Kind::kInteger, "LleParams::edgeRatio (default LleParams')"},
                {"lle-weak-line-pct", Kind::kInteger, "LleParams::weakLineThresholdPct (default LleParams')"},
                {"lle-subtracted-line-pct", Kind::kInteger, "LleParams::subtractedLineThresholdPct"},
+               {"lle-subtracted-rows", Kind::kInteger, "LleParams::subtractedRows: 1 (the row alone) or 3"},
                {"rows", Kind::kFlag, "every frame's rows, kept pixels and curve"},
                {"other-object-prior", Kind::kNumber,
                 "ScanParams::otherObjectPrior (0: σ and confidence from the fit alone)"},

@@ -118,6 +118,7 @@ int processMain(const Args& args) {
   lle.weakLineThresholdPct = static_cast<int>(args.integer("lle-weak-line-pct", lle.weakLineThresholdPct));
   lle.subtractedLineThresholdPct =
       static_cast<int>(args.integer("lle-subtracted-line-pct", lle.subtractedLineThresholdPct));
+  lle.subtractedRows = static_cast<int>(args.integer("lle-subtracted-rows", lle.subtractedRows));
   if (Status s = lle.validate(); !s) {
     std::fprintf(stderr, "alacs-twin process: %s\n", s.reason().c_str());
     return 2;

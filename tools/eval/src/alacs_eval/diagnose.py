@@ -227,6 +227,8 @@ def run_loc(cfg: Config, per_cell: int = 40) -> dict[str, Any]:
     return {
         "world": cfg.world, "seed": cfg.seed, "scans": len(rows), "results": len(res),
         "process_args": list(cfg.process_args), "cells": cells,
+        "stops_missing": sum(int(raw.get(c["dir"], {}).get("follow_up_missing", 0)) for c in cases),
+        "work": str(out),
         "within20": float(np.mean([x["ok"] and x["approach"] <= LOC_MISS_MM for x in rows])),
         "within2sigma": float(np.mean([x["approach"] <= 2.0 * x["sigma"] for x in res])) if res else math.nan,
         "confident_misses": sum(1 for x in misses if x["confidence"] >= 80.0),
@@ -244,8 +246,13 @@ def text_loc(res: dict[str, Any]) -> str:
          f"beyond 20 mm at confidence >= 80 %: {res['confident_misses']}",
          "beyond 20 mm, what the fit took for the target: "
          + ", ".join(f"{k} {n}" for k, n in res["misses_by_fitted"].items()),
-         "beyond 20 mm, by lines in the fit: " + ", ".join(f"{k}: {n}" for k, n in res["misses_by_lines"].items()),
-         "", "worst cases:"]
+         "beyond 20 mm, by lines in the fit: " + ", ".join(f"{k}: {n}" for k, n in res["misses_by_lines"].items())]
+    if res["stops_missing"]:
+        # The scans were rendered with the second-pass stops that the localizer of their
+        # generation asked for; a change to the LLE or the plan asks for others.
+        L.append(f"second-pass stops the scans lack: {res['stops_missing']} (the figures above are not this "
+                 f"build's: delete {res['work']} to render the scans again)")
+    L += ["", "worst cases:"]
     L += [f"  {x['case']} {x['approach']:.1f} mm (first pass {x['first']:.1f}, +{x['stops']} stops), σ {x['sigma']:.1f}, "
           f"confidence {x['confidence']:.0f} %, {x['lines']} lines, {x['doubt']}, fitted {x['fitted']}, "
           f"rival {x['rival']}: {x['note']}"
