@@ -34,6 +34,15 @@ struct Frame {
   ImageView view() const { return {px.data(), width, height, static_cast<size_t>(width) * 3U, PixelFormat::kRgb888}; }
 };
 
+// Adds a Gaussian line of `peak` DN, column c0 + slope·row, to the red channel.
+void addSlantedLine(Frame& f, double c0, double slope, double peak) {
+  for (int y = 0; y < f.height; ++y)
+    for (int x = 0; x < f.width; ++x) {
+      const double d = x - (c0 + slope * y);
+      f.red(x, y) = static_cast<uint8_t>(std::min(255.0, f.red(x, y) + peak * std::exp(-d * d / 3.0)));
+    }
+}
+
 void compareLines(const LaserLine& a, const LaserLine& b) {
   REQUIRE(a.rows.size() == b.rows.size());
   for (size_t i = 0; i < a.rows.size(); ++i) {
@@ -200,12 +209,7 @@ TEST_CASE("The whole extraction is bit-exact between the SIMD and the scalar ker
       Frame off(w, h);
       for (auto& v : off.px) v = static_cast<uint8_t>(30 + rng() % 40);
       Frame on = off;
-      const double c0 = 5.0 + static_cast<double>(rng() % static_cast<unsigned>(w - 10));
-      for (int yy = 0; yy < h; ++yy)
-        for (int xx = 0; xx < w; ++xx) {
-          const double d = xx - (c0 + 0.1 * yy);
-          on.red(xx, yy) = static_cast<uint8_t>(std::min(255.0, on.red(xx, yy) + 180.0 * std::exp(-d * d / 3.0)));
-        }
+      addSlantedLine(on, 5.0 + static_cast<double>(rng() % static_cast<unsigned>(w - 10)), 0.1, 180.0);
       compareEndToEnd(on, {0, 0, w, h}, p);
       compareEndToEnd(on, {0, 0, w, h}, p, &off);
     }
@@ -218,12 +222,7 @@ TEST_CASE("The whole extraction is bit-exact between the SIMD and the scalar ker
       for (auto& v : off.px) v = static_cast<uint8_t>(170 + rng() % 8);
       Frame on = off;
       for (auto& v : on.px) v = static_cast<uint8_t>(170 + rng() % 8);
-      const double c0 = 5.0 + static_cast<double>(rng() % static_cast<unsigned>(w - 10));
-      for (int yy = 0; yy < h; ++yy)
-        for (int xx = 0; xx < w; ++xx) {
-          const double d = xx - (c0 + 0.3 * yy);
-          on.red(xx, yy) = static_cast<uint8_t>(std::min(255.0, on.red(xx, yy) + 12.0 * std::exp(-d * d / 3.0)));
-        }
+      addSlantedLine(on, 5.0 + static_cast<double>(rng() % static_cast<unsigned>(w - 10)), 0.3, 12.0);
       for (int rows : {1, 3}) {
         p.subtractedRows = rows;
         INFO("iteration " << iter << " " << w << "x" << h << " rows " << rows);

@@ -49,6 +49,21 @@ LaserLine run(const Rgb& img, const LleParams& p = {}, const Roi* roi = nullptr,
   return line;
 }
 
+// Sunlit skin (red 180) with shot noise of `sd` DN: a laser-off frame, a laser-on frame
+// before its line is added, and a second laser-off frame for noise alone.
+struct SunlitSkin {
+  Rgb off, on, flat;
+};
+SunlitSkin sunlitSkin(int w, int h, double sd, uint32_t seed) {
+  std::mt19937 rng(seed);
+  std::normal_distribution<double> noise(0.0, sd);
+  SunlitSkin s{Rgb(w, h), Rgb(w, h), Rgb(w, h)};
+  for (int y = 0; y < h; ++y)
+    for (int x = 0; x < w; ++x)
+      for (Rgb* f : {&s.off, &s.on, &s.flat}) f->red(x, y) = static_cast<uint8_t>(std::lround(180.0 + noise(rng)));
+  return s;
+}
+
 int rowsWithStatus(const LaserLine& l, RowStatus s) {
   int n = 0;
   for (const auto& r : l.rows) n += r.status == s ? 1 : 0;
@@ -355,15 +370,7 @@ TEST_CASE("In full sun, a faint line in the laser-off difference is found at the
           "[lle][ambient]") {
   // Sunlit skin (red 180) with shot noise in both frames, and a faint laser line (peak
   // 14 DN) in one: in the difference only the line and ~2.8 DN of noise are left.
-  std::mt19937 rng(11);
-  std::normal_distribution<double> noise(0.0, 2.0);
-  Rgb off(160, 120), on(160, 120), flat(160, 120);
-  for (int y = 0; y < 120; ++y)
-    for (int x = 0; x < 160; ++x) {
-      off.red(x, y) = static_cast<uint8_t>(std::lround(180.0 + noise(rng)));
-      on.red(x, y) = static_cast<uint8_t>(std::lround(180.0 + noise(rng)));
-      flat.red(x, y) = static_cast<uint8_t>(std::lround(180.0 + noise(rng)));
-    }
+  auto [off, on, flat] = sunlitSkin(160, 120, 2.0, 11);
   addLine(
       on, [](int y) { return 70.0 + 0.05 * y; }, 1.3, 14);
   const ImageView offView = off.view();
@@ -390,16 +397,8 @@ TEST_CASE("In full sun, a rerun on the difference averaged over three rows keeps
   // subtracted rerun's low threshold one row's decision is mostly noise: the row alone
   // takes noise peaks for line rows, and noise alone makes segments. The [1 2 1] average
   // of three rows keeps the line and leaves the noise out.
-  std::mt19937 rng(12);
-  std::normal_distribution<double> noise(0.0, 3.0);
   const auto truth = [](int y) { return 40.0 + 0.4 * y; };
-  Rgb off(160, 200), on(160, 200), flat(160, 200);
-  for (int y = 0; y < 200; ++y)
-    for (int x = 0; x < 160; ++x) {
-      off.red(x, y) = static_cast<uint8_t>(std::lround(180.0 + noise(rng)));
-      on.red(x, y) = static_cast<uint8_t>(std::lround(180.0 + noise(rng)));
-      flat.red(x, y) = static_cast<uint8_t>(std::lround(180.0 + noise(rng)));
-    }
+  auto [off, on, flat] = sunlitSkin(160, 200, 3.0, 12);
   addLine(on, truth, 1.3, 8);
   const ImageView offView = off.view();
   struct Found {
