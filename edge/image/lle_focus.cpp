@@ -415,8 +415,8 @@ void findPeaks(const ImageView& frame, const ImageView* laserOff, const Roi& roi
     px.averaged = laserOff != nullptr && rows == 3;
     for (int k = 0; k < 3; ++k) {
       const int yk = px.averaged ? std::clamp(y + k - 1, 0, h - 1) : y;
-      px.on[k] = frame.row(roi.y + yk) + static_cast<size_t>(roi.x) * 3U;
-      px.off[k] = laserOff != nullptr ? laserOff->row(roi.y + yk) + static_cast<size_t>(roi.x) * 3U : nullptr;
+      px.on[k] = roiRow(&frame, roi, yk);
+      px.off[k] = roiRow(laserOff, roi, yk);
     }
     Peak<typename A::Col>* row = peaks + static_cast<size_t>(y) * static_cast<size_t>(kMax);
     int n = 0;

@@ -26,6 +26,12 @@ namespace alacs::image::detail {
 // and a vector load from the last position reads up to 64 more.
 constexpr int kRedPad = 128;
 
+// The first pixel of ROI row y (0-based within the ROI) of a 3-byte-per-pixel frame, or
+// nullptr without a frame (no laser-off frame).
+inline const uint8_t* roiRow(const ImageView* frame, const Roi& roi, int y) {
+  return frame != nullptr ? frame->row(roi.y + y) + static_cast<size_t>(roi.x) * 3U : nullptr;
+}
+
 // ROI width rounded up to whole 64-bit mask words (and so to whole SIMD vectors).
 constexpr int paddedWidth(int w) { return (w + 63) & ~63; }
 

@@ -151,8 +151,8 @@ class RedRows {
   uint8_t* slot(int y) const { return slots_ + static_cast<size_t>(y % 3) * static_cast<size_t>(roi_.width); }
   void difference(int y) { difference(y, slot(y)); }
   void difference(int y, uint8_t* red) const {
-    const uint8_t* on = frame_.row(roi_.y + y) + static_cast<size_t>(roi_.x) * 3U;
-    const uint8_t* off = off_ != nullptr ? off_->row(roi_.y + y) + static_cast<size_t>(roi_.x) * 3U : nullptr;
+    const uint8_t* on = roiRow(&frame_, roi_, y);
+    const uint8_t* off = roiRow(off_, roi_, y);
     if (kernels_ != nullptr)
       kernels_->redRow(on, off, redOff_, roi_.width, red);
     else
