@@ -551,6 +551,23 @@ Status ScanWorker::stopAndGo(const localize::ScanPlan& plan, const ports::Captur
   return Status::ok();
 }
 
+namespace {
+// The slide's position at a frame's mid-exposure in a sweep, from the frame's timestamp and
+// the times of the sweep's STEP edges. A sensor exposes in its next frame slot after the
+// request and delivers the frame after its readout, so the positions at the request and at
+// the delivery are each up to a frame time off (10 mm at 300 mm/s and 30 fps). A timestamp
+// that cannot be this frame's (none, before the request, or an exposure not over at the
+// delivery: another clock) leaves `sampledMm`, the mean of the positions at the request
+// and at the source's end-of-exposure call.
+double midExposureMm(const motion::StepLog& log, int64_t fromSteps, bool forward, const motion::SlideLimits& lim,
+                     const ports::FrameInfo& info, TimeNs askedNs, TimeNs deliveredNs, double sampledMm) {
+  const TimeNs exposureNs = info.exposureUs * kNsPerUs;
+  if (info.exposureStartNs < askedNs || info.exposureStartNs + exposureNs > deliveredNs) return sampledMm;
+  const int64_t steps = log.stepsAt(info.exposureStartNs + exposureNs / 2);
+  return lim.mmFor(fromSteps + (forward ? steps : -steps));
+}
+}  // namespace
+
 Status ScanWorker::sweepStops(const localize::ScanPlan& plan, const ports::CaptureRequest& capture, WorkerEvent& ev) {
   // One move through every stop; each frame is exposed as the slide passes its stop, and
   // its position is the slide's (counted steps) at mid-exposure.
@@ -597,13 +614,16 @@ Status ScanWorker::sweepStops(const localize::ScanPlan& plan, const ports::Captu
     while (sw->moving.load() && !cancel_.load() &&
            (forward ? positionSteps_.load() < target : positionSteps_.load() > target))
       deps_.sleeper->sleepUntil(deps_.clock->now() + 100 * kNsPerUs);
-    double midMm = 0.0;
-    Result<ports::CapturedFrame> frame = exposeStop(i, capture, ev, &midMm);
+    double sampledMm = 0.0;
+    const TimeNs askedNs = deps_.clock->now();
+    Result<ports::CapturedFrame> frame = exposeStop(i, capture, ev, &sampledMm);
     if (!frame) {
       status = frame.status();
       cancel_.store(true);  // stop the sweep: the scan has failed
       break;
     }
+    const double midMm =
+        midExposureMm(sw->log, from, forward, lim, frame->info, askedNs, deps_.clock->now(), sampledMm);
     pipeline_.push(frame->view, recordedOr(deps_, midMm));
     if (cancel_.load()) {
       ev.resultStatus = protocol::ResultStatus::kAborted;

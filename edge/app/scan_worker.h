@@ -108,10 +108,13 @@ class ScanWorker final : public ScanJobs {
   struct Sweep {
     Sweep(const motion::SlideLimits& limits, motion::StepLines lines, const Clock& clock, Sleeper& sleeper,
           const motion::TrapezoidMove& m, bool fwd)
-        : runner(limits, lines, clock, sleeper), move(m), forward(fwd) {}
+        : runner(limits, lines, clock, sleeper), move(m), forward(fwd), log(m.steps()) {
+      runner.logSteps(&log);
+    }
     motion::StepRunner runner;
     motion::TrapezoidMove move;
     bool forward;
+    motion::StepLog log;  // when each step came: where the slide was at a frame's mid-exposure
     motion::MoveReport report;
     std::atomic<bool> moving{true};
     std::thread thread;

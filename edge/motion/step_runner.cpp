@@ -4,6 +4,11 @@
 
 namespace alacs::motion {
 
+int64_t StepLog::stepsAt(TimeNs t) const {
+  const auto n = static_cast<std::ptrdiff_t>(recorded());
+  return std::upper_bound(edgesNs_.begin(), edgesNs_.begin() + n, t) - edgesNs_.begin();
+}
+
 MoveReport StepRunner::run(const TrapezoidMove& move, bool forward, const std::atomic<bool>& cancel) {
   return runSteps(move, forward, cancel, false, 0);
 }
@@ -67,6 +72,7 @@ MoveReport StepRunner::runSteps(const TrapezoidMove& move, bool forward, const s
     report.maxLatenessNs = std::max(report.maxLatenessNs, latenessNs);
     if (latenessNs > 0) slipNs += latenessNs;
     if (Status s = lines_.step->set(true); !s) return {MoveOutcome::kIoError, report.stepsDone, report.maxLatenessNs, s};
+    if (log_ != nullptr) log_->record(edgeNs);
     sleeper_.sleepUntil(edgeNs + limits_.stepPulseNs);
     if (Status s = lines_.step->set(false); !s) return {MoveOutcome::kIoError, report.stepsDone, report.maxLatenessNs, s};
     ++report.stepsDone;

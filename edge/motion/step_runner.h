@@ -5,6 +5,7 @@
 
 #include <atomic>
 #include <cstdint>
+#include <vector>
 
 #include "common/clock.h"
 #include "motion/trapezoid.h"
@@ -34,6 +35,30 @@ struct MoveReport {
   Status status;
 };
 
+// The times of one move's STEP edges, for where the slide was at a past instant: a
+// frame's mid-exposure in a continuous sweep, known only once the frame arrives (a sensor
+// exposes in its next frame slot and delivers after its readout). One writer (the
+// runner's thread) and readers on other threads, without a lock; sized before the move,
+// so recording allocates nothing.
+class StepLog {
+ public:
+  explicit StepLog(int64_t steps) : edgesNs_(static_cast<size_t>(std::max<int64_t>(0, steps))) {}
+  // The writer: the next step's edge. Steps beyond the size are not recorded.
+  void record(TimeNs edgeNs) {
+    const int64_t n = count_.load(std::memory_order_relaxed);
+    if (n >= static_cast<int64_t>(edgesNs_.size())) return;
+    edgesNs_[static_cast<size_t>(n)] = edgeNs;
+    count_.store(n + 1, std::memory_order_release);
+  }
+  // Steps whose edge came at or before `t` (0 before the first; those recorded so far after).
+  int64_t stepsAt(TimeNs t) const;
+  int64_t recorded() const { return count_.load(std::memory_order_acquire); }
+
+ private:
+  std::vector<TimeNs> edgesNs_;
+  std::atomic<int64_t> count_{0};
+};
+
 class StepRunner {
  public:
   StepRunner(const SlideLimits& limits, StepLines lines, const Clock& clock, Sleeper& sleeper)
@@ -50,6 +75,8 @@ class StepRunner {
   // When set, each completed step adds ±1 to `*steps` (the slide position in steps), so
   // another thread can read where the slide is during a move.
   void trackPosition(std::atomic<int64_t>* steps) { position_ = steps; }
+  // When set, each step's edge time is recorded in `log` (StepLog).
+  void logSteps(StepLog* log) { log_ = log; }
 
  private:
   MoveReport runSteps(const TrapezoidMove& move, bool forward, const std::atomic<bool>& cancel, bool homing,
@@ -59,6 +86,7 @@ class StepRunner {
   const Clock& clock_;
   Sleeper& sleeper_;
   std::atomic<int64_t>* position_ = nullptr;
+  StepLog* log_ = nullptr;
 };
 
 }  // namespace alacs::motion

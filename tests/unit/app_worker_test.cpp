@@ -18,6 +18,7 @@
 #include "app/scan_worker.h"
 #include "common/virtual_timeline.h"
 #include "ports/digital_io_fake.h"
+#include "ports/frame_slot_source.h"
 #include "sim/orchard.h"
 #include "sim/scene.h"
 #include "sim/sim_camera.h"
@@ -420,12 +421,19 @@ struct SceneRun {
   double finalMm = 0.0;
 };
 
-SceneRun localizeOnScene(const localize::ScanParams& sp, protocol::ScanMode mode) {
+// `framePeriodNs` > 0: the camera is a free-running sensor with that frame period
+// (ports::FrameSlotSource), and the slide has the daemon's motor limits (300 mm/s).
+SceneRun localizeOnScene(const localize::ScanParams& sp, protocol::ScanMode mode, TimeNs framePeriodNs = 0) {
   Rig rig(2.0);
   const sim::SimScene scene = sim::defaultScene();
   sim::SimCamera camera(
       scene, rig.time, rig.time, [&] { return rig.laserLine.level(); }, [&] { return rig.slide.positionMm(); });
+  ports::FrameSlotSource slotted(camera, rig.time, rig.time, framePeriodNs, scene.truth.camera.heightPx);
   rig.deps.camera = &camera;
+  if (framePeriodNs > 0) {
+    rig.deps.camera = &slotted;
+    rig.deps.limits = motion::SlideLimits{};
+  }
   rig.deps.capture.exposureUs = sim::autoExposureUs(scene);
   const localize::Localizer loc(scene.truth, image::LleParams{}, sp);
   app::ScanWorker worker(rig.deps, loc, rig.efd);
@@ -499,6 +507,35 @@ TEST_CASE("Too few lines on the fruit: the worker takes the localizer's second p
     CHECK(laserOnlyDuringExposures(run));
     CHECK(run.finalMm == 100.0);
   }
+}
+
+TEST_CASE("A sweep with a sensor that exposes in its frame slots places each frame at its own mid-exposure",
+          "[app][worker][render]") {
+  // A free-running sensor at 30 fps: an exposure begins up to 33 ms after the request (10 mm
+  // of travel at 300 mm/s) and the frame arrives after the window's readout. Placed at the
+  // mean of the positions at the request and at the end of the exposure, the frames were
+  // up to 5 mm off along the slide, and the centre 12-36 mm off (alacs_cycle --virtual-time).
+  constexpr TimeNs kPeriodNs = 33'333'333;
+  const SceneRun run = localizeOnScene(localize::ScanParams{}, protocol::ScanMode::kContinuous, kPeriodNs);
+  REQUIRE(run.event);
+  REQUIRE(run.event->status.isOk());
+  REQUIRE(run.event->exposures.size() >= run.planStopsMm.size());
+  for (const app::ExposureWindow& ex : run.event->exposures) CHECK(ex.startNs % kPeriodNs == 0);  // the sensor's slots
+  // The laser is on for the whole of every exposure (and, with such a sensor, from the request on).
+  for (const app::ExposureWindow& ex : run.event->exposures) {
+    bool lit = false;
+    for (size_t i = 0; i + 1 < run.laserEdges.size(); ++i)
+      lit = lit || (run.laserEdges[i].level && run.laserEdges[i].timeNs <= ex.startNs &&
+                    run.laserEdges[i + 1].timeNs >= ex.endNs);
+    CHECK(lit);
+  }
+  REQUIRE(run.event->estimates.size() == 1);
+  const localize::AppleEstimate& est = run.event->estimates[0];
+  const sim::SimScene scene = sim::defaultScene();
+  const sim::SimApple& apple = scene.apples[0];
+  INFO("lines " << est.linesUsed << ", centre error " << (est.centerMm - apple.centerMm).norm() << " mm");
+  CHECK(est.linesUsed >= 3);
+  CHECK((est.centerMm - apple.centerMm).norm() < 2.0);
 }
 
 TEST_CASE("Enough lines on the fruit: no second pass", "[app][worker][render]") {

@@ -81,6 +81,37 @@ TEST_CASE("The step runner emits the planned pulses in virtual time", "[motion]"
   CHECK(r.maxLatenessNs == 0);
 }
 
+TEST_CASE("The step log says how many steps were done at a past instant", "[motion]") {
+  VirtualClock clock(1000);
+  VirtualSleeper sleeper(clock);
+  RecordedRunner rig(clock, sleeper);
+  REQUIRE(rig.enabled);
+  std::atomic<bool> cancel{false};
+  auto move = planMove(rig.lim, rig.lim.stepsFor(50.0), rig.lim.stepsFor(60.0));
+  REQUIRE(move.isOk());
+  StepLog log(move->steps());
+  CHECK(log.stepsAt(0) == 0);
+  rig.runner.logSteps(&log);
+  REQUIRE(rig.runner.run(*move, true, cancel).outcome == MoveOutcome::kCompleted);
+  REQUIRE(log.recorded() == 400);
+  // Each step counts from its rising edge on (the STEP line's record).
+  const auto edges = rig.step.edges();
+  for (int64_t k = 1; k <= 400; ++k) {
+    const TimeNs rise = edges[static_cast<size_t>(2 * (k - 1))].timeNs;
+    REQUIRE(log.stepsAt(rise - 1) == k - 1);
+    REQUIRE(log.stepsAt(rise) == k);
+  }
+  CHECK(log.stepsAt(clock.now() + 1'000'000'000) == 400);
+  // A log sized for fewer steps keeps the first ones and ignores the rest.
+  StepLog small(2);
+  small.record(10);
+  small.record(20);
+  small.record(30);
+  CHECK(small.recorded() == 2);
+  CHECK(small.stepsAt(25) == 2);
+  CHECK(small.stepsAt(15) == 1);
+}
+
 TEST_CASE("Homing finds the switch, or times out with a reason", "[motion][homing]") {
   VirtualClock clock;
   VirtualSleeper sleeper(clock);

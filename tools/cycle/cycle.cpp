@@ -6,6 +6,14 @@
 // span of the stops), then the job is timed from submission to its result. CAN adds one
 // frame time (< 1 ms at 500 kbit/s) on top.
 //
+// --virtual-time runs the same on a VirtualTimeline (common/virtual_timeline.h) with a
+// modelled sensor in place of the render's wall time: a free-running sensor at --fps whose
+// exposure starts at its next frame start and whose window is read out row by row after
+// it. The render and the image work take no virtual time (the image work overlaps the
+// motion: the wall-clock run shows what is left of it after the last frame). What this
+// measures is the sensor's and the slide's time, the same on any machine, whatever the
+// simulator costs (the hard worlds' scenes render 3x slower than the benchmark's).
+//
 // Peak memory with real-size frames: --export writes orchard scans as scan directories
 // of full frames (docs/scan-format.md) at --width x --height; --replay runs the same
 // worker on them with a replay source as the camera (PNG decode of every full frame, as
@@ -13,6 +21,7 @@
 // memory (VmHWM). docs/daemon.md.
 //
 // usage: alacs_cycle [--cases N] [--mode stop-and-go|continuous|both] [--width W --height H] [--verbose]
+//        alacs_cycle --virtual-time [--fps F] [--world W] ...
 //        alacs_cycle --export DIR [--cases N] [--width W --height H]
 //        alacs_cycle --replay [--mode stop-and-go|continuous|scan-all|all] [--verbose] DIR...
 #include <sys/eventfd.h>
@@ -30,6 +39,8 @@
 #include "app/laser_guard.h"
 #include "app/process_memory.h"
 #include "app/scan_worker.h"
+#include "common/virtual_timeline.h"
+#include "ports/frame_slot_source.h"
 #include "replay/replay_source.h"
 #include "replay/scan_dir.h"
 #include "sim/orchard.h"
@@ -57,6 +68,8 @@ struct Options {
   std::string lighting = "overcast";
   std::string world = "benchmark";  // benchmark|benchmark-hard|holdout (sim/orchard.h)
   double exposureX = 1.0;  // the exposure: this × the auto exposure (at most 3000 us)
+  bool virtualTime = false;  // a VirtualTimeline and ports::FrameSlotSource, not this machine's clock
+  double fps = 30.0;         // --virtual-time: the sensor's free-running frame rate
   std::string exportDir;
   bool replay = false;
   std::vector<std::string> dirs;
@@ -162,7 +175,7 @@ Trial timeJob(app::ScanWorker& worker, int efd, const Clock& clock, double parkM
   return t;
 }
 
-void report(const char* mode, const std::vector<Trial>& trials, bool accuracy) {
+void report(const char* mode, const std::vector<Trial>& trials, bool accuracy, bool virtualTime = false) {
   std::vector<double> cyc, last, tail, share, err;
   int found = 0;
   for (const auto& t : trials) {
@@ -195,7 +208,12 @@ void report(const char* mode, const std::vector<Trial>& trials, bool accuracy) {
     less.push_back(t.cycleMs - t.renderMs);
     frames.push_back(t.frames);
   }
-  if (!render.empty())
+  if (virtualTime && !frames.empty())
+    std::printf(
+        "  %-12s frames per scan: median %.0f, max %.0f (virtual time: the sensor's frame slots and readout "
+        "are in the cycle, the simulator's render is not)\n",
+        "", median(frames), maxOf(frames));
+  else if (!render.empty())
     std::printf(
         "  %-12s the simulator's render within the cycle: median %6.0f ms, max %6.0f ms over a median of %.0f "
         "frames; the cycle less it: median %6.0f ms, max %6.0f ms (a sensor's readout, a few ms a windowed "
@@ -251,8 +269,11 @@ app::WorkerDeps workerDeps(const Clock& clock, Sleeper& sleeper, const motion::S
 }
 
 int simulatedCycle(const Options& o) {
-  MonotonicClock clock;
-  MonotonicSleeper sleeper;
+  MonotonicClock wallClock;
+  MonotonicSleeper wallSleeper;
+  VirtualTimeline timeline;
+  const Clock& clock = o.virtualTime ? static_cast<const Clock&>(timeline) : wallClock;
+  Sleeper& sleeper = o.virtualTime ? static_cast<Sleeper&>(timeline) : wallSleeper;
   motion::SlideLimits limits;  // the daemon's defaults: docs/daemon.md
   image::LleParams lle;
   localize::ScanParams scanParams = scanParamsOf(o);
@@ -272,6 +293,12 @@ int simulatedCycle(const Options& o) {
       "%.0f mm/s², %.0f steps/mm, slide parked -20/-5/+5/+20 mm from the scan's first stop, metering %s\n",
       o.cases, o.world.c_str(), o.lighting.c_str(), o.exposureX, limits.maxSpeedMmPerS, limits.accelMmPerS2,
       limits.stepsPerMm, o.metering != 0 ? "on" : "off");
+  if (o.virtualTime)
+    std::printf(
+        "  virtual time: a sensor free-running at %.0f fps (an exposure starts at the next frame start; the "
+        "window is read out after it at the line time of one frame height per period); the render and the "
+        "image work take no virtual time\n",
+        o.fps);
   const std::string modes = o.modes.empty() ? "both" : o.modes;
   for (const char* mode : {"stop-and-go", "continuous"}) {
     if (modes != "both" && modes != mode) continue;
@@ -291,7 +318,10 @@ int simulatedCycle(const Options& o) {
       app::LaserGuard laser(laserLine, clock, 250 * kNsPerMs);
       sim::SimCamera simCamera(
           scene, clock, sleeper, [&] { return laserLine.level(); }, [&] { return slide.positionMm(); });
-      RenderTimedSource camera(simCamera, clock);
+      RenderTimedSource rendered(simCamera, clock);
+      ports::FrameSlotSource sensor(rendered, clock, sleeper, static_cast<TimeNs>(std::llround(1e9 / o.fps)),
+                                    scene.truth.camera.heightPx);
+      ports::FrameSource& camera = o.virtualTime ? static_cast<ports::FrameSource&>(sensor) : rendered;
       app::WorkerDeps deps = workerDeps(clock, sleeper, limits, slide, laser, camera);
       deps.capture.exposureUs =
           std::min<int64_t>(std::llround(static_cast<double>(sim::autoExposureUs(scene)) * o.exposureX), 3000);
@@ -305,12 +335,12 @@ int simulatedCycle(const Options& o) {
       job.plan = *plan;
       const double parkMm = parkFor(c, *plan, limits.strokeMm);
       const Eigen::Vector3d truth = scene.apple(oc->targetId)->centerMm;
-      const double renderBeforeMs = camera.renderMs();
-      const int framesBefore = camera.frames();
+      const double renderBeforeMs = rendered.renderMs();
+      const int framesBefore = rendered.frames();
       Trial t = timeJob(worker, efd, clock, parkMm, job, &truth);
       // Homing and parking take no frames: what the camera rendered was the job's.
-      t.renderMs = camera.renderMs() - renderBeforeMs;
-      t.frames = camera.frames() - framesBefore;
+      t.renderMs = rendered.renderMs() - renderBeforeMs;
+      t.frames = rendered.frames() - framesBefore;
       if (o.verbose)
         std::printf("    %s case %2d: %4.0f mm away, parked %+5.1f mm from the first stop: cycle %4.0f ms, last exposure "
                     "ends %4.0f ms, tail %5.1f ms, %s, centre error %.2f mm, stops %.1f-%.1f mm, second pass %d stops\n",
@@ -321,7 +351,7 @@ int simulatedCycle(const Options& o) {
       laserOffFrames.push_back(t.laserOffFrames);
       ::close(efd);
     }
-    report(mode, trials, true);
+    report(mode, trials, true, o.virtualTime);
     if (!laserOffFrames.empty())
       std::printf("    laser-off frames (metering and the subtracted one) per scan: median %.0f, max %.0f\n",
                   median(laserOffFrames), *std::max_element(laserOffFrames.begin(), laserOffFrames.end()));
@@ -497,6 +527,12 @@ int main(int argc, char** argv) {
                  "the exposure: this × the auto exposure, at most 3000 us (the hard "
                  "worlds fix it at 1.6-2.6 × in sun)")
       ->capture_default_str();
+  app.add_flag("--virtual-time", o.virtualTime,
+               "virtual time with a modelled sensor (--fps) in place of the simulator's render: the cycle of the "
+               "sensor and the slide, whatever the simulator costs");
+  app.add_option("--fps", o.fps, "--virtual-time: the sensor's free-running frame rate")
+      ->capture_default_str()
+      ->check(CLI::Range(1.0, 1000.0));
   app.add_option("--export", o.exportDir, "write the orchard scans as scan directories into DIR");
   app.add_flag("--replay", o.replay, "run the worker on the scan directories DIR...");
   app.add_option("DIR", o.dirs, "scan directories (--replay)");
@@ -506,6 +542,8 @@ int main(int argc, char** argv) {
   if (o.replay && o.dirs.empty()) return tools::usageError(app, "--replay needs DIR...");
   if (o.replay && !o.exportDir.empty()) return tools::usageError(app, "--replay and --export exclude each other");
   if (!o.replay && !o.dirs.empty()) return tools::usageError(app, "DIR... only with --replay");
+  if (o.virtualTime && (o.replay || !o.exportDir.empty()))
+    return tools::usageError(app, "--virtual-time is for the simulated cycle (not --replay or --export)");
   if (!o.exportDir.empty()) return exportScans(o);
   if (o.replay) return replayCycle(o);
   return simulatedCycle(o);
