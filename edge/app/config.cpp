@@ -105,6 +105,7 @@ Status configFromJson(const Json& json, DaemonConfig& c) {
     cam->integer("exposure_us", c.exposureUs, Need::kOptional, 10, 500000);
     cam->integer("frame_timeout_ms", c.frameTimeoutMs, Need::kOptional, 10, 60000);
     cam->integer("retries", c.frameRetries, Need::kOptional, 0, 10);
+    cam->number("line_time_us", c.lineTimeUs, Need::kOptional, 0, 1000);
     cam->text("id", c.cameraId);
     cam->finish();
   }
@@ -171,6 +172,7 @@ OrderedJson configToJson(const DaemonConfig& c) {
   j["camera"] = {{"exposure_us", c.exposureUs},
                  {"frame_timeout_ms", c.frameTimeoutMs},
                  {"retries", c.frameRetries},
+                 {"line_time_us", c.lineTimeUs},
                  {"id", c.cameraId}};
   j["laser"] = {{"max_on_ms", c.laserMaxOnMs}};
   j["calibration"] = c.calibrationPath;

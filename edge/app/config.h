@@ -33,6 +33,10 @@ struct DaemonConfig {
   int laserMaxOnMs = 250;               // the laser is forced off (and a fault raised) beyond this
   int frameTimeoutMs = 150;             // plus the exposure, must stay below laserMaxOnMs
   int frameRetries = 2;
+  // A rolling-shutter sensor's line time in its mode (the time from one row's exposure
+  // start to the next's): a sweep gives each row its own slide position. 0: a global
+  // shutter (docs/daemon.md "Scanning").
+  double lineTimeUs = 0.0;
   std::string calibrationPath = "/var/lib/alacs/calibration.json";
   std::string cameraId;
 };

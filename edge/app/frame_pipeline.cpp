@@ -79,7 +79,7 @@ bool FramePipeline::hasLaserOff() const {
   return laserOff_.has_value();
 }
 
-void FramePipeline::push(const image::ImageView& frame, double slideMm) {
+void FramePipeline::push(const image::ImageView& frame, double slideMm, double slideMmPerRow) {
   std::unique_lock<std::mutex> lock(mu_);
   cv_.wait(lock, [&] { return !bufferBusy_[0] || !bufferBusy_[1]; });
   const size_t b = bufferBusy_[0] ? 1 : 0;
@@ -90,7 +90,7 @@ void FramePipeline::push(const image::ImageView& frame, double slideMm) {
   copyRoi(frame, plan_.roi, buffers_[b].data());
   bufferBusy_[b] = true;
   lastBuffer_ = b;
-  queue_.push_back({b, slideMm});
+  queue_.push_back({b, slideMm, slideMmPerRow});
   ++inFlight_;
   cv_.notify_all();
 }
@@ -126,7 +126,7 @@ void FramePipeline::run() {
     // The localizer, plan and laser-off frame only change in begin() and setLaserOff(),
     // which first wait for this work.
     Result<localize::LineObservation> obs =
-        localizer_->observe(view, plan_, task.slideMm, ws_, laserOff ? &*laserOff : nullptr);
+        localizer_->observe(view, plan_, task.slideMm, ws_, laserOff ? &*laserOff : nullptr, task.slideMmPerRow);
     std::lock_guard<std::mutex> lock(mu_);
     if (obs) {
       ALACS_LOG_DEBUG("scan", "frame at %.2f mm: %zu rows, %zu points", task.slideMm, obs->line.rows.size(),

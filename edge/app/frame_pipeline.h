@@ -35,8 +35,10 @@ class FramePipeline {
   void setLaserOff(const image::ImageView& frame, const image::Roi& roi);
   void clearLaserOff();
   bool hasLaserOff() const;
-  // Queues `frame` (copied: the caller may reuse its buffer at once), taken at `slideMm`.
-  void push(const image::ImageView& frame, double slideMm);
+  // Queues `frame` (copied: the caller may reuse its buffer at once), taken at `slideMm`
+  // (with a rolling shutter in a sweep: for the ROI's middle row, moving `slideMmPerRow`
+  // a row; Localizer::observe).
+  void push(const image::ImageView& frame, double slideMm, double slideMmPerRow = 0.0);
   // Waits until every queued frame is processed; the observations in push order (frames
   // whose LLE failed are logged and left out).
   std::vector<localize::LineObservation> finish();
@@ -47,6 +49,7 @@ class FramePipeline {
   struct Task {
     size_t buffer;
     double slideMm;
+    double slideMmPerRow;
   };
   void run();
 

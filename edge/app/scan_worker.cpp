@@ -552,19 +552,36 @@ Status ScanWorker::stopAndGo(const localize::ScanPlan& plan, const ports::Captur
 }
 
 namespace {
+// Where the slide was while a sweep's frame was exposed.
+struct FramePlace {
+  double slideMm = 0.0;        // at the mid-exposure of the ROI's middle row
+  double slideMmPerRow = 0.0;  // a rolling shutter's: the travel from one row's exposure to the next's
+};
+
 // The slide's position at a frame's mid-exposure in a sweep, from the frame's timestamp and
 // the times of the sweep's STEP edges. A sensor exposes in its next frame slot after the
 // request and delivers the frame after its readout, so the positions at the request and at
-// the delivery are each up to a frame time off (10 mm at 300 mm/s and 30 fps). A timestamp
-// that cannot be this frame's (none, before the request, or an exposure not over at the
+// the delivery are each up to a frame time off (10 mm at 300 mm/s and 30 fps). With a
+// rolling shutter (`lineTimeNs` > 0) row v exposes v line times after row 0, the
+// timestamp's: the ROI's first and last rows give the travel per row. A timestamp that
+// cannot be this frame's (none, before the request, or an exposure not over at the
 // delivery: another clock) leaves `sampledMm`, the mean of the positions at the request
 // and at the source's end-of-exposure call.
-double midExposureMm(const motion::StepLog& log, int64_t fromSteps, bool forward, const motion::SlideLimits& lim,
-                     const ports::FrameInfo& info, TimeNs askedNs, TimeNs deliveredNs, double sampledMm) {
+FramePlace sweptFramePlace(const motion::StepLog& log, int64_t fromSteps, bool forward, const motion::SlideLimits& lim,
+                           const ports::FrameInfo& info, const image::Roi& roi, TimeNs lineTimeNs, TimeNs askedNs,
+                           TimeNs deliveredNs, double sampledMm) {
   const TimeNs exposureNs = info.exposureUs * kNsPerUs;
-  if (info.exposureStartNs < askedNs || info.exposureStartNs + exposureNs > deliveredNs) return sampledMm;
-  const int64_t steps = log.stepsAt(info.exposureStartNs + exposureNs / 2);
-  return lim.mmFor(fromSteps + (forward ? steps : -steps));
+  if (info.exposureStartNs < askedNs || info.exposureStartNs + exposureNs > deliveredNs) return {sampledMm, 0.0};
+  const auto slideAtRow = [&](double row) {
+    const TimeNs t = info.exposureStartNs + exposureNs / 2 + std::llround(row * static_cast<double>(lineTimeNs));
+    const int64_t steps = log.stepsAt(t);
+    return lim.mmFor(fromSteps + (forward ? steps : -steps));
+  };
+  FramePlace place;
+  place.slideMm = slideAtRow(roi.y + 0.5 * roi.height);
+  if (lineTimeNs > 0 && roi.height > 1)
+    place.slideMmPerRow = (slideAtRow(roi.y + roi.height - 1.0) - slideAtRow(roi.y)) / (roi.height - 1.0);
+  return place;
 }
 }  // namespace
 
@@ -622,9 +639,9 @@ Status ScanWorker::sweepStops(const localize::ScanPlan& plan, const ports::Captu
       cancel_.store(true);  // stop the sweep: the scan has failed
       break;
     }
-    const double midMm =
-        midExposureMm(sw->log, from, forward, lim, frame->info, askedNs, deps_.clock->now(), sampledMm);
-    pipeline_.push(frame->view, recordedOr(deps_, midMm));
+    const FramePlace place = sweptFramePlace(sw->log, from, forward, lim, frame->info, plan.roi, deps_.lineTimeNs,
+                                             askedNs, deps_.clock->now(), sampledMm);
+    pipeline_.push(frame->view, recordedOr(deps_, place.slideMm), place.slideMmPerRow);
     if (cancel_.load()) {
       ev.resultStatus = protocol::ResultStatus::kAborted;
       status = Status(Error::kFault, "scan stopped by command");

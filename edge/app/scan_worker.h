@@ -40,6 +40,10 @@ struct WorkerDeps {
   localize::MeteringParams metering;
   int realtimePriority = 0;            // SCHED_FIFO priority of the worker (0: normal scheduling)
   int captureRetries = 2;              // further attempts after a failed frame, then a fault
+  // A rolling-shutter sensor's line time: row v of a frame exposes v × this after row 0
+  // (whose start is the frame's timestamp). In a sweep each row then has its own slide
+  // position (Localizer::observe). 0: a global shutter (config camera.line_time_us).
+  TimeNs lineTimeNs = 0;
   std::string debugDir;                // overlay PNGs go here when not empty
   // alacsd --replay: the slide position the frame just captured was recorded at, used
   // instead of the worker's own (unset or NaN: the worker's). Called on the worker thread.

@@ -293,7 +293,8 @@ image::Roi Localizer::stopRoi(const ScanPlan& plan, double slideMm) const {
 }
 
 Result<LineObservation> Localizer::observe(const image::ImageView& frame, const ScanPlan& plan, double slideMm,
-                                           image::LleWorkspace& ws, const image::ImageView* laserOff) const {
+                                           image::LleWorkspace& ws, const image::ImageView* laserOff,
+                                           double slideMmPerRow) const {
   if (frame.width != cal_.camera.widthPx || frame.height != cal_.camera.heightPx)
     return Status(Error::kBadInput, "frame is " + std::to_string(frame.width) + "x" + std::to_string(frame.height) +
                                         " but the calibration is for " + std::to_string(cal_.camera.widthPx) + "x" +
@@ -311,8 +312,10 @@ Result<LineObservation> Localizer::observe(const image::ImageView& frame, const 
   for (const auto& r : obs.line.rows)
     if (r.valid()) pixels.push_back({static_cast<double>(r.column), static_cast<double>(r.row)});
   const std::vector<Eigen::Vector2d> xn = geometry::undistortPixels(cal_.camera, pixels);
+  const double middleRow = plan.roi.y + 0.5 * plan.roi.height;
   for (size_t i = 0; i < xn.size(); ++i) {
-    const geometry::TriangulatedPoint p = geometry::triangulate(cal_.laser, slideMm, xn[i], range_);
+    const double rowSlideMm = slideMm + (pixels[i].rowPx - middleRow) * slideMmPerRow;
+    const geometry::TriangulatedPoint p = geometry::triangulate(cal_.laser, rowSlideMm, xn[i], range_);
     if (!p.valid) continue;
     const double fromRoughMm = (p.pointMm - plan.roughMm).norm();
     if (fromRoughMm <= scan_.gateMm) {

@@ -193,8 +193,13 @@ class Localizer {
   // Processes one frame taken at `slideMm`. With `laserOff` (a frame of the same size and
   // format, the laser off, at the same exposure; only the plan's ROI is read), its red is
   // subtracted first (the ambient light). Errors: those of LLE (bad frame or ROI).
+  // A rolling shutter in a sweep: `slideMmPerRow` is how far the slide moved from one
+  // sensor row's exposure to the next's; `slideMm` is then the position for the middle row
+  // of the plan's ROI, and row v's is slideMm + (v − that row) × slideMmPerRow (0: every
+  // row at slideMm, a global shutter or a frame at rest).
   Result<LineObservation> observe(const image::ImageView& frame, const ScanPlan& plan, double slideMm,
-                                  image::LleWorkspace& ws, const image::ImageView* laserOff = nullptr) const;
+                                  image::LleWorkspace& ws, const image::ImageView* laserOff = nullptr,
+                                  double slideMmPerRow = 0.0) const;
 
   // The second pass of an adaptive scan (ScanParams "Adaptive scan"): the stops to add
   // after the first pass's `lines` gave `first`; empty when the first pass is enough, when

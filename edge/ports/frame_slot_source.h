@@ -19,13 +19,15 @@ namespace alacs::ports {
 class FrameSlotSource final : public FrameSource {
  public:
   // `heightPx`: the sensor's full height (the readout of a window takes its share of the
-  // period). `clock` and `sleeper` are the inner source's (virtual in tests).
+  // period); 0: no readout here (the inner source models its rows: a rolling shutter,
+  // sim::SimCamera::setLineTimeNs). `clock` and `sleeper` are the inner source's (virtual
+  // in tests).
   FrameSlotSource(FrameSource& inner, const Clock& clock, Sleeper& sleeper, TimeNs periodNs, int heightPx)
       : inner_(inner),
         clock_(clock),
         sleeper_(sleeper),
         periodNs_(std::max<TimeNs>(1, periodNs)),
-        heightPx_(std::max(1, heightPx)) {}
+        heightPx_(std::max(0, heightPx)) {}
   const char* name() const override { return inner_.name(); }
 
  private:
@@ -33,8 +35,10 @@ class FrameSlotSource final : public FrameSource {
     const TimeNs now = clock_.now();
     sleeper_.sleepUntil((now + periodNs_ - 1) / periodNs_ * periodNs_);
     Result<CapturedFrame> f = inner_.capture(request, onExposureEnd);
-    const int rows = request.window.empty() ? heightPx_ : std::clamp(request.window.height, 0, heightPx_);
-    sleeper_.sleepUntil(clock_.now() + periodNs_ * rows / heightPx_);
+    if (heightPx_ > 0) {
+      const int rows = request.window.empty() ? heightPx_ : std::clamp(request.window.height, 0, heightPx_);
+      sleeper_.sleepUntil(clock_.now() + periodNs_ * rows / heightPx_);
+    }
     return f;
   }
   void doInterrupt() override { inner_.interrupt(); }

@@ -211,6 +211,14 @@ std::vector<LaserSub> laserSubs(const SimScene& s, const FrameRequest& request) 
   return subs;
 }
 
+// A rolling shutter's row v: its exposure saw the laser where the slide was then.
+std::vector<LaserSub> laserSubsAtRow(const SimScene& s, const FrameRequest& request, int v) {
+  FrameRequest row = request;
+  row.slideStartMm += v * request.slideMmPerRow;
+  row.slideEndMm += v * request.slideMmPerRow;
+  return laserSubs(s, row);
+}
+
 }  // namespace
 
 RayTable::RayTable(const geometry::CameraIntrinsics& cam) : cam_(cam) {
@@ -342,7 +350,7 @@ void Renderer::shadeRegion(const FrameRequest& request, const cv::Rect& region, 
   const Eigen::Vector3d up(0.0, -1.0, 0.0);
   const Eigen::Vector3d sun = light.directDir.normalized();
   const bool haveSun = light.directLux > 0.0;
-  const std::vector<LaserSub> subs = laserSubs(s, request);
+  std::vector<LaserSub> subs = laserSubs(s, request);
   const Eigen::Vector3d n = las.planeNormal;
   const Eigen::Vector3d beam = (Eigen::Vector3d(0, 0, 1) - n.z() * n).normalized();
   const double cosHalfFan = std::cos(0.5 * s.laser.fanDeg * kPi / 180.0);
@@ -356,6 +364,7 @@ void Renderer::shadeRegion(const FrameRequest& request, const cv::Rect& region, 
   for (int row = 0; row < region.height; ++row) {
     const int v = region.y + row;
     auto* out = electrons.ptr<float>(row);
+    if (request.slideMmPerRow != 0.0) subs = laserSubsAtRow(s, request, v);
     for (int col = 0; col < region.width; ++col) {
       const int u = region.x + col;
       const cv::Point2f& xn = rays_->ray(u, v);

@@ -51,6 +51,9 @@ class RayTable {
 struct FrameRequest {
   double slideStartMm = 0.0;   // slide position (commanded mm) when the exposure starts
   double slideEndMm = 0.0;     // and when it ends; equal for a frame taken at rest
+  // A rolling shutter: row v exposes v line times after row 0, when the slide has moved
+  // v × this further (the positions above are row 0's). 0: a global shutter.
+  double slideMmPerRow = 0.0;
   double laserFraction = 1.0;  // share of the exposure the laser was on, 0..1
   int64_t exposureUs = 0;      // 0: the scene's sensor.exposureUs
   uint64_t frameIndex = 0;     // seeds noise and speckle, with the scene's seed

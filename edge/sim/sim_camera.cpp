@@ -1,5 +1,6 @@
 #include "sim/sim_camera.h"
 
+#include <algorithm>
 
 namespace alacs::sim {
 
@@ -15,8 +16,18 @@ Result<ports::CapturedFrame> SimCamera::doCapture(const ports::CaptureRequest& r
   const bool laserAtStart = laserLevel_();
   const double slideAtStart = slideMm_();
   sleeper_.sleepUntil(start + request.exposureUs * kNsPerUs);
-  const bool laserAtEnd = laserLevel_();
   const double slideAtEnd = slideMm_();
+  // A rolling shutter: the window's last row ends its exposure that many line times later.
+  const auto& sensor = renderer_.scene().truth.camera;
+  const int lastRow = request.window.empty()
+                          ? sensor.heightPx - 1
+                          : std::clamp(request.window.y + request.window.height - 1, 0, sensor.heightPx - 1);
+  double slideMmPerRow = 0.0;
+  if (lineTimeNs_ > 0 && lastRow > 0) {
+    sleeper_.sleepUntil(start + request.exposureUs * kNsPerUs + lastRow * lineTimeNs_);
+    slideMmPerRow = (slideMm_() - slideAtEnd) / lastRow;
+  }
+  const bool laserAtEnd = laserLevel_();
   if (onExposureEnd) onExposureEnd();
   // The laser counts for the part of the exposure it was seen on (start and end samples).
   const double laserFraction = 0.5 * ((laserAtStart ? 1.0 : 0.0) + (laserAtEnd ? 1.0 : 0.0));
@@ -25,6 +36,7 @@ Result<ports::CapturedFrame> SimCamera::doCapture(const ports::CaptureRequest& r
   FrameRequest r;
   r.slideStartMm = slideAtStart;
   r.slideEndMm = slideAtEnd;
+  r.slideMmPerRow = slideMmPerRow;
   r.laserFraction = laserFraction;
   r.exposureUs = request.exposureUs;
   r.frameIndex = sequence_;

@@ -18,6 +18,10 @@ class SimCamera final : public ports::FrameSource {
   SimCamera(const SimScene& scene, const Clock& clock, Sleeper& sleeper, std::function<bool()> laserLevel,
             std::function<double()> slideMm);
   const char* name() const override { return "sim"; }
+  // A rolling shutter (0, the default: a global one): row v of the sensor starts and ends
+  // its exposure v × lineTimeNs after row 0, so a frame is over once the last row of its
+  // window is; the slide's travel meanwhile is taken as even (FrameRequest::slideMmPerRow).
+  void setLineTimeNs(TimeNs lineTimeNs) { lineTimeNs_ = lineTimeNs; }
   // The last rendered frame's slide position (mean over the exposure), for tests.
   double lastSlideMm() const { return lastSlideMm_; }
 
@@ -33,6 +37,7 @@ class SimCamera final : public ports::FrameSource {
   cv::Mat crop_;  // windowed renders
   uint64_t sequence_ = 0;
   double lastSlideMm_ = 0.0;
+  TimeNs lineTimeNs_ = 0;
 };
 
 }  // namespace alacs::sim

@@ -421,18 +421,29 @@ struct SceneRun {
   double finalMm = 0.0;
 };
 
-// `framePeriodNs` > 0: the camera is a free-running sensor with that frame period
-// (ports::FrameSlotSource), and the slide has the daemon's motor limits (300 mm/s).
-SceneRun localizeOnScene(const localize::ScanParams& sp, protocol::ScanMode mode, TimeNs framePeriodNs = 0) {
+// A real sensor's timing: free-running with a frame period (ports::FrameSlotSource), and
+// maybe a rolling shutter, which the worker may be told of (WorkerDeps::lineTimeNs).
+struct SensorTiming {
+  TimeNs framePeriodNs = 0;  // 0: the simulated camera as it is (exposes at once, a global shutter)
+  TimeNs lineTimeNs = 0;     // a rolling shutter's
+  bool workerToldLineTime = true;
+};
+
+// With a sensor timing, the slide has the daemon's motor limits (300 mm/s).
+SceneRun localizeOnScene(const localize::ScanParams& sp, protocol::ScanMode mode, const SensorTiming& timing = {}) {
   Rig rig(2.0);
   const sim::SimScene scene = sim::defaultScene();
   sim::SimCamera camera(
       scene, rig.time, rig.time, [&] { return rig.laserLine.level(); }, [&] { return rig.slide.positionMm(); });
-  ports::FrameSlotSource slotted(camera, rig.time, rig.time, framePeriodNs, scene.truth.camera.heightPx);
+  camera.setLineTimeNs(timing.lineTimeNs);
+  // A rolling shutter's rows are read out as they end (the simulated camera's).
+  ports::FrameSlotSource slotted(camera, rig.time, rig.time, timing.framePeriodNs,
+                                 timing.lineTimeNs > 0 ? 0 : scene.truth.camera.heightPx);
   rig.deps.camera = &camera;
-  if (framePeriodNs > 0) {
+  if (timing.framePeriodNs > 0) {
     rig.deps.camera = &slotted;
     rig.deps.limits = motion::SlideLimits{};
+    rig.deps.lineTimeNs = timing.workerToldLineTime ? timing.lineTimeNs : 0;
   }
   rig.deps.capture.exposureUs = sim::autoExposureUs(scene);
   const localize::Localizer loc(scene.truth, image::LleParams{}, sp);
@@ -516,7 +527,7 @@ TEST_CASE("A sweep with a sensor that exposes in its frame slots places each fra
   // mean of the positions at the request and at the end of the exposure, the frames were
   // up to 5 mm off along the slide, and the centre 12-36 mm off (alacs_cycle --virtual-time).
   constexpr TimeNs kPeriodNs = 33'333'333;
-  const SceneRun run = localizeOnScene(localize::ScanParams{}, protocol::ScanMode::kContinuous, kPeriodNs);
+  const SceneRun run = localizeOnScene(localize::ScanParams{}, protocol::ScanMode::kContinuous, {kPeriodNs});
   REQUIRE(run.event);
   REQUIRE(run.event->status.isOk());
   REQUIRE(run.event->exposures.size() >= run.planStopsMm.size());
@@ -536,6 +547,30 @@ TEST_CASE("A sweep with a sensor that exposes in its frame slots places each fra
   INFO("lines " << est.linesUsed << ", centre error " << (est.centerMm - apple.centerMm).norm() << " mm");
   CHECK(est.linesUsed >= 3);
   CHECK((est.centerMm - apple.centerMm).norm() < 2.0);
+}
+
+TEST_CASE("A sweep with a rolling-shutter sensor gives each row the slide's position at its own exposure",
+          "[app][worker][render]") {
+  // A 30 fps sensor 1536 rows high, read out over the whole period: row v exposes v × 21.7
+  // us after row 0 (the frame's timestamp), so the target's rows in the middle of the frame
+  // saw the laser about 5 mm further along a 300 mm/s sweep than row 0 did.
+  constexpr TimeNs kPeriodNs = 33'333'333;
+  constexpr TimeNs kLineNs = 21'700;
+  const sim::SimScene scene = sim::defaultScene();
+  const sim::SimApple& apple = scene.apples[0];
+  const auto centreErrorMm = [&](bool told) {
+    const SceneRun run =
+        localizeOnScene(localize::ScanParams{}, protocol::ScanMode::kContinuous, {kPeriodNs, kLineNs, told});
+    REQUIRE(run.event);
+    REQUIRE(run.event->status.isOk());
+    REQUIRE(run.event->estimates.size() == 1);
+    return (run.event->estimates[0].centerMm - apple.centerMm).norm();
+  };
+  const double toldMm = centreErrorMm(true);
+  const double notToldMm = centreErrorMm(false);
+  INFO("centre error: told the line time " << toldMm << " mm, not told " << notToldMm << " mm");
+  CHECK(toldMm < 2.0);
+  CHECK(notToldMm > 10.0);  // what the line time mends (it measured 0.2 and 26 mm)
 }
 
 TEST_CASE("Enough lines on the fruit: no second pass", "[app][worker][render]") {

@@ -104,6 +104,47 @@ TEST_CASE("A frame with the laser off yields no line", "[sim][lle][render]") {
   CHECK_FALSE(obs->line.valid);
 }
 
+// A rolling shutter in a sweep: each row of a frame was lit where the slide was at that
+// row's exposure. The renderer draws such a frame (FrameRequest::slideMmPerRow); observe()
+// triangulates each row on its own slide position and lands on the fruit's surface, where
+// one position for the whole frame puts the rows off it by up to the travel across the ROI.
+TEST_CASE("A rolling-shutter frame: each row is triangulated at its own slide position", "[sim][localize][render]") {
+  const sim::SimScene scene = sim::defaultScene();
+  sim::Renderer renderer(scene);
+  const sim::SimApple& apple = scene.apples[0];
+  const localize::Localizer loc(scene.truth, image::LleParams{}, localize::ScanParams{});
+  auto plan = loc.plan(apple.centerMm, 200.0);
+  REQUIRE(plan.isOk());
+  // 300 mm/s and 21.7 us a row: 6.5 um a row, 2.4 mm across the ROI.
+  constexpr double kMmPerRow = 300.0 * 21.7e-6;
+  const double middleRow = plan->roi.y + 0.5 * plan->roi.height;
+  const double slideMm = plan->stopsMm[3];  // at the ROI's middle row
+  sim::FrameRequest r;
+  r.slideStartMm = r.slideEndMm = slideMm - middleRow * kMmPerRow;  // row 0's
+  r.slideMmPerRow = kMmPerRow;
+  cv::Mat frame;
+  renderer.render(r, frame);
+  image::LleWorkspace ws;
+  const auto offSurfaceMm = [&](double perRow) {
+    auto obs = loc.observe(viewOf(frame), *plan, slideMm, ws, nullptr, perRow);
+    REQUIRE(obs.isOk());
+    std::vector<double> off;
+    for (const Eigen::Vector3d& p : obs->pointsMm) {
+      const double d = std::abs((p - apple.centerMm).norm() - apple.radiusMm);
+      if (d < 20.0) off.push_back(d);  // the fruit's rows (not a leaf's, not the wall's)
+    }
+    REQUIRE(off.size() > 100);
+    std::sort(off.begin(), off.end());
+    return off[off.size() * 9 / 10];
+  };
+  const double eachRow = offSurfaceMm(kMmPerRow);
+  const double oneForAll = offSurfaceMm(0.0);
+  INFO("90th percentile off the sphere: each row its own position " << eachRow << " mm, one for the frame " << oneForAll
+                                                                    << " mm");
+  CHECK(eachRow < 1.0);
+  CHECK(oneForAll > 2.0 * eachRow);
+}
+
 // Issue 16, item 1: the apple at (10, -20, 1200), the rough position (0, 0, 1100), 100 mm
 // short in depth. Thirteen lines lit the fruit, but the 3D gate around the rough position
 // refused them all and the rough position came back with the default diameter. The

@@ -70,6 +70,8 @@ struct Options {
   double exposureX = 1.0;  // the exposure: this × the auto exposure (at most 3000 us)
   bool virtualTime = false;  // a VirtualTimeline and ports::FrameSlotSource, not this machine's clock
   double fps = 30.0;         // --virtual-time: the sensor's free-running frame rate
+  double lineTimeUs = 0.0;   // a rolling shutter's line time (0: a global shutter)
+  int workerLineTime = 1;    // 1: the worker is told the line time (config camera.line_time_us), 0: not
   std::string exportDir;
   bool replay = false;
   std::vector<std::string> dirs;
@@ -293,6 +295,10 @@ int simulatedCycle(const Options& o) {
       "%.0f mm/s², %.0f steps/mm, slide parked -20/-5/+5/+20 mm from the scan's first stop, metering %s\n",
       o.cases, o.world.c_str(), o.lighting.c_str(), o.exposureX, limits.maxSpeedMmPerS, limits.accelMmPerS2,
       limits.stepsPerMm, o.metering != 0 ? "on" : "off");
+  if (o.lineTimeUs > 0.0)
+    std::printf("  a rolling shutter: row v exposes v × %.1f us after row 0; the worker is %s\n", o.lineTimeUs,
+                o.workerLineTime != 0 ? "told (camera.line_time_us): each row its own slide position"
+                                      : "not told: one slide position for the frame");
   if (o.virtualTime)
     std::printf(
         "  virtual time: a sensor free-running at %.0f fps (an exposure starts at the next frame start; the "
@@ -319,10 +325,15 @@ int simulatedCycle(const Options& o) {
       sim::SimCamera simCamera(
           scene, clock, sleeper, [&] { return laserLine.level(); }, [&] { return slide.positionMm(); });
       RenderTimedSource rendered(simCamera, clock);
+      const auto lineTimeNs = static_cast<TimeNs>(std::llround(o.lineTimeUs * 1e3));
+      simCamera.setLineTimeNs(lineTimeNs);
+      // A rolling shutter's rows are read out as they end (the simulated camera's); a
+      // global one's after the exposure (the slot source's).
       ports::FrameSlotSource sensor(rendered, clock, sleeper, static_cast<TimeNs>(std::llround(1e9 / o.fps)),
-                                    scene.truth.camera.heightPx);
+                                    lineTimeNs > 0 ? 0 : scene.truth.camera.heightPx);
       ports::FrameSource& camera = o.virtualTime ? static_cast<ports::FrameSource&>(sensor) : rendered;
       app::WorkerDeps deps = workerDeps(clock, sleeper, limits, slide, laser, camera);
+      deps.lineTimeNs = o.workerLineTime != 0 ? lineTimeNs : 0;
       deps.capture.exposureUs =
           std::min<int64_t>(std::llround(static_cast<double>(sim::autoExposureUs(scene)) * o.exposureX), 3000);
       deps.metering.enabled = o.metering != 0;
@@ -533,6 +544,14 @@ int main(int argc, char** argv) {
   app.add_option("--fps", o.fps, "--virtual-time: the sensor's free-running frame rate")
       ->capture_default_str()
       ->check(CLI::Range(1.0, 1000.0));
+  app.add_option("--line-time-us", o.lineTimeUs,
+                 "a rolling shutter: the sensor's line time (0: a global shutter; a 30 fps sensor 1536 rows high: "
+                 "21.7)")
+      ->capture_default_str()
+      ->check(CLI::Range(0.0, 1000.0));
+  app.add_option("--worker-line-time", o.workerLineTime,
+                 "1: the worker is told the line time, 0: not (to see the error)")
+      ->capture_default_str();
   app.add_option("--export", o.exportDir, "write the orchard scans as scan directories into DIR");
   app.add_flag("--replay", o.replay, "run the worker on the scan directories DIR...");
   app.add_option("DIR", o.dirs, "scan directories (--replay)");
