@@ -106,6 +106,7 @@ Status configFromJson(const Json& json, DaemonConfig& c) {
     cam->integer("frame_timeout_ms", c.frameTimeoutMs, Need::kOptional, 10, 60000);
     cam->integer("retries", c.frameRetries, Need::kOptional, 0, 10);
     cam->number("line_time_us", c.lineTimeUs, Need::kOptional, 0, 1000);
+    cam->boolean("timestamp_at_exposure_end", c.timestampAtExposureEnd);
     cam->text("id", c.cameraId);
     cam->finish();
   }
@@ -173,6 +174,7 @@ OrderedJson configToJson(const DaemonConfig& c) {
                  {"frame_timeout_ms", c.frameTimeoutMs},
                  {"retries", c.frameRetries},
                  {"line_time_us", c.lineTimeUs},
+                 {"timestamp_at_exposure_end", c.timestampAtExposureEnd},
                  {"id", c.cameraId}};
   j["laser"] = {{"max_on_ms", c.laserMaxOnMs}};
   j["calibration"] = c.calibrationPath;

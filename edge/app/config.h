@@ -37,6 +37,10 @@ struct DaemonConfig {
   // start to the next's): a sweep gives each row its own slide position. 0: a global
   // shutter (docs/daemon.md "Scanning").
   double lineTimeUs = 0.0;
+  // The frame timestamp (libcamera's SensorTimestamp) marks the end of the first row's
+  // exposure, the start of its readout, as on Raspberry Pi's pipelines, not its start as
+  // libcamera defines it: the worker takes the exposure off it.
+  bool timestampAtExposureEnd = false;
   std::string calibrationPath = "/var/lib/alacs/calibration.json";
   std::string cameraId;
 };

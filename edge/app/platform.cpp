@@ -189,6 +189,7 @@ WorkerDeps workerDepsFor(const DaemonConfig& cfg, Platform& platform, const Cloc
   deps.camera = &camera;
   deps.captureRetries = cfg.frameRetries;
   deps.lineTimeNs = static_cast<TimeNs>(std::llround(cfg.lineTimeUs * 1e3));
+  deps.timestampAtExposureEnd = cfg.timestampAtExposureEnd;
   deps.realtimePriority = cfg.realtimePriority;
   deps.capture.exposureUs = cfg.exposureUs;
   deps.capture.timeoutMs = cfg.frameTimeoutMs;

@@ -11,6 +11,7 @@
 #include <cstdio>
 #include <cstdlib>
 #include <cstring>
+#include <limits>
 #include <opencv2/imgproc.hpp>
 
 #include "common/log.h"
@@ -561,19 +562,27 @@ struct FramePlace {
 // The slide's position at a frame's mid-exposure in a sweep, from the frame's timestamp and
 // the times of the sweep's STEP edges. A sensor exposes in its next frame slot after the
 // request and delivers the frame after its readout, so the positions at the request and at
-// the delivery are each up to a frame time off (10 mm at 300 mm/s and 30 fps). With a
-// rolling shutter (`lineTimeNs` > 0) row v exposes v line times after row 0, the
-// timestamp's: the ROI's first and last rows give the travel per row. A timestamp that
-// cannot be this frame's (none, before the request, or an exposure not over at the
-// delivery: another clock) leaves `sampledMm`, the mean of the positions at the request
-// and at the source's end-of-exposure call.
+// the delivery are each up to a frame time off (10 mm at 300 mm/s and 30 fps). The
+// timestamp is row 0's exposure start (libcamera's definition) or, on pipelines that stamp
+// the start of readout (deps.timestampAtExposureEnd), its end. With a rolling shutter
+// (deps.lineTimeNs > 0) row v exposes v line times after row 0: the ROI's first and last
+// rows give the travel per row. A timestamp that cannot be this frame's (none, before the
+// request, or the ROI's exposure not over at the delivery: another clock, or a line time
+// too long) leaves `sampledMm`, the mean of the positions at the request and at the
+// source's end-of-exposure call.
 FramePlace sweptFramePlace(const motion::StepLog& log, int64_t fromSteps, bool forward, const motion::SlideLimits& lim,
-                           const ports::FrameInfo& info, const image::Roi& roi, TimeNs lineTimeNs, TimeNs askedNs,
+                           const ports::FrameInfo& info, const image::Roi& roi, const WorkerDeps& deps, TimeNs askedNs,
                            TimeNs deliveredNs, double sampledMm) {
   const TimeNs exposureNs = info.exposureUs * kNsPerUs;
-  if (info.exposureStartNs < askedNs || info.exposureStartNs + exposureNs > deliveredNs) return {sampledMm, 0.0};
+  const TimeNs lineTimeNs = deps.lineTimeNs;
+  const TimeNs startNs = info.exposureStartNs - (deps.timestampAtExposureEnd ? exposureNs : 0);
+  // The ROI's last row's exposure must be over at the delivery (else the timestamp, or the
+  // line time, is not this frame's).
+  const TimeNs lastRowEndNs =
+      startNs + exposureNs + std::llround((roi.y + roi.height) * static_cast<double>(lineTimeNs));
+  if (startNs < askedNs || lastRowEndNs > deliveredNs) return {sampledMm, 0.0};
   const auto slideAtRow = [&](double row) {
-    const TimeNs t = info.exposureStartNs + exposureNs / 2 + std::llround(row * static_cast<double>(lineTimeNs));
+    const TimeNs t = startNs + exposureNs / 2 + std::llround(row * static_cast<double>(lineTimeNs));
     const int64_t steps = log.stepsAt(t);
     return lim.mmFor(fromSteps + (forward ? steps : -steps));
   };
@@ -639,9 +648,14 @@ Status ScanWorker::sweepStops(const localize::ScanPlan& plan, const ports::Captu
       cancel_.store(true);  // stop the sweep: the scan has failed
       break;
     }
-    const FramePlace place = sweptFramePlace(sw->log, from, forward, lim, frame->info, plan.roi, deps_.lineTimeNs,
-                                             askedNs, deps_.clock->now(), sampledMm);
-    pipeline_.push(frame->view, recordedOr(deps_, place.slideMm), place.slideMmPerRow);
+    const FramePlace place = sweptFramePlace(sw->log, from, forward, lim, frame->info, plan.roi, deps_, askedNs,
+                                             deps_.clock->now(), sampledMm);
+    // A replayed frame has its recorded position, for the frame as a whole.
+    const double recordedMm = recordedOr(deps_, std::numeric_limits<double>::quiet_NaN());
+    if (std::isfinite(recordedMm))
+      pipeline_.push(frame->view, recordedMm);
+    else
+      pipeline_.push(frame->view, place.slideMm, place.slideMmPerRow);
     if (cancel_.load()) {
       ev.resultStatus = protocol::ResultStatus::kAborted;
       status = Status(Error::kFault, "scan stopped by command");

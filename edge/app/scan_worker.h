@@ -44,6 +44,9 @@ struct WorkerDeps {
   // (whose start is the frame's timestamp). In a sweep each row then has its own slide
   // position (Localizer::observe). 0: a global shutter (config camera.line_time_us).
   TimeNs lineTimeNs = 0;
+  // The frame's timestamp marks the end of row 0's exposure (Raspberry Pi's pipelines), not
+  // its start (config camera.timestamp_at_exposure_end).
+  bool timestampAtExposureEnd = false;
   std::string debugDir;                // overlay PNGs go here when not empty
   // alacsd --replay: the slide position the frame just captured was recorded at, used
   // instead of the worker's own (unset or NaN: the worker's). Called on the worker thread.

@@ -59,11 +59,14 @@ class SimPlatform final : public Platform {
     return Status::ok();
   }
 
-  Status openRenderedCamera(const sim::SimScene& scene, const Clock& clock, Sleeper& sleeper) {
+  Status openRenderedCamera(const sim::SimScene& scene, const Clock& clock, Sleeper& sleeper, double lineTimeUs) {
     ports::FakeDigitalOut* laser = laser_.get();
     sim::SimSlide* slide = slide_.get();
-    camera_ = std::make_unique<sim::SimCamera>(scene, clock, sleeper, [laser] { return laser->level(); },
-                                               [slide] { return slide->positionMm(); });
+    auto camera = std::make_unique<sim::SimCamera>(
+        scene, clock, sleeper, [laser] { return laser->level(); }, [slide] { return slide->positionMm(); });
+    // The configured sensor is the simulated one: a rolling shutter when the config says so.
+    camera->setLineTimeNs(static_cast<TimeNs>(std::llround(lineTimeUs * 1e3)));
+    camera_ = std::move(camera);
     return Status::ok();
   }
 
@@ -142,7 +145,7 @@ Result<std::unique_ptr<Platform>> openSimPlatform(const DaemonConfig& cfg, const
   } else {
     p->setCalibration(geometry::loadCalibration(opts.calibrationPath));
   }
-  if (Status s = p->openRenderedCamera(scene, clock, sleeper); !s) return s;
+  if (Status s = p->openRenderedCamera(scene, clock, sleeper, cfg.lineTimeUs); !s) return s;
   p->injectCameraFault(opts.fault, clock, sleeper);
   if (Status s = p->openCan(cfg); !s) return s;
   return std::unique_ptr<Platform>(std::move(p));

@@ -3,6 +3,7 @@
 // drives a real motor from a real-time thread and runs in virtual time in tests.
 #pragma once
 
+#include <algorithm>
 #include <atomic>
 #include <cstdint>
 #include <vector>

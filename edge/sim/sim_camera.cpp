@@ -17,11 +17,9 @@ Result<ports::CapturedFrame> SimCamera::doCapture(const ports::CaptureRequest& r
   const double slideAtStart = slideMm_();
   sleeper_.sleepUntil(start + request.exposureUs * kNsPerUs);
   const double slideAtEnd = slideMm_();
-  // A rolling shutter: the window's last row ends its exposure that many line times later.
-  const auto& sensor = renderer_.scene().truth.camera;
-  const int lastRow = request.window.empty()
-                          ? sensor.heightPx - 1
-                          : std::clamp(request.window.y + request.window.height - 1, 0, sensor.heightPx - 1);
+  // A rolling shutter: the sensor's last row ends its exposure that many line times later,
+  // and the frame (the sensor reads out its whole height) is delivered then.
+  const int lastRow = renderer_.scene().truth.camera.heightPx - 1;
   double slideMmPerRow = 0.0;
   if (lineTimeNs_ > 0 && lastRow > 0) {
     sleeper_.sleepUntil(start + request.exposureUs * kNsPerUs + lastRow * lineTimeNs_);

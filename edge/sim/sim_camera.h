@@ -19,8 +19,9 @@ class SimCamera final : public ports::FrameSource {
             std::function<double()> slideMm);
   const char* name() const override { return "sim"; }
   // A rolling shutter (0, the default: a global one): row v of the sensor starts and ends
-  // its exposure v × lineTimeNs after row 0, so a frame is over once the last row of its
-  // window is; the slide's travel meanwhile is taken as even (FrameRequest::slideMmPerRow).
+  // its exposure v × lineTimeNs after row 0, and the frame is delivered once the sensor's
+  // last row is over; the slide's travel meanwhile is taken as even
+  // (FrameRequest::slideMmPerRow).
   void setLineTimeNs(TimeNs lineTimeNs) { lineTimeNs_ = lineTimeNs; }
   // The last rendered frame's slide position (mean over the exposure), for tests.
   double lastSlideMm() const { return lastSlideMm_; }

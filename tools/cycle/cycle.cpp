@@ -161,7 +161,9 @@ Trial timeJob(app::ScanWorker& worker, int efd, const Clock& clock, double parkM
   const TimeNs t0 = clock.now();
   job.commandTimeNs = t0;
   const app::WorkerEvent ev = runJob(worker, efd, job);
-  const TimeNs t1 = clock.now();
+  // When the worker posted the result (this thread is not on a virtual timeline: reading
+  // the clock here would add whatever the braking moved it by since).
+  const TimeNs t1 = ev.doneNs;
   // Back to the park position: queued while a continuous scan's slide still brakes, it
   // runs once the slide is at rest.
   (void)runJob(worker, efd, park);
@@ -330,7 +332,7 @@ int simulatedCycle(const Options& o) {
       // A rolling shutter's rows are read out as they end (the simulated camera's); a
       // global one's after the exposure (the slot source's).
       ports::FrameSlotSource sensor(rendered, clock, sleeper, static_cast<TimeNs>(std::llround(1e9 / o.fps)),
-                                    lineTimeNs > 0 ? 0 : scene.truth.camera.heightPx);
+                                    lineTimeNs == 0);
       ports::FrameSource& camera = o.virtualTime ? static_cast<ports::FrameSource&>(sensor) : rendered;
       app::WorkerDeps deps = workerDeps(clock, sleeper, limits, slide, laser, camera);
       deps.lineTimeNs = o.workerLineTime != 0 ? lineTimeNs : 0;
