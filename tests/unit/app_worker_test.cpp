@@ -488,6 +488,20 @@ SceneRun localizeOnScene(const localize::ScanParams& sp, protocol::ScanMode mode
   return run;
 }
 
+// A 30 fps sensor 1536 rows high that reads out over its whole period.
+constexpr TimeNs kSensorPeriodNs = 33'333'333;
+constexpr TimeNs kSensorLineNs = 21'700;
+
+// A continuous scan of the default scene with this sensor timing: the centre's error.
+double sweepCentreErrorMm(const SensorTiming& timing) {
+  const SceneRun run = localizeOnScene(localize::ScanParams{}, protocol::ScanMode::kContinuous, timing);
+  REQUIRE(run.event);
+  REQUIRE(run.event->status.isOk());
+  REQUIRE(run.event->estimates.size() == 1);
+  const sim::SimScene scene = sim::defaultScene();
+  return (run.event->estimates[0].centerMm - scene.apples[0].centerMm).norm();
+}
+
 // The laser is switched on once per exposure, exactly as it starts, and off exactly as it
 // ends (the camera's end-of-exposure callback): never on while the slide moves between stops.
 bool laserOnlyDuringExposures(const SceneRun& run) {
@@ -572,20 +586,8 @@ TEST_CASE("A sweep with a rolling-shutter sensor gives each row the slide's posi
   // A 30 fps sensor 1536 rows high, read out over the whole period: row v exposes v × 21.7
   // us after row 0 (the frame's timestamp), so the target's rows in the middle of the frame
   // saw the laser about 5 mm further along a 300 mm/s sweep than row 0 did.
-  constexpr TimeNs kPeriodNs = 33'333'333;
-  constexpr TimeNs kLineNs = 21'700;
-  const sim::SimScene scene = sim::defaultScene();
-  const sim::SimApple& apple = scene.apples[0];
-  const auto centreErrorMm = [&](bool told) {
-    const SceneRun run =
-        localizeOnScene(localize::ScanParams{}, protocol::ScanMode::kContinuous, {kPeriodNs, kLineNs, told});
-    REQUIRE(run.event);
-    REQUIRE(run.event->status.isOk());
-    REQUIRE(run.event->estimates.size() == 1);
-    return (run.event->estimates[0].centerMm - apple.centerMm).norm();
-  };
-  const double toldMm = centreErrorMm(true);
-  const double notToldMm = centreErrorMm(false);
+  const double toldMm = sweepCentreErrorMm({kSensorPeriodNs, kSensorLineNs, true});
+  const double notToldMm = sweepCentreErrorMm({kSensorPeriodNs, kSensorLineNs, false});
   INFO("centre error: told the line time " << toldMm << " mm, not told " << notToldMm << " mm");
   CHECK(toldMm < 0.6);      // the middle row's position alone (no travel per row) gave 2.1 mm
   CHECK(notToldMm > 10.0);  // what the line time mends (it measured 0.4 and 26 mm)
@@ -593,20 +595,8 @@ TEST_CASE("A sweep with a rolling-shutter sensor gives each row the slide's posi
 
 TEST_CASE("A sweep with a sensor that stamps the end of the exposure, as Raspberry Pi's pipelines do",
           "[app][worker][render]") {
-  constexpr TimeNs kPeriodNs = 33'333'333;
-  constexpr TimeNs kLineNs = 21'700;
-  const sim::SimScene scene = sim::defaultScene();
-  const sim::SimApple& apple = scene.apples[0];
-  const auto centreErrorMm = [&](bool told) {
-    const SceneRun run = localizeOnScene(localize::ScanParams{}, protocol::ScanMode::kContinuous,
-                                         {kPeriodNs, kLineNs, true, true, told});
-    REQUIRE(run.event);
-    REQUIRE(run.event->status.isOk());
-    REQUIRE(run.event->estimates.size() == 1);
-    return (run.event->estimates[0].centerMm - apple.centerMm).norm();
-  };
-  const double toldMm = centreErrorMm(true);
-  const double notToldMm = centreErrorMm(false);
+  const double toldMm = sweepCentreErrorMm({kSensorPeriodNs, kSensorLineNs, true, true, true});
+  const double notToldMm = sweepCentreErrorMm({kSensorPeriodNs, kSensorLineNs, true, true, false});
   INFO("centre error: told " << toldMm << " mm, not told " << notToldMm << " mm");
   CHECK(toldMm < 0.5);
   CHECK(notToldMm > 2.0 * toldMm);
