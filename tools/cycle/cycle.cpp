@@ -8,8 +8,8 @@
 //
 // --virtual-time runs the same on a VirtualTimeline (common/virtual_timeline.h) with a
 // modelled sensor in place of the render's wall time: a free-running sensor at --fps whose
-// exposure starts at its next frame start and whose window is read out row by row after
-// it. The render and the image work take no virtual time (the image work overlaps the
+// exposure starts at its next frame start and which delivers the frame after reading out
+// its whole height (ports::FrameSlotSource). The render and the image work take no virtual time (the image work overlaps the
 // motion: the wall-clock run shows what is left of it after the last frame). What this
 // measures is the sensor's and the slide's time, the same on any machine, whatever the
 // simulator costs (the hard worlds' scenes render 3x slower than the benchmark's).
@@ -304,7 +304,7 @@ int simulatedCycle(const Options& o) {
   if (o.virtualTime)
     std::printf(
         "  virtual time: a sensor free-running at %.0f fps (an exposure starts at the next frame start; the "
-        "window is read out after it at the line time of one frame height per period); the render and the "
+        "frame is delivered after its whole height is read out, one period); the render and the "
         "image work take no virtual time\n",
         o.fps);
   const std::string modes = o.modes.empty() ? "both" : o.modes;
