@@ -9,10 +9,10 @@
 // --virtual-time runs the same on a VirtualTimeline (common/virtual_timeline.h) with a
 // modelled sensor in place of the render's wall time: a free-running sensor at --fps whose
 // exposure starts at its next frame start and which delivers the frame after reading out
-// its whole height (ports::FrameSlotSource). The render and the image work take no virtual time (the image work overlaps the
-// motion: the wall-clock run shows what is left of it after the last frame). What this
-// measures is the sensor's and the slide's time, the same on any machine, whatever the
-// simulator costs (the hard worlds' scenes render 3x slower than the benchmark's).
+// its whole height (ports::FrameSlotSource). The render and the image work take no virtual time (the image work
+// overlaps the motion: the wall-clock run shows what is left of it after the last frame). What this measures is the
+// sensor's and the slide's time, the same on any machine, whatever the simulator costs (the hard worlds' scenes render
+// 3x slower than the benchmark's).
 //
 // Peak memory with real-size frames: --export writes orchard scans as scan directories
 // of full frames (docs/scan-format.md) at --width x --height; --replay runs the same
