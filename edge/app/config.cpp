@@ -107,6 +107,9 @@ Status configFromJson(const Json& json, DaemonConfig& c) {
     cam->integer("retries", c.frameRetries, Need::kOptional, 0, 10);
     cam->number("line_time_us", c.lineTimeUs, Need::kOptional, 0, 1000);
     cam->boolean("timestamp_at_exposure_end", c.timestampAtExposureEnd);
+    cam->boolean("laser_on_frame_clock", c.laserOnFrameClock);
+    cam->number("laser_lead_us", c.laserLeadUs, Need::kOptional, 0, 10000);
+    cam->number("frame_clock_jitter_us", c.frameClockJitterUs, Need::kOptional, 1, 100000);
     cam->text("id", c.cameraId);
     cam->finish();
   }
@@ -175,6 +178,9 @@ OrderedJson configToJson(const DaemonConfig& c) {
                  {"retries", c.frameRetries},
                  {"line_time_us", c.lineTimeUs},
                  {"timestamp_at_exposure_end", c.timestampAtExposureEnd},
+                 {"laser_on_frame_clock", c.laserOnFrameClock},
+                 {"laser_lead_us", c.laserLeadUs},
+                 {"frame_clock_jitter_us", c.frameClockJitterUs},
                  {"id", c.cameraId}};
   j["laser"] = {{"max_on_ms", c.laserMaxOnMs}};
   j["calibration"] = c.calibrationPath;

@@ -41,6 +41,14 @@ struct DaemonConfig {
   // exposure, the start of its readout, as on Raspberry Pi's pipelines, not its start as
   // libcamera defines it: the worker takes the exposure off it.
   bool timestampAtExposureEnd = false;
+  // The laser around each frame of the camera's free-running sensor: on `laserLeadUs`
+  // before the target's rows start exposing and off that long after they end, once the
+  // sensor's frame clock is learnt from its timestamps (a jitter within
+  // `frameClockJitterUs`); false, or until then: on from the capture request to the
+  // frame's delivery (docs/daemon.md "The laser and the frame clock").
+  bool laserOnFrameClock = true;
+  double laserLeadUs = 1000.0;
+  double frameClockJitterUs = 300.0;
   std::string calibrationPath = "/var/lib/alacs/calibration.json";
   std::string cameraId;
 };

@@ -102,15 +102,15 @@ class CameraWhenAvailable final : public ports::FrameSource {
     source_.store(owner_.get());
     return error_;
   }
-  Result<ports::CapturedFrame> doCapture(const ports::CaptureRequest& r, const std::function<void()>& end) override {
+  Result<ports::CapturedFrame> doCapture(const ports::CaptureRequest& r, const ports::ExposureHooks& hooks) override {
     if (source_.load() == nullptr) {
       if (Status s = tryOpen(); !s) {
-        if (end) end();
+        hooks.endNow();
         return Status(Error::kTimeout, "camera unavailable: " + s.toString());
       }
       ALACS_LOG_INFO("camera", "camera opened");
     }
-    return source_.load()->capture(r, end);
+    return source_.load()->capture(r, hooks);
   }
   void doInterrupt() override {
     if (drivers::LibcameraSource* s = source_.load()) s->interrupt();
@@ -147,6 +147,11 @@ class HardwarePlatform final : public Platform {
     p->setCalibration(geometry::loadCalibration(calibrationPath.empty() ? cfg.calibrationPath : calibrationPath));
     drivers::LibcameraConfig lc;
     lc.cameraId = cfg.cameraId;
+    lc.laserOnFrameClock = cfg.laserOnFrameClock;
+    lc.laserLeadNs = std::llround(cfg.laserLeadUs * 1e3);
+    lc.frameClockJitterNs = std::llround(cfg.frameClockJitterUs * 1e3);
+    lc.lineTimeNs = std::llround(cfg.lineTimeUs * 1e3);
+    lc.timestampAtExposureEnd = cfg.timestampAtExposureEnd;
     if (p->calibration()) {
       lc.widthPx = p->calibration()->camera.widthPx;
       lc.heightPx = p->calibration()->camera.heightPx;

@@ -317,22 +317,32 @@ Result<ports::CapturedFrame> ScanWorker::exposeStop(size_t stop, const ports::Ca
   Result<ports::CapturedFrame> frame = Status(Error::kInternal, "no capture attempted");
   setPhase(protocol::ProgressPhase::kExposing);
   for (int attempt = 0; attempt <= deps_.captureRetries && !cancel_.load(); ++attempt) {
-    if (Status s = deps_.laser->on(); !s) {
-      ev.status = s;
+    // The camera switches the laser on just before the frame it will deliver starts (at
+    // once when it does not know its sensor's frame clock), and off when it is exposed.
+    Status laserRefused = Status::ok();
+    double startMm = positionMm();
+    double endMm = startMm;
+    const ports::ExposureHooks laser(
+        [this, &laserRefused, &startMm]() -> Status {
+          laserRefused = deps_.laser->on();
+          startMm = positionMm();
+          return laserRefused;
+        },
+        [this, &endMm] {
+          (void)deps_.laser->off();
+          endMm = positionMm();
+        });
+    frameReadSinceNs_.store(deps_.clock->now());
+    frame = deps_.camera->capture(capture, laser);
+    frameReadSinceNs_.store(0);
+    (void)deps_.laser->off();
+    if (!laserRefused) {
+      ev.status = laserRefused;
       ev.faultBit = protocol::kFaultLaserOvertime;
       ev.resultStatus = protocol::ResultStatus::kFailed;
-      return s;
+      return laserRefused;
     }
-    const double startMm = positionMm();
-    double endMm = startMm;
-    frameReadSinceNs_.store(deps_.clock->now());
-    frame = deps_.camera->capture(capture, [this, &endMm] {
-      (void)deps_.laser->off();
-      endMm = positionMm();
-    });
-    frameReadSinceNs_.store(0);
     if (midSlideMm != nullptr) *midSlideMm = 0.5 * (startMm + endMm);
-    (void)deps_.laser->off();
     markProgress();
     if (frame) {
       stopsDone_.fetch_add(1);

@@ -5,6 +5,7 @@
 
 #include <cstdint>
 #include <functional>
+#include <utility>
 
 #include "common/clock.h"
 #include "common/result.h"
@@ -33,15 +34,37 @@ struct CapturedFrame {
   FrameInfo info;
 };
 
+// What a capture does with the laser, called on the capturing thread. `begin` switches it
+// on just before the exposure: a source that knows its sensor's frame clock calls it just
+// before the frame it will deliver starts (drivers/libcamera), one that exposes on request
+// calls it at once (beginNow()); an error from it ends the capture with that error. `end`
+// switches it off as soon as the exposure is over. A source may call the pair more than
+// once in one capture (a frame missed: the laser off, on again for the next), and always
+// leaves it ended. Either may be empty (a frame without the laser).
+struct ExposureHooks {
+  ExposureHooks() = default;
+  // Only the end (a capture that does not switch the laser on: metering, tools).
+  ExposureHooks(std::function<void()> onEnd) : end(std::move(onEnd)) {}  // NOLINT(google-explicit-constructor)
+  ExposureHooks(std::function<Status()> onBegin, std::function<void()> onEnd)
+      : begin(std::move(onBegin)), end(std::move(onEnd)) {}
+
+  Status beginNow() const { return begin ? begin() : Status::ok(); }
+  void endNow() const {
+    if (end) end();
+  }
+
+  std::function<Status()> begin;
+  std::function<void()> end;
+};
+
 class FrameSource {
  public:
   virtual ~FrameSource() = default;
   // Exposes and returns one frame. Blocking; call from a worker thread, never from the
-  // event loop. `onExposureEnd` is called (on the same thread) as soon as the sensor
-  // stops integrating, before readout, so the laser can be switched off at once.
-  // Errors: kTimeout, kBadInput (corrupted frame), kIo.
-  Result<CapturedFrame> capture(const CaptureRequest& request, const std::function<void()>& onExposureEnd) {
-    return doCapture(request, onExposureEnd);
+  // event loop. `hooks` switch the laser around the exposure (ExposureHooks).
+  // Errors: kTimeout, kBadInput (corrupted frame), kIo, or the error `hooks.begin` gave.
+  Result<CapturedFrame> capture(const CaptureRequest& request, const ExposureHooks& hooks) {
+    return doCapture(request, hooks);
   }
   virtual const char* name() const = 0;
 
@@ -52,8 +75,7 @@ class FrameSource {
   void resume() { doResume(); }
 
  private:
-  virtual Result<CapturedFrame> doCapture(const CaptureRequest& request,
-                                          const std::function<void()>& onExposureEnd) = 0;
+  virtual Result<CapturedFrame> doCapture(const CaptureRequest& request, const ExposureHooks& hooks) = 0;
   virtual void doInterrupt() {}
   virtual void doResume() {}
 };

@@ -23,22 +23,23 @@ class FaultInjectingFrameSource final : public FrameSource {
   const char* name() const override { return inner_.name(); }
 
  private:
-  Result<CapturedFrame> doCapture(const CaptureRequest& request, const std::function<void()>& onExposureEnd) override {
+  Result<CapturedFrame> doCapture(const CaptureRequest& request, const ExposureHooks& hooks) override {
     switch (fault_.load()) {
       case CameraFault::kTimeout:
         // A frame that never comes: the caller waits its whole timeout.
+        if (Status s = hooks.beginNow(); !s) return s;
         sleeper_.sleepUntil(clock_.now() + request.timeoutMs * kNsPerMs);
-        if (onExposureEnd) onExposureEnd();
+        hooks.endNow();
         return Status(Error::kTimeout, "camera frame timed out after " + std::to_string(request.timeoutMs) + " ms");
       case CameraFault::kCorrupt: {
-        Result<CapturedFrame> f = inner_.capture(request, onExposureEnd);
+        Result<CapturedFrame> f = inner_.capture(request, hooks);
         if (!f) return f;
         return Status(Error::kBadInput, "camera delivered a corrupted frame (short buffer)");
       }
       case CameraFault::kNone:
         break;
     }
-    return inner_.capture(request, onExposureEnd);
+    return inner_.capture(request, hooks);
   }
   void doInterrupt() override { inner_.interrupt(); }
   void doResume() override { inner_.resume(); }

@@ -46,14 +46,15 @@ int ReplaySource::nearestFrame(double slideMm, bool laserOn, int64_t exposureUs)
 }
 
 Result<ports::CapturedFrame> ReplaySource::doCapture(const ports::CaptureRequest& request,
-                                                     const std::function<void()>& onExposureEnd) {
+                                                     const ports::ExposureHooks& hooks) {
   if (request.exposureUs <= 0 || request.exposureUs > 1000000)
     return Status(Error::kInvalidArgument, "exposure must be in 1..1000000 us");
+  if (Status s = hooks.beginNow(); !s) return s;
   const TimeNs start = clock_.now();
   const bool laserOn = laserLevel_();
   const double position = slideMm_();
   // The recorded exposure is over at once: the laser goes off before the PNG is decoded.
-  if (onExposureEnd) onExposureEnd();
+  hooks.endNow();
   const int index = nearestFrame(position, laserOn, request.exposureUs);
   if (index < 0)
     return Status(Error::kNotFound, std::string("scan '") + dir_ + "' has no frame with the laser " + (laserOn ? "on" : "off"));

@@ -44,7 +44,7 @@ class ReplaySource final : public ports::FrameSource {
   ReplaySource(std::string dir, ScanManifest m, const Clock& clock, std::function<bool()> laserLevel,
                std::function<double()> slideMm);
   Result<ports::CapturedFrame> doCapture(const ports::CaptureRequest& request,
-                                         const std::function<void()>& onExposureEnd) override;
+                                         const ports::ExposureHooks& hooks) override;
 
   std::string dir_;
   ScanManifest manifest_;

@@ -167,10 +167,21 @@ RecordingSource::RecordingSource(ports::FrameSource& inner, ScanRecorder& record
     : inner_(inner), recorder_(recorder), slideMm_(std::move(slideMm)), laserOn_(std::move(laserOn)) {}
 
 Result<ports::CapturedFrame> RecordingSource::doCapture(const ports::CaptureRequest& request,
-                                                        const std::function<void()>& onExposureEnd) {
-  const bool laser = laserOn_();
-  const double position = slideMm_();
-  Result<ports::CapturedFrame> f = inner_.capture(request, onExposureEnd);
+                                                        const ports::ExposureHooks& hooks) {
+  bool laser = laserOn_();
+  double position = slideMm_();
+  // The laser's state and the slide's position as the exposure begins: the inner source
+  // calls `begin` then (at once, or just before its next frame starts).
+  const ports::ExposureHooks recorded = hooks.begin ? ports::ExposureHooks(
+                                                          [&]() -> Status {
+                                                            const Status s = hooks.begin();
+                                                            laser = laserOn_();
+                                                            position = slideMm_();
+                                                            return s;
+                                                          },
+                                                          hooks.end)
+                                                    : hooks;
+  Result<ports::CapturedFrame> f = inner_.capture(request, recorded);
   if (f && recorder_.recording()) {
     // A windowed readout is valid only inside its window: record that part.
     if (Status s = recorder_.frame(f->view, position, f->info.exposureStartNs, f->info.exposureUs, laser,

@@ -89,7 +89,7 @@ class RecordingSource final : public ports::FrameSource {
 
  private:
   Result<ports::CapturedFrame> doCapture(const ports::CaptureRequest& request,
-                                         const std::function<void()>& onExposureEnd) override;
+                                         const ports::ExposureHooks& hooks) override;
   void doInterrupt() override { inner_.interrupt(); }
   void doResume() override { inner_.resume(); }
   ports::FrameSource& inner_;

@@ -9,9 +9,11 @@ SimCamera::SimCamera(const SimScene& scene, const Clock& clock, Sleeper& sleeper
     : renderer_(scene), clock_(clock), sleeper_(sleeper), laserLevel_(std::move(laserLevel)), slideMm_(std::move(slideMm)) {}
 
 Result<ports::CapturedFrame> SimCamera::doCapture(const ports::CaptureRequest& request,
-                                                  const std::function<void()>& onExposureEnd) {
+                                                  const ports::ExposureHooks& hooks) {
   if (request.exposureUs <= 0 || request.exposureUs > 1000000)
     return Status(Error::kInvalidArgument, "exposure must be in 1..1000000 us");
+  // Exposes on request: the laser goes on now.
+  if (Status s = hooks.beginNow(); !s) return s;
   const TimeNs start = clock_.now();
   const bool laserAtStart = laserLevel_();
   const double slideAtStart = slideMm_();
@@ -26,7 +28,7 @@ Result<ports::CapturedFrame> SimCamera::doCapture(const ports::CaptureRequest& r
     slideMmPerRow = (slideMm_() - slideAtEnd) / lastRow;
   }
   const bool laserAtEnd = laserLevel_();
-  if (onExposureEnd) onExposureEnd();
+  hooks.endNow();
   // The laser counts for the part of the exposure it was seen on (start and end samples).
   const double laserFraction = 0.5 * ((laserAtStart ? 1.0 : 0.0) + (laserAtEnd ? 1.0 : 0.0));
   lastSlideMm_ = 0.5 * (slideAtStart + slideAtEnd);

@@ -28,7 +28,7 @@ class SimCamera final : public ports::FrameSource {
 
  private:
   Result<ports::CapturedFrame> doCapture(const ports::CaptureRequest& request,
-                                         const std::function<void()>& onExposureEnd) override;
+                                         const ports::ExposureHooks& hooks) override;
   Renderer renderer_;
   const Clock& clock_;
   Sleeper& sleeper_;

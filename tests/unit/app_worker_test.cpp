@@ -36,7 +36,7 @@ class DarkCamera final : public ports::FrameSource {
     view_ = {frame_.data(), widthPx, heightPx, static_cast<size_t>(widthPx) * 3U, image::PixelFormat::kBgr888};
   }
   const char* name() const override { return "dark"; }
-  std::function<void()> onCapture;  // called on the worker thread as each capture begins
+  std::function<void()> onCapture;   // called on the worker thread as each exposure begins
   std::vector<int64_t> requestedUs;  // the exposure of each capture asked for
   // The red of every pixel from now on (BGR888: the third byte), whatever the exposure.
   void setRed(uint8_t red) {
@@ -44,12 +44,13 @@ class DarkCamera final : public ports::FrameSource {
   }
 
  private:
-  Result<ports::CapturedFrame> doCapture(const ports::CaptureRequest& r, const std::function<void()>& end) override {
+  Result<ports::CapturedFrame> doCapture(const ports::CaptureRequest& r, const ports::ExposureHooks& hooks) override {
+    if (Status s = hooks.beginNow(); !s) return s;
     if (onCapture) onCapture();
     requestedUs.push_back(r.exposureUs);
     const TimeNs startNs = clock_.now();
     sleeper_.sleepUntil(startNs + r.exposureUs * kNsPerUs);
-    if (end) end();
+    hooks.endNow();
     ports::CapturedFrame f;
     f.view = view_;
     f.info.exposureStartNs = startNs;
@@ -429,6 +430,8 @@ struct SensorTiming {
   bool workerToldLineTime = true;
   bool stampsExposureEnd = false;  // the timestamp marks the end of the exposure (Raspberry Pi's pipelines)
   bool workerToldStamp = true;
+  ports::LaserTiming laser = ports::LaserTiming::kAtRequest;
+  TimeNs laserLeadNs = 0;
 };
 
 // A source whose frame timestamp is the end of the exposure (the start of readout).
@@ -438,8 +441,8 @@ class EndStampedSource final : public ports::FrameSource {
   const char* name() const override { return inner_.name(); }
 
  private:
-  Result<ports::CapturedFrame> doCapture(const ports::CaptureRequest& r, const std::function<void()>& end) override {
-    Result<ports::CapturedFrame> f = inner_.capture(r, end);
+  Result<ports::CapturedFrame> doCapture(const ports::CaptureRequest& r, const ports::ExposureHooks& hooks) override {
+    Result<ports::CapturedFrame> f = inner_.capture(r, hooks);
     if (f) f->info.exposureStartNs += f->info.exposureUs * kNsPerUs;
     return f;
   }
@@ -454,7 +457,8 @@ SceneRun localizeOnScene(const localize::ScanParams& sp, protocol::ScanMode mode
       scene, rig.time, rig.time, [&] { return rig.laserLine.level(); }, [&] { return rig.slide.positionMm(); });
   camera.setLineTimeNs(timing.lineTimeNs);
   // A rolling shutter's rows are read out as they end (the simulated camera's).
-  ports::FrameSlotSource slotted(camera, rig.time, rig.time, timing.framePeriodNs, timing.lineTimeNs == 0);
+  ports::FrameSlotSource slotted(camera, rig.time, rig.time, timing.framePeriodNs, timing.lineTimeNs == 0, timing.laser,
+                                 timing.laserLeadNs);
   EndStampedSource endStamped(slotted);
   rig.deps.camera = &camera;
   if (timing.framePeriodNs > 0) {
@@ -600,6 +604,61 @@ TEST_CASE("A sweep with a sensor that stamps the end of the exposure, as Raspber
   INFO("centre error: told " << toldMm << " mm, not told " << notToldMm << " mm");
   CHECK(toldMm < 0.5);
   CHECK(notToldMm > 2.0 * toldMm);
+}
+
+// Each interval the laser was on, with the exposures it covered.
+struct LaserOn {
+  TimeNs onNs;
+  TimeNs offNs;
+  int exposuresCovered;
+};
+std::vector<LaserOn> laserIntervals(const SceneRun& run) {
+  std::vector<LaserOn> on;
+  for (size_t i = 0; i + 1 < run.laserEdges.size(); ++i) {
+    if (!run.laserEdges[i].level || run.laserEdges[i + 1].level) continue;
+    LaserOn l{run.laserEdges[i].timeNs, run.laserEdges[i + 1].timeNs, 0};
+    for (const app::ExposureWindow& ex : run.event->exposures)
+      l.exposuresCovered += l.onNs <= ex.startNs && l.offNs >= ex.endNs ? 1 : 0;
+    on.push_back(l);
+  }
+  return on;
+}
+
+TEST_CASE("With the sensor's frame clock, the laser is on only around each exposure, not from request to delivery",
+          "[app][worker][render]") {
+  // libcamera tells the end of an exposure only at the delivery, a readout later: switched
+  // from the request to the delivery, the laser is on for up to two frame periods per
+  // frame. With the frame clock learnt (drivers/libcamera), the camera switches it on a
+  // lead before the frame starts and off a lead after its exposure.
+  constexpr TimeNs kLeadNs = 1 * kNsPerMs;
+  SensorTiming clocked{kSensorPeriodNs};
+  clocked.laser = ports::LaserTiming::kFrameClock;
+  clocked.laserLeadNs = kLeadNs;
+  for (const SensorTiming& timing : {SensorTiming{kSensorPeriodNs}, clocked}) {
+    const bool frameClock = timing.laser == ports::LaserTiming::kFrameClock;
+    INFO((frameClock ? "frame clock" : "from the request"));
+    const SceneRun run = localizeOnScene(localize::ScanParams{}, protocol::ScanMode::kContinuous, timing);
+    REQUIRE(run.event);
+    REQUIRE(run.event->status.isOk());
+    const std::vector<LaserOn> on = laserIntervals(run);
+    REQUIRE(on.size() == run.event->exposures.size());
+    const TimeNs exposureNs = run.event->exposures[0].endNs - run.event->exposures[0].startNs;
+    std::vector<TimeNs> onNs;
+    for (const LaserOn& l : on) {
+      CHECK(l.exposuresCovered == 1);  // every exposure lit, once
+      onNs.push_back(l.offNs - l.onNs);
+    }
+    const TimeNs longestNs = *std::max_element(onNs.begin(), onNs.end());
+    INFO("exposure " << exposureNs / 1000 << " us, laser on at most " << longestNs / 1000 << " us per frame");
+    if (frameClock) {
+      CHECK(longestNs == exposureNs + 2 * kLeadNs);
+    } else {
+      CHECK(longestNs > kSensorPeriodNs);  // at least the readout
+    }
+    REQUIRE(run.event->estimates.size() == 1);
+    const sim::SimScene scene = sim::defaultScene();
+    CHECK((run.event->estimates[0].centerMm - scene.apples[0].centerMm).norm() < 2.0);
+  }
 }
 
 TEST_CASE("Enough lines on the fruit: no second pass", "[app][worker][render]") {

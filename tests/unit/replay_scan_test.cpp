@@ -30,8 +30,9 @@ class CountingSource final : public ports::FrameSource {
 
  private:
   Result<ports::CapturedFrame> doCapture(const ports::CaptureRequest& request,
-                                         const std::function<void()>& onExposureEnd) override {
-    if (onExposureEnd) onExposureEnd();
+                                         const ports::ExposureHooks& hooks) override {
+    if (Status s = hooks.beginNow(); !s) return s;
+    hooks.endNow();
     frame_ = cv::Mat(48, 64, CV_8UC3, cv::Scalar::all(static_cast<double>(10 + sequence_)));
     ports::CapturedFrame f;
     f.view = {frame_.data, frame_.cols, frame_.rows, frame_.step[0], image::PixelFormat::kBgr888};
@@ -178,7 +179,7 @@ TEST_CASE("The replay source serves the nearest frame with the laser's state and
   ports::FrameSource& cam = **src;
   int ends = 0;
   slide = 21.0;
-  Result<ports::CapturedFrame> f = cam.capture({}, [&] { ++ends; });
+  Result<ports::CapturedFrame> f = cam.capture({}, ports::ExposureHooks([&] { ++ends; }));
   REQUIRE(f.isOk());
   CHECK(ends == 1);
   CHECK(f->view.width == 64);

@@ -5,6 +5,12 @@
 // the request metadata), timestamps' source and spacing, dropped frames, and the
 // resident memory after the first frames and at the end.
 //
+// The laser: each capture switches a laser that is not there through the daemon's hooks
+// (ports::ExposureHooks) and the probe times them. It reports how long the laser was on
+// per frame and whether it covered the window of each frame delivered: with
+// --laser-timing frame-clock (the daemon's default) it goes on just before the predicted
+// frame; with request, from the request to the delivery.
+//
 // --interrupt-every N: every Nth capture is interrupted from another thread DELAY µs
 // after it starts (as STOP does), and the probe checks that the capture ended with the
 // interruption well before its timeout and that the next capture works.
@@ -14,6 +20,7 @@
 #include <algorithm>
 #include <atomic>
 #include <chrono>
+#include <cmath>
 #include <cstdio>
 #include <iostream>
 #include <string>
@@ -40,6 +47,36 @@ struct Options {
   int interruptDelayUs = 2000;
   int rssAfterFrames = 100;
   bool list = false;
+  std::string laserTiming = "frame-clock";
+  double laserLeadUs = 1000.0;
+  double frameClockJitterUs = 300.0;
+  double lineTimeUs = 0.0;
+  bool timestampAtExposureEnd = false;
+};
+
+TimeNs nowNs() {
+  return std::chrono::duration_cast<std::chrono::nanoseconds>(std::chrono::steady_clock::now().time_since_epoch())
+      .count();
+}
+
+// The laser as the probe's hooks saw it in one capture.
+struct LaserLog {
+  TimeNs onNs = 0;   // the last switch on
+  TimeNs offNs = 0;  // the last switch off
+  TimeNs totalOnNs = 0;
+  int switchedOn = 0;
+  bool on = false;
+  void begin() {
+    onNs = nowNs();
+    on = true;
+    ++switchedOn;
+  }
+  void end() {
+    if (!on) return;
+    offNs = nowNs();
+    totalOnNs += offNs - onNs;
+    on = false;
+  }
 };
 
 double medianOf(std::vector<double> v) {
@@ -67,7 +104,12 @@ nlohmann::json statsJson(const drivers::LibcameraStats& s) {
           {"stale_frames_skipped", s.staleFramesSkipped},
           {"interrupted", s.interrupted},
           {"requests_cancelled", s.requestsCancelled},
-          {"reopens", s.reopens}};
+          {"reopens", s.reopens},
+          {"laser_on_frame_clock", s.laserOnFrameClock},
+          {"laser_from_request", s.laserFromRequest},
+          {"frame_clock_misses", s.frameClockMisses},
+          {"frame_period_us", static_cast<double>(s.framePeriodNs) / 1e3},
+          {"frame_jitter_us", static_cast<double>(s.frameJitterNs) / 1e3}};
 }
 
 int run(const Options& o) {
@@ -81,7 +123,13 @@ int run(const Options& o) {
     std::cout << nlohmann::json{{"cameras", *n}}.dump() << "\n";
     return 0;
   }
-  Result<std::unique_ptr<drivers::LibcameraSource>> opened = drivers::LibcameraSource::open(o.camera);
+  drivers::LibcameraConfig camera = o.camera;
+  camera.laserOnFrameClock = o.laserTiming == "frame-clock";
+  camera.laserLeadNs = std::llround(o.laserLeadUs * 1e3);
+  camera.frameClockJitterNs = std::llround(o.frameClockJitterUs * 1e3);
+  camera.lineTimeNs = std::llround(o.lineTimeUs * 1e3);
+  camera.timestampAtExposureEnd = o.timestampAtExposureEnd;
+  Result<std::unique_ptr<drivers::LibcameraSource>> opened = drivers::LibcameraSource::open(camera);
   if (!opened) {
     std::cerr << "alacs_camera_probe: " << opened.status().toString() << "\n";
     return 1;
@@ -102,7 +150,24 @@ int run(const Options& o) {
   int nextAfterInterruptFailed = 0;
   double rssEarlyMb = 0.0;
   int exposureEnds = 0;
+  LaserLog laser;
+  const ports::ExposureHooks hooks(
+      [&laser]() -> Status {
+        laser.begin();
+        return Status::ok();
+      },
+      [&laser, &exposureEnds] {
+        laser.end();
+        ++exposureEnds;
+      });
+  std::vector<double> laserOnPerFrameMs;
+  int uncovered = 0;                       // frames delivered whose window the laser did not cover
+  std::vector<double> laserOnClockedMs;    // laser-on time of those frames
+  std::vector<double> predictionErrorsUs;  // |timestamp - predicted|, frames on the frame clock
+  int onFrameClockCaptures = 0;            // frames delivered with the laser switched on the frame clock
+  const int y0 = req.window.empty() ? 0 : req.window.y;
   for (int i = 0; i < o.frames; ++i) {
+    laser = {};
     const bool interrupt = o.interruptEvery > 0 && i % o.interruptEvery == o.interruptEvery - 1;
     std::thread stopper;
     if (interrupt)
@@ -111,7 +176,7 @@ int run(const Options& o) {
         cam.interrupt();
       });
     const auto t0 = std::chrono::steady_clock::now();
-    Result<ports::CapturedFrame> f = cam.capture(req, [&exposureEnds] { ++exposureEnds; });
+    Result<ports::CapturedFrame> f = cam.capture(req, hooks);
     const double tookMs = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
     if (interrupt) {
       stopper.join();
@@ -121,7 +186,7 @@ int run(const Options& o) {
         interruptedAfterMs.push_back(tookMs);
       }
       // The capture after an interruption must work.
-      Result<ports::CapturedFrame> next = cam.capture(req, [&exposureEnds] { ++exposureEnds; });
+      Result<ports::CapturedFrame> next = cam.capture(req, hooks);
       if (!next) {
         ++nextAfterInterruptFailed;
         failures.push_back({{"capture", i}, {"after_interrupt", true}, {"error", next.status().toString()}});
@@ -134,6 +199,22 @@ int run(const Options& o) {
     }
     ++captured;
     const int64_t startNs = f->info.exposureStartNs;
+    // The window's rows exposed from its first row's start (0 line times, unless told) to
+    // its last row's end (at most a whole period of readout, unless told).
+    const TimeNs firstRowNs = startNs - (o.timestampAtExposureEnd ? f->info.exposureUs * kNsPerUs : 0);
+    const TimeNs windowStartNs = firstRowNs + std::llround(y0 * o.lineTimeUs * 1e3);
+    // The laser must have been on when the window began exposing. Switched on the frame
+    // clock, the frame delivered is the one predicted: its timestamp within the lead of
+    // the prediction (the end of the window is then covered too).
+    const drivers::LibcameraStats st = cam.stats();
+    const bool onFrameClock = st.lastPredictedStartNs != 0;
+    if (onFrameClock) {
+      ++onFrameClockCaptures;
+      predictionErrorsUs.push_back(static_cast<double>(std::llabs(startNs - st.lastPredictedStartNs)) / 1e3);
+      laserOnClockedMs.push_back(static_cast<double>(laser.totalOnNs) / 1e6);
+    }
+    if (laser.switchedOn == 0 || laser.on || windowStartNs < laser.onNs) ++uncovered;
+    laserOnPerFrameMs.push_back(static_cast<double>(laser.totalOnNs) / 1e6);
     if (lastStartNs >= 0) {
       if (startNs <= lastStartNs) monotonic = false;
       periodsMs.push_back(static_cast<double>(startNs - lastStartNs) / 1e6);
@@ -150,6 +231,16 @@ int run(const Options& o) {
   out["timestamps_increasing"] = monotonic;
   out["frame_interval_median_ms"] = medianOf(periodsMs);
   out["exposure_end_callbacks"] = exposureEnds;
+  out["laser_timing"] = o.laserTiming;
+  out["laser_on_per_frame_median_ms"] = medianOf(laserOnPerFrameMs);
+  out["laser_on_per_frame_max_ms"] =
+      laserOnPerFrameMs.empty() ? 0.0 : *std::max_element(laserOnPerFrameMs.begin(), laserOnPerFrameMs.end());
+  out["frames_laser_did_not_cover"] = uncovered;
+  out["frames_on_frame_clock"] = onFrameClockCaptures;
+  out["laser_on_per_frame_on_clock_median_ms"] = medianOf(laserOnClockedMs);
+  out["prediction_error_median_us"] = medianOf(predictionErrorsUs);
+  out["prediction_error_max_us"] =
+      predictionErrorsUs.empty() ? 0.0 : *std::max_element(predictionErrorsUs.begin(), predictionErrorsUs.end());
   out["rss_after_first_mb"] = rssEarlyMb;
   out["rss_end_mb"] = rssEndMb;
   out["rss_peak_mb"] = app::peakResidentMb();
@@ -186,6 +277,23 @@ int main(int argc, char** argv) {
       ->check(CLI::Range(0, 10000000));
   app.add_option("--rss-after", o.rssAfterFrames, "read the early resident memory after this many frames")
       ->check(CLI::Range(1, 1000000));
+  app.add_option("--laser-timing", o.laserTiming,
+                 "frame-clock: the laser just around the predicted frame; request: "
+                 "from the request to the delivery")
+      ->check(CLI::IsMember({"frame-clock", "request"}))
+      ->capture_default_str();
+  app.add_option("--laser-lead-us", o.laserLeadUs, "the laser on this long before the frame, off this long after")
+      ->check(CLI::Range(0.0, 100000.0))
+      ->capture_default_str();
+  app.add_option("--frame-clock-jitter-us", o.frameClockJitterUs, "a frame further from the learnt clock relearns it")
+      ->check(CLI::Range(1.0, 100000.0))
+      ->capture_default_str();
+  app.add_option("--line-time-us", o.lineTimeUs, "the sensor's line time (0: not known)")
+      ->check(CLI::Range(0.0, 1000.0))
+      ->capture_default_str();
+  app.add_flag("--timestamp-at-exposure-end", o.timestampAtExposureEnd,
+               "the frame timestamp marks the end of the first row's exposure (Raspberry Pi; vimc stamps a frame "
+               "when it is made)");
   if (const int exit = tools::parseCommandLine(app, argc, argv); exit >= 0) return exit;
   return run(o);
 }

@@ -72,6 +72,8 @@ struct Options {
   double fps = 30.0;         // --virtual-time: the sensor's free-running frame rate
   double lineTimeUs = 0.0;   // a rolling shutter's line time (0: a global shutter)
   int workerLineTime = 1;    // 1: the worker is told the line time (config camera.line_time_us), 0: not
+  std::string laserTiming = "frame-clock";  // --virtual-time: how the camera switches the laser (ports::LaserTiming)
+  double laserLeadUs = 1000.0;
   std::string exportDir;
   bool replay = false;
   std::vector<std::string> dirs;
@@ -101,9 +103,9 @@ class RenderTimedSource final : public ports::FrameSource {
 
  private:
   Result<ports::CapturedFrame> doCapture(const ports::CaptureRequest& request,
-                                         const std::function<void()>& onExposureEnd) override {
+                                         const ports::ExposureHooks& hooks) override {
     const TimeNs t0 = clock_.now();
-    Result<ports::CapturedFrame> f = inner_.capture(request, onExposureEnd);
+    Result<ports::CapturedFrame> f = inner_.capture(request, hooks);
     renderNs_ += std::max<TimeNs>(0, clock_.now() - t0 - request.exposureUs * kNsPerUs);
     ++frames_;
     return f;
@@ -305,14 +307,18 @@ int simulatedCycle(const Options& o) {
     std::printf(
         "  virtual time: a sensor free-running at %.0f fps (an exposure starts at the next frame start; the "
         "frame is delivered after its whole height is read out, one period); the render and the "
-        "image work take no virtual time\n",
-        o.fps);
+        "image work take no virtual time\n  the laser %s\n",
+        o.fps,
+        o.laserTiming == "frame-clock"
+            ? "on a lead before each frame's start and off a lead after its exposure (the frame clock learnt)"
+            : "on from the capture request to the frame's delivery (the frame clock not used)");
   const std::string modes = o.modes.empty() ? "both" : o.modes;
   for (const char* mode : {"stop-and-go", "continuous"}) {
     if (modes != "both" && modes != mode) continue;
     const bool continuous = std::strcmp(mode, "continuous") == 0;
     std::vector<Trial> trials;
     std::vector<double> laserOffFrames;
+    std::vector<double> laserOnPerFrameMs;  // each scan's laser-on time over its laser frames
     for (int c = 0; c < o.cases; ++c) {
       Result<sim::OrchardCase> oc = orchardCase(c, *lighting, *world);
       if (!oc) continue;
@@ -331,8 +337,10 @@ int simulatedCycle(const Options& o) {
       simCamera.setLineTimeNs(lineTimeNs);
       // A rolling shutter's rows are read out as they end (the simulated camera's); a
       // global one's after the exposure (the slot source's).
-      ports::FrameSlotSource sensor(rendered, clock, sleeper, static_cast<TimeNs>(std::llround(1e9 / o.fps)),
-                                    lineTimeNs == 0);
+      ports::FrameSlotSource sensor(
+          rendered, clock, sleeper, static_cast<TimeNs>(std::llround(1e9 / o.fps)), lineTimeNs == 0,
+          o.laserTiming == "frame-clock" ? ports::LaserTiming::kFrameClock : ports::LaserTiming::kAtRequest,
+          static_cast<TimeNs>(std::llround(o.laserLeadUs * 1e3)));
       ports::FrameSource& camera = o.virtualTime ? static_cast<ports::FrameSource&>(sensor) : rendered;
       app::WorkerDeps deps = workerDeps(clock, sleeper, limits, slide, laser, camera);
       deps.lineTimeNs = o.workerLineTime != 0 ? lineTimeNs : 0;
@@ -350,7 +358,9 @@ int simulatedCycle(const Options& o) {
       const Eigen::Vector3d truth = scene.apple(oc->targetId)->centerMm;
       const double renderBeforeMs = rendered.renderMs();
       const int framesBefore = rendered.frames();
+      const TimeNs laserOnBeforeNs = laser.totalOnNs();
       Trial t = timeJob(worker, efd, clock, parkMm, job, &truth);
+      const TimeNs laserOnNs = laser.totalOnNs() - laserOnBeforeNs;
       // Homing and parking take no frames: what the camera rendered was the job's.
       t.renderMs = rendered.renderMs() - renderBeforeMs;
       t.frames = rendered.frames() - framesBefore;
@@ -362,12 +372,17 @@ int simulatedCycle(const Options& o) {
                     t.followUpStops);
       trials.push_back(t);
       laserOffFrames.push_back(t.laserOffFrames);
+      if (t.frames > t.laserOffFrames)
+        laserOnPerFrameMs.push_back(static_cast<double>(laserOnNs) / 1e6 / (t.frames - t.laserOffFrames));
       ::close(efd);
     }
     report(mode, trials, true, o.virtualTime);
     if (!laserOffFrames.empty())
       std::printf("    laser-off frames (metering and the subtracted one) per scan: median %.0f, max %.0f\n",
                   median(laserOffFrames), *std::max_element(laserOffFrames.begin(), laserOffFrames.end()));
+    if (!laserOnPerFrameMs.empty())
+      std::printf("    laser on per laser frame (each scan's mean): median %.2f ms, max %.2f ms\n",
+                  median(laserOnPerFrameMs), *std::max_element(laserOnPerFrameMs.begin(), laserOnPerFrameMs.end()));
   }
   std::printf("  peak resident memory of this process (worker + simulator): %.1f MB\n", app::peakResidentMb());
   return 0;
@@ -553,6 +568,14 @@ int main(int argc, char** argv) {
       ->check(CLI::Range(0.0, 1000.0));
   app.add_option("--worker-line-time", o.workerLineTime,
                  "1: the worker is told the line time, 0: not (to see the error)")
+      ->capture_default_str();
+  app.add_option("--laser-timing", o.laserTiming,
+                 "--virtual-time: frame-clock (the daemon's default: the laser just around each frame) or request "
+                 "(on from the request to the delivery)")
+      ->check(CLI::IsMember({"frame-clock", "request"}))
+      ->capture_default_str();
+  app.add_option("--laser-lead-us", o.laserLeadUs, "--virtual-time, frame-clock: the laser's lead before and after")
+      ->check(CLI::Range(0.0, 10000.0))
       ->capture_default_str();
   app.add_option("--export", o.exportDir, "write the orchard scans as scan directories into DIR");
   app.add_flag("--replay", o.replay, "run the worker on the scan directories DIR...");

@@ -10,14 +10,18 @@
 #include <algorithm>
 #include <atomic>
 #include <chrono>
+#include <cmath>
 #include <condition_variable>
 #include <cstdlib>
 #include <cstring>
 #include <memory>
 #include <mutex>
+#include <optional>
 #include <sstream>
 #include <string_view>
 #include <vector>
+
+#include "common/frame_clock.h"
 
 // libcamera 0.5 replaced AeEnable with per-quantity modes (ExposureTimeMode,
 // AnalogueGainMode); 0.0.x-0.4 only have AeEnable.
@@ -96,6 +100,9 @@ class Impl final : public LibcameraSource {
 
   Status init(const LibcameraConfig& cfg) {
     cfg_ = cfg;
+    FrameClockParams clock;
+    clock.maxJitterNs = cfg.frameClockJitterNs;
+    frameClock_ = FrameClock(clock);
     if (cfg.widthPx <= 0 || cfg.heightPx <= 0 || cfg.bufferCount < 1)
       return {Error::kInvalidArgument, "camera size and buffer count must be positive"};
     manager_ = std::make_unique<lc::CameraManager>();
@@ -337,19 +344,151 @@ class Impl final : public LibcameraSource {
     }
   }
 
-  Result<ports::CapturedFrame> doCapture(const ports::CaptureRequest& r,
-                                         const std::function<void()>& onExposureEnd) override {
-    // Exposure end is only known once the request completes (libcamera has no
-    // start-of-frame or end-of-exposure event): the laser goes off then, on every path.
-    struct LaserOff {
-      const std::function<void()>& f;
-      bool done = false;
-      void operator()() {
-        if (!done && f) f();
-        done = true;
+  // The laser as one capture switches it: when it went on and off (0 while on), and the
+  // promise that it is left off.
+  struct LaserWindow {
+    const ports::ExposureHooks& hooks;
+    bool on = false;
+    bool ended = false;
+    TimeNs onNs = 0;
+    TimeNs offNs = 0;
+    Status begin() {
+      if (Status s = hooks.beginNow(); !s) return s;
+      on = true;
+      onNs = monotonicNowNs();
+      offNs = 0;
+      return Status::ok();
+    }
+    void end() {
+      if (on || !ended) hooks.endNow();
+      if (on) offNs = monotonicNowNs();
+      on = false;
+      ended = true;
+    }
+    ~LaserWindow() { end(); }
+  };
+
+  // A frame's start (its first row's exposure) and the rows of the window, in time.
+  struct FrameTiming {
+    TimeNs firstRowStartNs;
+    TimeNs windowStartNs;  // the window's first row starts exposing
+    TimeNs windowEndNs;    // its last row ends
+  };
+  FrameTiming timingOf(TimeNs timestampNs, int64_t exposureUs, const ports::CaptureRequest& r) const {
+    const TimeNs exposureNs = exposureUs * kNsPerUs;
+    const TimeNs firstNs = timestampNs - (cfg_.timestampAtExposureEnd ? exposureNs : 0);
+    // An unknown line time (0) could be anything from 0 (a global shutter) to the period
+    // over the height (any sensor reads out within its frame period): the window is taken
+    // to start as early and to end as late as either allows, so that the laser covers it.
+    const std::optional<TimeNs> period = frameClock_.periodNs();
+    const double startLineNs = static_cast<double>(cfg_.lineTimeNs);
+    const double endLineNs = cfg_.lineTimeNs > 0     ? startLineNs
+                             : period && height_ > 0 ? static_cast<double>(*period) / height_
+                                                     : 0.0;
+    const int y0 = r.window.empty() ? 0 : std::clamp(r.window.y, 0, height_);
+    const int y1 = r.window.empty() ? height_ : std::clamp(r.window.y + r.window.height, y0, height_);
+    return {firstNs, firstNs + std::llround(y0 * startLineNs), firstNs + std::llround(y1 * endLineNs) + exposureNs};
+  }
+
+  // Learns the frame clock from a completed request.
+  void learn(lc::Request* req) {
+    if (req->status() != lc::Request::RequestComplete) return;
+    const lc::FrameMetadata& meta = req->buffers().begin()->second->metadata();
+    if (meta.status != lc::FrameMetadata::FrameSuccess) return;
+    const std::optional<int64_t> sensorNs = req->metadata().get(lc::controls::SensorTimestamp);
+    frameClock_.observe(meta.sequence, sensorNs ? static_cast<TimeNs>(*sensorNs) : static_cast<TimeNs>(meta.timestamp));
+  }
+
+  // Frames completed before this capture: back to the camera at once (so that a buffer is
+  // queued for the frame the laser will light), their timestamps taught to the clock.
+  Status drainCompleted(int64_t exposureUs) {
+    while (true) {
+      lc::Request* req = nullptr;
+      {
+        std::lock_guard<std::mutex> lock(mu_);
+        if (doneCount_ == 0 || interrupted_) return Status::ok();
+        req = done_[doneHead_];
+        doneHead_ = (doneHead_ + 1) % done_.size();
+        --doneCount_;
+        ++stats_.staleFramesSkipped;
       }
-      ~LaserOff() { (*this)(); }
-    } laserOff{onExposureEnd};
+      learn(req);
+      if (Status s = requeue(req, exposureUs); !s) {
+        needReopen_ = true;
+        return s;
+      }
+    }
+  }
+
+  // Waits until `untilNs`, or a completed request, or interrupt(); false when interrupted.
+  bool waitUntil(TimeNs untilNs, bool orCompletion) {
+    std::unique_lock<std::mutex> lock(mu_);
+    while (!interrupted_ && !(orCompletion && doneCount_ > 0)) {
+      const TimeNs left = untilNs - monotonicNowNs();
+      if (left <= 0) break;
+      cv_.wait_for(lock, std::chrono::nanoseconds(left));
+    }
+    return !interrupted_;
+  }
+
+  // Switches the laser on for the next frame: when the clock is learnt, just before the
+  // window of the first frame it can still catch starts, and sets `offAtNs` to just after
+  // the window's exposure; else at once, `offAtNs` 0 (off at the delivery). A thread that
+  // wakes too late for its frame tries the next; after kMaxLateWakes in one capture (a
+  // loaded machine, a coarse timer) the capture takes the laser from now on.
+  static constexpr int kMaxLateWakes = 3;
+  Status armLaser(const ports::CaptureRequest& r, const ports::ExposureHooks& hooks, LaserWindow& laser,
+                  TimeNs deadlineNs, int& lateWakes, TimeNs& offAtNs) {
+    offAtNs = 0;
+    const TimeNs leadNs = cfg_.laserLeadNs;
+    while (cfg_.laserOnFrameClock && hooks.begin && lateWakes < kMaxLateWakes) {
+      // A frame whose window starts before now + 2 leads is not caught: one lead to wake,
+      // one to switch.
+      const TimeNs notBefore = monotonicNowNs() + 2 * leadNs;
+      std::optional<TimeNs> next = frameClock_.nextStart(notBefore);
+      if (!next) break;
+      while (timingOf(*next, r.exposureUs, r).windowStartNs < notBefore) *next += *frameClock_.periodNs();
+      FrameTiming t = timingOf(*next, r.exposureUs, r);
+      if (t.windowEndNs > deadlineNs) break;
+      // Frames that complete meanwhile go back to the camera at once (a buffer must be
+      // queued for the frame to catch); the clock they refine says when that frame starts.
+      while (monotonicNowNs() < t.windowStartNs - leadNs) {
+        if (!waitUntil(t.windowStartNs - leadNs, true)) return Status::ok();  // interrupted: the caller sees it
+        if (Status s = drainCompleted(r.exposureUs); !s) return s;
+        const std::optional<TimeNs> periodNs = frameClock_.periodNs();
+        next = periodNs ? frameClock_.nextStart(*next - *periodNs / 2) : std::nullopt;
+        if (!next) break;
+        t = timingOf(*next, r.exposureUs, r);
+      }
+      if (!next) break;  // the clock was lost meanwhile: from the request
+      // Woke too late for this frame (half the lead gone): the next one, the laser not
+      // pulsed for nothing.
+      const bool late = monotonicNowNs() > t.windowStartNs - leadNs / 2;
+      if (!late) {
+        if (Status s = laser.begin(); !s) return s;
+        if (laser.onNs <= t.windowStartNs) {
+          offAtNs = t.windowEndNs + leadNs;
+          std::lock_guard<std::mutex> lock(mu_);
+          ++stats_.laserOnFrameClock;
+          stats_.lastPredictedStartNs = *next;
+          return Status::ok();
+        }
+        laser.end();  // the switch itself took the lead
+      }
+      ++lateWakes;
+      std::lock_guard<std::mutex> lock(mu_);
+      ++stats_.frameClockMisses;
+    }
+    if (Status s = laser.begin(); !s) return s;
+    std::lock_guard<std::mutex> lock(mu_);
+    ++stats_.laserFromRequest;
+    stats_.lastPredictedStartNs = 0;
+    return Status::ok();
+  }
+
+  Result<ports::CapturedFrame> doCapture(const ports::CaptureRequest& r, const ports::ExposureHooks& hooks) override {
+    // Whatever happens, the laser ends off (LaserWindow's destructor).
+    LaserWindow laser{hooks};
     {
       std::lock_guard<std::mutex> lock(mu_);
       if (interrupted_) return Status(Error::kFault, "capture interrupted (STOP)");
@@ -358,6 +497,7 @@ class Impl final : public LibcameraSource {
     if (lost()) return Status(Error::kTimeout, "camera " + openedId_ + " is gone (its device was removed)");
     if (needReopen_) {
       close();
+      frameClock_.reset();
       if (Status s = openCamera(); !s) {
         close();
         return Status(Error::kTimeout, "camera " + (openedId_.empty() ? std::string("?") : openedId_) +
@@ -367,60 +507,90 @@ class Impl final : public LibcameraSource {
       std::lock_guard<std::mutex> lock(mu_);
       ++stats_.reopens;
     }
-    // The frame must begin exposing after this point, when the caller's laser is on.
-    const TimeNs askedNs = monotonicNowNs();
-    const TimeNs deadlineNs = askedNs + r.timeoutMs * kNsPerMs;
+    if (Status s = drainCompleted(r.exposureUs); !s) return s;
+    const TimeNs deadlineNs = monotonicNowNs() + r.timeoutMs * kNsPerMs;
+    TimeNs offAtNs = 0;  // when the laser goes off; 0: at the delivery
+    bool armed = false;
+    int lateWakes = 0;
     while (true) {
-      Result<lc::Request*> next = nextCompleted(deadlineNs, r.timeoutMs, [&laserOff] { laserOff(); });
+      if (!armed) {
+        if (Status s = armLaser(r, hooks, laser, deadlineNs, lateWakes, offAtNs); !s) return s;
+        armed = true;
+      }
+      if (laser.on && offAtNs > 0) {
+        if (waitUntil(std::min(offAtNs, deadlineNs), true) && monotonicNowNs() >= offAtNs) laser.end();
+      }
+      Result<lc::Request*> next = nextCompleted(deadlineNs, r.timeoutMs, [&laser] { laser.end(); });
       if (!next) return next.status();
       lc::Request* req = *next;
-      const lc::FrameBuffer* fb = req->buffers().begin()->second;
-      const lc::FrameMetadata& meta = fb->metadata();
-      const std::optional<int64_t> sensorNs = req->metadata().get(lc::controls::SensorTimestamp);
-      const TimeNs startNs = sensorNs ? static_cast<TimeNs>(*sensorNs) : static_cast<TimeNs>(meta.timestamp);
-      const bool failed = req->status() != lc::Request::RequestComplete ||
-                          meta.status != lc::FrameMetadata::FrameSuccess || meta.planes().empty() ||
-                          meta.planes()[0].bytesused < copySize_;
-      // The requests in flight carry the controls they were queued with: after a change
-      // of exposure, the first frames may still have the old one.
-      const std::optional<int32_t> appliedUs = req->metadata().get(lc::controls::ExposureTime);
-      const bool otherExposure =
-          appliedUs && std::abs(*appliedUs - r.exposureUs) > std::max<int64_t>(kExposureToleranceUs, r.exposureUs / 20);
-      if (failed || startNs < askedNs || otherExposure) {
-        // A frame of the stream that began before the laser was on (or a failed one):
-        // its request goes back, with this capture's exposure for the frames to come.
-        {
-          std::lock_guard<std::mutex> lock(mu_);
-          ++(failed ? stats_.failedFrames : stats_.staleFramesSkipped);
-        }
-        if (Status s = requeue(req, r.exposureUs); !s) {
-          needReopen_ = true;
-          return s;
-        }
-        if (failed && startNs >= askedNs) return Status(Error::kBadInput, "camera delivered a failed or short frame");
-        continue;
-      }
-      laserOff();  // this frame is complete: the laser's work is done before the copy
-      const size_t index = req->cookie();
-      // Copy only the rows of the requested window (a 5 MP frame is 15 MB; a target's
-      // window a few hundred kB).
-      const auto* src = static_cast<const uint8_t*>(maps_[index].first);
-      const int y0 = r.window.empty() ? 0 : std::clamp(r.window.y, 0, height_);
-      const int y1 = r.window.empty() ? height_ : std::clamp(r.window.y + r.window.height, y0, height_);
-      std::memcpy(copy_.get() + static_cast<size_t>(y0) * stride_, src + static_cast<size_t>(y0) * stride_,
-                  static_cast<size_t>(y1 - y0) * stride_);
-      ports::CapturedFrame out;
-      out.view = {copy_.get(), width_, height_, stride_, format_};
-      out.info.sequence = meta.sequence;
-      out.info.exposureStartNs = startNs;
-      out.info.exposureUs = appliedUs ? *appliedUs : r.exposureUs;
-      if (Status s = requeue(req, r.exposureUs); !s) needReopen_ = true;  // the frame is copied: still good
-      std::lock_guard<std::mutex> lock(mu_);
-      ++stats_.framesDelivered;
-      stats_.sensorTimestamp = sensorNs.has_value();
-      stats_.lastExposureAppliedUs = appliedUs ? *appliedUs : -1;
-      return out;
+      learn(req);
+      if (std::optional<Result<ports::CapturedFrame>> out = take(req, r, laser)) return std::move(*out);
+      // Not this capture's frame. The laser went off before one that began under it
+      // ended (the clock was wrong): on again for the next.
+      if (armed && !laser.on) armed = false;
     }
+  }
+
+  // The capture's frame, or an error; nullopt for a frame that is not the capture's
+  // (queued again, unseen).
+  std::optional<Result<ports::CapturedFrame>> take(lc::Request* req, const ports::CaptureRequest& r,
+                                                   LaserWindow& laser) {
+    const lc::FrameBuffer* fb = req->buffers().begin()->second;
+    const lc::FrameMetadata& meta = fb->metadata();
+    const std::optional<int64_t> sensorNs = req->metadata().get(lc::controls::SensorTimestamp);
+    const TimeNs stampNs = sensorNs ? static_cast<TimeNs>(*sensorNs) : static_cast<TimeNs>(meta.timestamp);
+    const bool failed = req->status() != lc::Request::RequestComplete ||
+                        meta.status != lc::FrameMetadata::FrameSuccess || meta.planes().empty() ||
+                        meta.planes()[0].bytesused < copySize_;
+    // The requests in flight carry the controls they were queued with: after a change
+    // of exposure, the first frames may still have the old one.
+    const std::optional<int32_t> appliedUs = req->metadata().get(lc::controls::ExposureTime);
+    const int64_t exposureUs = appliedUs ? *appliedUs : r.exposureUs;
+    const bool otherExposure =
+        appliedUs && std::abs(*appliedUs - r.exposureUs) > std::max<int64_t>(kExposureToleranceUs, r.exposureUs / 20);
+    // The laser lit the frame's window from its first row's start to its last row's end.
+    const FrameTiming t = timingOf(stampNs, exposureUs, r);
+    const bool begunUnder = laser.onNs > 0 && t.windowStartNs >= laser.onNs;
+    const bool endedUnder = laser.on || t.windowEndNs <= laser.offNs;
+    if (failed || !begunUnder || !endedUnder || otherExposure) {
+      // A frame of the stream that began before the laser was on, or ended after it went
+      // off, or a failed one: its request goes back, with this capture's exposure for the
+      // frames to come.
+      {
+        std::lock_guard<std::mutex> lock(mu_);
+        ++(failed ? stats_.failedFrames : stats_.staleFramesSkipped);
+        if (!failed && begunUnder && !endedUnder) ++stats_.frameClockMisses;
+      }
+      if (Status s = requeue(req, r.exposureUs); !s) {
+        needReopen_ = true;
+        return Result<ports::CapturedFrame>(s);
+      }
+      if (failed && begunUnder)
+        return Result<ports::CapturedFrame>(Status(Error::kBadInput, "camera delivered a failed or short frame"));
+      return std::nullopt;
+    }
+    laser.end();  // this frame is complete: the laser's work is done before the copy
+    const size_t index = req->cookie();
+    // Copy only the rows of the requested window (a 5 MP frame is 15 MB; a target's
+    // window a few hundred kB).
+    const auto* src = static_cast<const uint8_t*>(maps_[index].first);
+    const int y0 = r.window.empty() ? 0 : std::clamp(r.window.y, 0, height_);
+    const int y1 = r.window.empty() ? height_ : std::clamp(r.window.y + r.window.height, y0, height_);
+    std::memcpy(copy_.get() + static_cast<size_t>(y0) * stride_, src + static_cast<size_t>(y0) * stride_,
+                static_cast<size_t>(y1 - y0) * stride_);
+    ports::CapturedFrame out;
+    out.view = {copy_.get(), width_, height_, stride_, format_};
+    out.info.sequence = meta.sequence;
+    out.info.exposureStartNs = stampNs;
+    out.info.exposureUs = exposureUs;
+    if (Status s = requeue(req, r.exposureUs); !s) needReopen_ = true;  // the frame is copied: still good
+    std::lock_guard<std::mutex> lock(mu_);
+    ++stats_.framesDelivered;
+    stats_.sensorTimestamp = sensorNs.has_value();
+    stats_.lastExposureAppliedUs = appliedUs ? *appliedUs : -1;
+    stats_.framePeriodNs = frameClock_.periodNs().value_or(0);
+    stats_.frameJitterNs = frameClock_.jitterNs();
+    return out;
   }
 
   LibcameraConfig cfg_;
@@ -452,6 +622,7 @@ class Impl final : public LibcameraSource {
   bool interrupted_ = false;
   bool removed_ = false;  // libcamera reported the open camera removed
   LibcameraStats stats_;
+  FrameClock frameClock_;  // the capturing thread's
   struct Parked {
     std::shared_ptr<lc::Camera> camera;
     std::unique_ptr<lc::FrameBufferAllocator> allocator;

@@ -12,10 +12,12 @@
 //   pipeline applied is read back from the request's metadata (FrameInfo::exposureUs);
 // - the stream is kept fed (every request queued: V4L2 drivers such as vimc start
 //   streaming only with 2 buffers queued); frame timestamps are the sensor's
-//   (SensorTimestamp, else the buffer's), never the wall clock; a frame that began
-//   before the capture was asked for, or whose applied exposure is not the one asked
-//   for, is queued again unseen, so the laser (on from the call) lit all of the frame
-//   delivered;
+//   (SensorTimestamp, else the buffer's), never the wall clock;
+// - the laser lit the whole window of the frame delivered: the sensor's frame clock is
+//   learnt from the timestamps (common/frame_clock.h), the laser goes on just before the
+//   predicted frame and off just after its exposure; a frame the laser did not cover
+//   (it began before, or ended after), or whose applied exposure is not the one asked
+//   for, is queued again unseen;
 // - buffers and requests are allocated once, at open; a capture allocates nothing of
 //   its own;
 // - interrupt() (STOP) ends a capture at once and cancels the requests in flight (the
@@ -37,6 +39,20 @@ struct LibcameraConfig {
   int widthPx = 2048;
   int heightPx = 1536;
   int bufferCount = 4;  // requests (and buffers) allocated at open
+  // The laser around the exposure (ports::ExposureHooks). True: once the sensor's frame
+  // clock is learnt from its timestamps (FrameClock), the laser goes on `laserLeadNs`
+  // before the first row of the window starts exposing and off `laserLeadNs` after its
+  // last row ends; false, or while the clock is not learnt: on from the request to the
+  // delivery.
+  bool laserOnFrameClock = true;
+  TimeNs laserLeadNs = 1 * kNsPerMs;
+  // A frame further than this from the learnt clock makes it learn again.
+  TimeNs frameClockJitterNs = 300 * kNsPerUs;
+  // The sensor's rolling shutter (0: not known; the laser then covers the window's rows
+  // as if the readout took the whole frame period, which holds for any sensor) and what
+  // its timestamp marks (config camera.line_time_us, camera.timestamp_at_exposure_end).
+  TimeNs lineTimeNs = 0;
+  bool timestampAtExposureEnd = false;
 };
 
 // What the adapter negotiated and counted; for diagnostics and the bench's tests.
@@ -60,6 +76,18 @@ struct LibcameraStats {
   uint64_t interrupted = 0;         // captures ended by interrupt()
   uint64_t requestsCancelled = 0;   // requests libcamera completed as cancelled (stop)
   uint64_t reopens = 0;             // the camera opened again after it stopped answering
+  // The laser and the frame clock: captures whose laser was switched around the predicted
+  // frame, captures that had it on from the request (the clock not learnt), and frames
+  // the laser missed in part (the prediction was wrong, or the thread woke late): the
+  // laser went on again for the frame after.
+  uint64_t laserOnFrameClock = 0;
+  uint64_t laserFromRequest = 0;
+  uint64_t frameClockMisses = 0;
+  int64_t framePeriodNs = 0;  // as learnt; 0: not learnt
+  int64_t frameJitterNs = 0;
+  // The timestamp predicted for the last capture's frame, switched on the frame clock;
+  // 0: the laser was on from the request.
+  int64_t lastPredictedStartNs = 0;
   // Its device went away (unplugged, driver unbound). libcamera 0.0.3 cannot take it back
   // in this process (it aborts on the camera's return, its removal never seen): the
   // daemon ends and its unit starts it afresh (docs/daemon.md, "The camera").

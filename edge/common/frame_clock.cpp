@@ -1,0 +1,83 @@
+#include "common/frame_clock.h"
+
+#include <algorithm>
+#include <cmath>
+
+namespace alacs {
+
+void FrameClock::observe(uint64_t sequence, TimeNs startNs) {
+  uint64_t index = 0;  // the frame's count on the sensor's clock
+  if (count_ > 0) {
+    const Sample& last = at(count_ - 1);
+    bool fits = sequence > lastSequence_ && startNs > last.startNs;
+    if (fits && count_ >= 2) {
+      // How many periods on: by the time, not the sequence number (some drivers, vimc
+      // among them, count only the frames that had a buffer). Then, against the model:
+      // the same clock?
+      const double periods = std::max(1.0, std::round(static_cast<double>(startNs - last.startNs) / periodNs_));
+      index = last.index + static_cast<uint64_t>(periods);
+      const double predicted = interceptNs_ + periods * periodNs_;
+      fits = std::abs(static_cast<double>(startNs) - predicted) <= static_cast<double>(params_.maxJitterNs);
+    } else if (fits) {
+      index = last.index + (sequence - lastSequence_);
+    }
+    if (!fits) {
+      count_ = 0;
+      index = 0;
+    }
+  }
+  lastSequence_ = sequence;
+  if (count_ == kFrames) {
+    head_ = (head_ + 1) % kFrames;
+    --count_;
+  }
+  samples_[static_cast<size_t>((head_ + count_) % kFrames)] = {index, startNs};
+  ++count_;
+  fit();
+}
+
+// Least squares of start against index, both relative to the last sample (small
+// numbers: a double holds them exactly).
+void FrameClock::fit() {
+  const Sample& last = at(count_ - 1);
+  if (count_ < 2) {
+    periodNs_ = 0.0;
+    interceptNs_ = static_cast<double>(last.startNs);
+    jitterNs_ = 0;
+    return;
+  }
+  double sx = 0, sy = 0, sxx = 0, sxy = 0;
+  for (int i = 0; i < count_; ++i) {
+    const double x = -static_cast<double>(last.index - at(i).index);
+    const double y = static_cast<double>(at(i).startNs - last.startNs);
+    sx += x;
+    sy += y;
+    sxx += x * x;
+    sxy += x * y;
+  }
+  const double n = count_;
+  const double den = n * sxx - sx * sx;
+  periodNs_ = den > 0 ? (n * sxy - sx * sy) / den : 0.0;
+  const double b = (sy - periodNs_ * sx) / n;
+  interceptNs_ = static_cast<double>(last.startNs) + b;
+  double worst = 0.0;
+  for (int i = 0; i < count_; ++i) {
+    const double x = -static_cast<double>(last.index - at(i).index);
+    worst = std::max(worst, std::abs(static_cast<double>(at(i).startNs - last.startNs) - (b + periodNs_ * x)));
+  }
+  jitterNs_ = static_cast<TimeNs>(std::ceil(worst));
+}
+
+std::optional<TimeNs> FrameClock::periodNs() const {
+  if (count_ < params_.minFrames || periodNs_ <= 0.0 || jitterNs_ > params_.maxJitterNs) return std::nullopt;
+  return static_cast<TimeNs>(std::llround(periodNs_));
+}
+
+std::optional<TimeNs> FrameClock::nextStart(TimeNs notBeforeNs) const {
+  if (!periodNs()) return std::nullopt;
+  const double ahead = std::max(0.0, std::ceil((static_cast<double>(notBeforeNs) - interceptNs_) / periodNs_));
+  if (ahead > params_.maxPeriodsAhead) return std::nullopt;
+  return static_cast<TimeNs>(std::llround(interceptNs_ + ahead * periodNs_));
+}
+
+}  // namespace alacs

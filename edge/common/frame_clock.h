@@ -1,0 +1,67 @@
+// A free-running sensor's frame clock, learnt from its frames' timestamps. libcamera has
+// no start-of-frame event and the sensor does not wait for requests: it starts a frame
+// every period whatever the application does. So the camera source predicts when the
+// next frame will start from the frames it has seen, and switches the laser on just
+// before it and off just after the exposure (drivers/libcamera, docs/daemon.md "The
+// laser and the frame clock"). Pure logic: it sees timestamps, never a clock.
+//
+// The model is start(n) = anchor + n * period, fitted by least squares over the last
+// kFrames frames, n counted on the clock: from the driver's sequence numbers for the first
+// interval, then from the time (drivers differ on whether a frame dropped for want of a
+// buffer takes a sequence number; vimc's does not). A frame that does not fit the model
+// (a mode change, a stall, a restart) starts the learning again from that frame.
+#pragma once
+
+#include <array>
+#include <cstdint>
+#include <optional>
+
+#include "common/clock.h"
+
+namespace alacs {
+
+struct FrameClockParams {
+  int minFrames = 4;                    // frames seen before a prediction is made
+  TimeNs maxJitterNs = 300 * kNsPerUs;  // a frame further than this from the model restarts it
+  int maxPeriodsAhead = 16;             // no prediction this far past the last frame seen
+};
+
+class FrameClock {
+ public:
+  static constexpr int kFrames = 8;
+
+  explicit FrameClock(FrameClockParams params = {}) : params_(params) {}
+
+  // A frame's start, in sequence order (a sequence or a time that does not increase
+  // restarts).
+  void observe(uint64_t sequence, TimeNs startNs);
+  void reset() { count_ = 0; }
+
+  // The fitted period; nullopt until minFrames frames fit one.
+  std::optional<TimeNs> periodNs() const;
+  // The largest distance of the frames seen from the fitted model.
+  TimeNs jitterNs() const { return jitterNs_; }
+  // The start of the first frame that starts at or after `notBeforeNs`; nullopt while the
+  // clock is not learnt, or when that is more than maxPeriodsAhead past the last frame
+  // seen (a stream that stalled may have drifted or restarted).
+  std::optional<TimeNs> nextStart(TimeNs notBeforeNs) const;
+
+ private:
+  struct Sample {
+    uint64_t index;  // the frame's count on the learnt clock (from 0 at each restart)
+    TimeNs startNs;
+  };
+  void fit();
+  const Sample& at(int i) const { return samples_[static_cast<size_t>((head_ + i) % kFrames)]; }
+
+  FrameClockParams params_;
+  std::array<Sample, kFrames> samples_{};
+  int head_ = 0;   // oldest
+  int count_ = 0;  // samples held
+  double periodNs_ = 0.0;
+  double interceptNs_ = 0.0;  // model start at the last sample's sequence
+  TimeNs jitterNs_ = 0;
+  uint64_t lastSequence_ = 0;  // the driver's, of the last frame seen
+};
+
+}  // namespace alacs

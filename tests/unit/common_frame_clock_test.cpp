@@ -1,0 +1,86 @@
+#include <catch2/catch.hpp>
+
+#include "common/frame_clock.h"
+
+using namespace alacs;
+
+namespace {
+constexpr TimeNs kPeriodNs = 33'333'333;
+constexpr TimeNs kT0Ns = 5 * kNsPerS;
+
+// Start of frame `seq` of a sensor at 30 fps, with a deterministic jitter of up to ±40 us.
+TimeNs startOf(uint64_t seq) {
+  const TimeNs jitter = static_cast<TimeNs>((seq * 7919U) % 81U) - 40;
+  return kT0Ns + static_cast<TimeNs>(seq) * kPeriodNs + jitter * kNsPerUs;
+}
+}  // namespace
+
+TEST_CASE("The frame clock predicts a free-running sensor's next frame within its jitter", "[common][frame_clock]") {
+  FrameClock clock;
+  for (uint64_t seq = 0; seq < 3; ++seq) {
+    clock.observe(seq, startOf(seq));
+    CHECK_FALSE(clock.nextStart(startOf(seq)).has_value());  // not learnt before minFrames
+  }
+  for (uint64_t seq = 3; seq < 40; ++seq) clock.observe(seq, startOf(seq));
+  REQUIRE(clock.periodNs());
+  CHECK(std::abs(*clock.periodNs() - kPeriodNs) < 20 * kNsPerUs);
+  CHECK(clock.jitterNs() <= 80 * kNsPerUs);
+  // From anywhere in frame 39's period, the next start predicted is frame 40's (or 41's,
+  // ...), within the jitter.
+  for (uint64_t want = 40; want < 50; ++want) {
+    const TimeNs from = startOf(want - 1) + kPeriodNs / 2;
+    const std::optional<TimeNs> next = clock.nextStart(from);
+    REQUIRE(next);
+    CHECK(*next >= from);
+    CHECK(std::abs(*next - startOf(want)) <= 100 * kNsPerUs);
+  }
+  // Too far past the last frame seen: the stream may have stalled or restarted.
+  CHECK_FALSE(clock.nextStart(startOf(39) + 20 * kPeriodNs).has_value());
+}
+
+TEST_CASE("The frame clock counts frames the application skipped by their sequence numbers", "[common][frame_clock]") {
+  FrameClock clock;
+  for (uint64_t seq : {0U, 1U, 3U, 4U, 7U, 8U, 9U, 12U}) clock.observe(seq, startOf(seq));
+  REQUIRE(clock.periodNs());
+  CHECK(std::abs(*clock.periodNs() - kPeriodNs) < 20 * kNsPerUs);
+  const std::optional<TimeNs> next = clock.nextStart(startOf(12) + kPeriodNs / 2);
+  REQUIRE(next);
+  CHECK(std::abs(*next - startOf(13)) <= 100 * kNsPerUs);
+}
+
+TEST_CASE("A frame off the learnt clock (a mode change, a restart) makes it learn again", "[common][frame_clock]") {
+  FrameClock clock;
+  for (uint64_t seq = 0; seq < 10; ++seq) clock.observe(seq, startOf(seq));
+  REQUIRE(clock.periodNs());
+  // 60 fps from frame 10 on: the first such frame is 16.7 ms early.
+  constexpr TimeNs kFastNs = kPeriodNs / 2;
+  const TimeNs base = startOf(9);
+  clock.observe(10, base + kFastNs);
+  CHECK_FALSE(clock.periodNs().has_value());
+  for (uint64_t k = 2; k <= 4; ++k) clock.observe(9 + k, base + static_cast<TimeNs>(k) * kFastNs);
+  REQUIRE(clock.periodNs());
+  CHECK(std::abs(*clock.periodNs() - kFastNs) < kNsPerUs);
+  // Timestamps that scatter more than the tolerance never give a prediction.
+  FrameClock jittery;
+  for (uint64_t seq = 0; seq < 20; ++seq)
+    jittery.observe(seq, kT0Ns + static_cast<TimeNs>(seq) * kPeriodNs + (seq % 2 == 0 ? 0 : 2 * kNsPerMs));
+  CHECK_FALSE(jittery.nextStart(kT0Ns + 20 * kPeriodNs).has_value());
+  // A sequence that goes back (the camera restarted) starts the learning again.
+  FrameClock restarted;
+  for (uint64_t seq = 0; seq < 10; ++seq) restarted.observe(seq, startOf(seq));
+  restarted.observe(0, startOf(10));
+  CHECK_FALSE(restarted.periodNs().has_value());
+}
+
+TEST_CASE("A driver that numbers only the frames it had a buffer for (vimc): the clock counts by the time",
+          "[common][frame_clock]") {
+  FrameClock clock;
+  // The sensor's frames 0-4, 6, 7, 10, 11; the driver numbers them 0-8.
+  uint64_t driverSequence = 0;
+  for (uint64_t frame : {0U, 1U, 2U, 3U, 4U, 6U, 7U, 10U, 11U}) clock.observe(driverSequence++, startOf(frame));
+  REQUIRE(clock.periodNs());
+  CHECK(std::abs(*clock.periodNs() - kPeriodNs) < 20 * kNsPerUs);
+  const std::optional<TimeNs> next = clock.nextStart(startOf(11) + kPeriodNs / 2);
+  REQUIRE(next);
+  CHECK(std::abs(*next - startOf(12)) <= 100 * kNsPerUs);
+}
