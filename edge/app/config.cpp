@@ -26,6 +26,8 @@ Status validateConfig(const DaemonConfig& c) {
     return bad("camera.frame_timeout_ms", "(" + std::to_string(c.frameTimeoutMs) + ") + camera.exposure_us (" +
                                               std::to_string(c.exposureUs) + " us) must stay below laser.max_on_ms (" +
                                               std::to_string(c.laserMaxOnMs) + ")");
+  if (c.globalShutter && c.lineTimeUs > 0)
+    return bad("camera.global_shutter", "a global shutter has no line time: camera.line_time_us must be 0");
   if (c.scan.stops > 1 && (c.scan.stops - 1) * c.scan.stopSpacingMm > c.motion.strokeMm)
     return bad("scan.stops", "× scan.stop_spacing_mm exceeds the stroke");
   return Status::ok();
@@ -107,8 +109,9 @@ Status configFromJson(const Json& json, DaemonConfig& c) {
     cam->integer("retries", c.frameRetries, Need::kOptional, 0, 10);
     cam->number("line_time_us", c.lineTimeUs, Need::kOptional, 0, 1000);
     cam->boolean("timestamp_at_exposure_end", c.timestampAtExposureEnd);
+    cam->boolean("global_shutter", c.globalShutter);
     cam->boolean("laser_on_frame_clock", c.laserOnFrameClock);
-    cam->number("laser_lead_us", c.laserLeadUs, Need::kOptional, 0, 10000);
+    cam->number("laser_lead_us", c.laserLeadUs, Need::kOptional, 100, 10000);
     cam->number("frame_clock_jitter_us", c.frameClockJitterUs, Need::kOptional, 1, 100000);
     cam->text("id", c.cameraId);
     cam->finish();
@@ -178,6 +181,7 @@ OrderedJson configToJson(const DaemonConfig& c) {
                  {"retries", c.frameRetries},
                  {"line_time_us", c.lineTimeUs},
                  {"timestamp_at_exposure_end", c.timestampAtExposureEnd},
+                 {"global_shutter", c.globalShutter},
                  {"laser_on_frame_clock", c.laserOnFrameClock},
                  {"laser_lead_us", c.laserLeadUs},
                  {"frame_clock_jitter_us", c.frameClockJitterUs},

@@ -47,6 +47,10 @@ struct DaemonConfig {
   // `frameClockJitterUs`); false, or until then: on from the capture request to the
   // frame's delivery (docs/daemon.md "The laser and the frame clock").
   bool laserOnFrameClock = true;
+  // The sensor exposes all its rows at once: the laser covers the exposure alone. False
+  // with camera.line_time_us 0: the line time is not known, and the laser covers any
+  // readout up to the whole frame period.
+  bool globalShutter = false;
   double laserLeadUs = 1000.0;
   double frameClockJitterUs = 300.0;
   std::string calibrationPath = "/var/lib/alacs/calibration.json";

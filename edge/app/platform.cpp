@@ -151,7 +151,7 @@ class HardwarePlatform final : public Platform {
     lc.laserLeadNs = std::llround(cfg.laserLeadUs * 1e3);
     lc.frameClockJitterNs = std::llround(cfg.frameClockJitterUs * 1e3);
     lc.lineTimeNs = std::llround(cfg.lineTimeUs * 1e3);
-    lc.timestampAtExposureEnd = cfg.timestampAtExposureEnd;
+    lc.globalShutter = cfg.globalShutter;
     if (p->calibration()) {
       lc.widthPx = p->calibration()->camera.widthPx;
       lc.heightPx = p->calibration()->camera.heightPx;

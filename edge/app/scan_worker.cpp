@@ -363,8 +363,12 @@ Result<ports::CapturedFrame> ScanWorker::exposeStop(size_t stop, const ports::Ca
     ev.resultStatus = protocol::ResultStatus::kFailed;
     return frame;
   }
-  ev.lastExposureNs = frame->info.exposureStartNs + frame->info.exposureUs * kNsPerUs;
-  ev.exposures.push_back({frame->info.exposureStartNs, ev.lastExposureNs});
+  // The exposure as it was (a timestamp at its end, camera.timestamp_at_exposure_end, moved
+  // back to its start).
+  const TimeNs exposureNs = frame->info.exposureUs * kNsPerUs;
+  const TimeNs startNs = frame->info.exposureStartNs - (deps_.timestampAtExposureEnd ? exposureNs : 0);
+  ev.lastExposureNs = startNs + exposureNs;
+  ev.exposures.push_back({startNs, ev.lastExposureNs});
   return frame;
 }
 

@@ -59,13 +59,15 @@ class SimPlatform final : public Platform {
     return Status::ok();
   }
 
-  Status openRenderedCamera(const sim::SimScene& scene, const Clock& clock, Sleeper& sleeper, double lineTimeUs) {
+  Status openRenderedCamera(const sim::SimScene& scene, const Clock& clock, Sleeper& sleeper, const DaemonConfig& cfg) {
     ports::FakeDigitalOut* laser = laser_.get();
     sim::SimSlide* slide = slide_.get();
     auto camera = std::make_unique<sim::SimCamera>(
         scene, clock, sleeper, [laser] { return laser->level(); }, [slide] { return slide->positionMm(); });
-    // The configured sensor is the simulated one: a rolling shutter when the config says so.
-    camera->setLineTimeNs(static_cast<TimeNs>(std::llround(lineTimeUs * 1e3)));
+    // The configured sensor is the simulated one: a rolling shutter, and a timestamp at the
+    // end of the exposure, when the config says so.
+    camera->setLineTimeNs(static_cast<TimeNs>(std::llround(cfg.lineTimeUs * 1e3)));
+    camera->setTimestampAtExposureEnd(cfg.timestampAtExposureEnd);
     camera_ = std::move(camera);
     return Status::ok();
   }
@@ -145,7 +147,7 @@ Result<std::unique_ptr<Platform>> openSimPlatform(const DaemonConfig& cfg, const
   } else {
     p->setCalibration(geometry::loadCalibration(opts.calibrationPath));
   }
-  if (Status s = p->openRenderedCamera(scene, clock, sleeper, cfg.lineTimeUs); !s) return s;
+  if (Status s = p->openRenderedCamera(scene, clock, sleeper, cfg); !s) return s;
   p->injectCameraFault(opts.fault, clock, sleeper);
   if (Status s = p->openCan(cfg); !s) return s;
   return std::unique_ptr<Platform>(std::move(p));

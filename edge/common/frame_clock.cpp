@@ -68,6 +68,16 @@ void FrameClock::fit() {
   jitterNs_ = static_cast<TimeNs>(std::ceil(worst));
 }
 
+ExposureSpan exposureSpan(TimeNs timestampNs, TimeNs exposureNs, int y0Px, int y1Px, TimeNs lineTimeNs, TimeNs periodNs,
+                          int heightPx) {
+  const double startLineNs = static_cast<double>(lineTimeNs);
+  const double endLineNs = lineTimeNs > 0                 ? startLineNs
+                           : periodNs > 0 && heightPx > 0 ? static_cast<double>(periodNs) / heightPx
+                                                          : 0.0;
+  return {timestampNs - exposureNs + std::llround(y0Px * startLineNs),
+          timestampNs + std::llround(y1Px * endLineNs) + exposureNs};
+}
+
 std::optional<TimeNs> FrameClock::periodNs() const {
   if (count_ < params_.minFrames || periodNs_ <= 0.0 || jitterNs_ > params_.maxJitterNs) return std::nullopt;
   return static_cast<TimeNs>(std::llround(periodNs_));

@@ -26,6 +26,24 @@ struct FrameClockParams {
   int maxPeriodsAhead = 16;             // no prediction this far past the last frame seen
 };
 
+// When rows [y0Px, y1Px) of a frame exposed, as the laser must cover them, from the frame's
+// timestamp. It holds for either meaning of the timestamp (the first row's exposure start,
+// as libcamera defines SensorTimestamp, or its end, as Raspberry Pi's pipelines stamp it)
+// and, with the line time unknown (0), for any readout from none (a global shutter) to the
+// whole frame period (`periodNs` over `heightPx` rows; 0: not known).
+struct ExposureSpan {
+  TimeNs startNs = 0;  // the first of the rows starts exposing, at the earliest
+  TimeNs endNs = 0;    // the last of them ends, at the latest
+};
+ExposureSpan exposureSpan(TimeNs timestampNs, TimeNs exposureNs, int y0Px, int y1Px, TimeNs lineTimeNs, TimeNs periodNs,
+                          int heightPx);
+
+// The laser lit the whole span: on at or before its start and, unless still on (offNs 0)
+// when the frame was complete, off at or after its end.
+inline bool litBy(const ExposureSpan& span, TimeNs onNs, TimeNs offNs) {
+  return onNs > 0 && span.startNs >= onNs && (offNs == 0 || span.endNs <= offNs);
+}
+
 class FrameClock {
  public:
   static constexpr int kFrames = 8;

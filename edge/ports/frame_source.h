@@ -48,7 +48,12 @@ struct ExposureHooks {
   ExposureHooks(std::function<Status()> onBegin, std::function<void()> onEnd)
       : begin(std::move(onBegin)), end(std::move(onEnd)) {}
 
-  Status beginNow() const { return begin ? begin() : Status::ok(); }
+  // A `begin` refused: the laser is ended all the same.
+  Status beginNow() const {
+    const Status s = begin ? begin() : Status::ok();
+    if (!s) endNow();
+    return s;
+  }
   void endNow() const {
     if (end) end();
   }

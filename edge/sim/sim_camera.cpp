@@ -57,7 +57,7 @@ Result<ports::CapturedFrame> SimCamera::doCapture(const ports::CaptureRequest& r
   ports::CapturedFrame out;
   out.view = {frame_.data, frame_.cols, frame_.rows, frame_.step[0], image::PixelFormat::kBgr888};
   out.info.sequence = sequence_++;
-  out.info.exposureStartNs = start;
+  out.info.exposureStartNs = start + (timestampAtExposureEnd_ ? request.exposureUs * kNsPerUs : 0);
   out.info.exposureUs = request.exposureUs;
   return out;
 }

@@ -23,6 +23,9 @@ class SimCamera final : public ports::FrameSource {
   // last row is over; the slide's travel meanwhile is taken as even
   // (FrameRequest::slideMmPerRow).
   void setLineTimeNs(TimeNs lineTimeNs) { lineTimeNs_ = lineTimeNs; }
+  // Stamp each frame at the end of its first row's exposure, as Raspberry Pi's pipelines
+  // do (false, the default: at its start, as libcamera defines SensorTimestamp).
+  void setTimestampAtExposureEnd(bool atEnd) { timestampAtExposureEnd_ = atEnd; }
   // The last rendered frame's slide position (mean over the exposure), for tests.
   double lastSlideMm() const { return lastSlideMm_; }
 
@@ -39,6 +42,7 @@ class SimCamera final : public ports::FrameSource {
   uint64_t sequence_ = 0;
   double lastSlideMm_ = 0.0;
   TimeNs lineTimeNs_ = 0;
+  bool timestampAtExposureEnd_ = false;
 };
 
 }  // namespace alacs::sim

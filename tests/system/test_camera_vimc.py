@@ -157,11 +157,11 @@ def test_the_laser_is_switched_on_the_sensors_frame_clock(vimc, probe) -> None:
         assert rep["frames_laser_did_not_cover"] == 0, rep
     assert request["frames_on_frame_clock"] == 0
     # The clock is learnt from the pipeline's timestamps and used for most frames (the rest:
-    # while it learns again after a frame off it; 82 of 100 in a quiet run).
-    assert clocked["frames_on_frame_clock"] >= 20, clocked
+    # while it learns again after a frame off it; 82-95 of 100 in quiet runs).
+    assert clocked["frames_on_frame_clock"] >= 50, clocked
     # The frame delivered is the one predicted, within the lead.
     assert clocked["prediction_error_max_us"] <= 4000, clocked
-    # The laser is on for a fraction of what it was (4.2 against 19.9 ms in a quiet run).
+    # The laser is on for a fraction of what it was (7.1 against 19.9 ms in a quiet run).
     assert clocked["laser_on_per_frame_on_clock_median_ms"] < 0.5 * request["laser_on_per_frame_median_ms"], clocked
 
 

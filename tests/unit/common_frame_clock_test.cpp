@@ -84,3 +84,36 @@ TEST_CASE("A driver that numbers only the frames it had a buffer for (vimc): the
   REQUIRE(next);
   CHECK(std::abs(*next - startOf(12)) <= 100 * kNsPerUs);
 }
+
+TEST_CASE("The span the laser must cover holds for either meaning of the timestamp and any readout",
+          "[common][frame_clock]") {
+  constexpr TimeNs kExposureNs = 3 * kNsPerMs;
+  constexpr int kHeightPx = 1536;
+  constexpr TimeNs kLineNs = 21'700;  // a 30 fps sensor read out over its whole period
+  const int y0 = 600;
+  const int y1 = 900;
+  // The true exposure of rows 600-899 of a rolling-shutter frame whose first row starts at t0.
+  const TimeNs t0 = kT0Ns;
+  const TimeNs trueStart = t0 + y0 * kLineNs;
+  const TimeNs trueEnd = t0 + (y1 - 1) * kLineNs + kExposureNs;
+  for (const bool stampAtEnd : {false, true}) {
+    INFO((stampAtEnd ? "stamped at the exposure's end" : "stamped at its start"));
+    const TimeNs stamp = t0 + (stampAtEnd ? kExposureNs : 0);
+    // Told the line time, and not told it (the period bounds any readout).
+    for (const TimeNs line : {kLineNs, TimeNs{0}}) {
+      const ExposureSpan span = exposureSpan(stamp, kExposureNs, y0, y1, line, kPeriodNs, kHeightPx);
+      CHECK(span.startNs <= trueStart);
+      CHECK(span.endNs >= trueEnd);
+      // ... without covering more than the other meaning and the unknown readout need.
+      CHECK(trueStart - span.startNs <= kExposureNs + (line == 0 ? y0 * kLineNs : 0));
+      CHECK(span.endNs - trueEnd <= kExposureNs + kPeriodNs * y1 / kHeightPx - (y1 - 1) * kLineNs + kLineNs);
+    }
+  }
+  // Lit: on before the span starts, and off after it ends or not yet off.
+  const ExposureSpan span{kT0Ns, kT0Ns + 5 * kNsPerMs};
+  CHECK(litBy(span, kT0Ns - 1000, kT0Ns + 5 * kNsPerMs));
+  CHECK(litBy(span, kT0Ns, 0));
+  CHECK_FALSE(litBy(span, kT0Ns + 1, 0));                        // on after the rows began
+  CHECK_FALSE(litBy(span, kT0Ns - 1000, kT0Ns + 4 * kNsPerMs));  // off before they ended
+  CHECK_FALSE(litBy(span, 0, 0));                                // never on
+}

@@ -56,3 +56,27 @@ TEST_CASE("Config: defaults, overrides and errors that name the key", "[config]"
   auto cross = app::loadConfig(write(R"({"camera": {"exposure_us": 200000}, "laser": {"max_on_ms": 100}})"));
   CHECK(cross.status().reason().find("camera.exposure_us") != std::string::npos);
 }
+
+TEST_CASE("Config: the laser on the frame clock, and a sensor's shutter stated once", "[config]") {
+  auto defaults = app::loadConfig(write("{}"));
+  REQUIRE(defaults.isOk());
+  CHECK(defaults->laserOnFrameClock);
+  CHECK(defaults->laserLeadUs == 1000.0);
+  CHECK(defaults->frameClockJitterUs == 300.0);
+  CHECK_FALSE(defaults->globalShutter);
+  auto set = app::loadConfig(write(
+      R"({"camera": {"laser_on_frame_clock": false, "laser_lead_us": 2500, "frame_clock_jitter_us": 50,
+          "global_shutter": true}})"));
+  REQUIRE(set.isOk());
+  CHECK_FALSE(set->laserOnFrameClock);
+  CHECK(set->laserLeadUs == 2500.0);
+  CHECK(set->frameClockJitterUs == 50.0);
+  CHECK(set->globalShutter);
+  // A lead too short to wake and switch in would only ever miss its frame.
+  auto noLead = app::loadConfig(write(R"({"camera": {"laser_lead_us": 0}})"));
+  CHECK(noLead.status().reason().find("camera.laser_lead_us") != std::string::npos);
+  // A global shutter has no line time.
+  auto both = app::loadConfig(write(R"({"camera": {"global_shutter": true, "line_time_us": 21.7}})"));
+  CHECK(both.status().code() == Error::kBadInput);
+  CHECK(both.status().reason().find("camera.global_shutter") != std::string::npos);
+}

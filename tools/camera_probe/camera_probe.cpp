@@ -51,7 +51,7 @@ struct Options {
   double laserLeadUs = 1000.0;
   double frameClockJitterUs = 300.0;
   double lineTimeUs = 0.0;
-  bool timestampAtExposureEnd = false;
+  bool globalShutter = false;
 };
 
 TimeNs nowNs() {
@@ -128,7 +128,7 @@ int run(const Options& o) {
   camera.laserLeadNs = std::llround(o.laserLeadUs * 1e3);
   camera.frameClockJitterNs = std::llround(o.frameClockJitterUs * 1e3);
   camera.lineTimeNs = std::llround(o.lineTimeUs * 1e3);
-  camera.timestampAtExposureEnd = o.timestampAtExposureEnd;
+  camera.globalShutter = o.globalShutter;
   Result<std::unique_ptr<drivers::LibcameraSource>> opened = drivers::LibcameraSource::open(camera);
   if (!opened) {
     std::cerr << "alacs_camera_probe: " << opened.status().toString() << "\n";
@@ -201,8 +201,8 @@ int run(const Options& o) {
     const int64_t startNs = f->info.exposureStartNs;
     // The window's rows exposed from its first row's start (0 line times, unless told) to
     // its last row's end (at most a whole period of readout, unless told).
-    const TimeNs firstRowNs = startNs - (o.timestampAtExposureEnd ? f->info.exposureUs * kNsPerUs : 0);
-    const TimeNs windowStartNs = firstRowNs + std::llround(y0 * o.lineTimeUs * 1e3);
+    // (For either meaning of the timestamp: the first row's exposure start or its end.)
+    const TimeNs windowStartNs = startNs - f->info.exposureUs * kNsPerUs + std::llround(y0 * o.lineTimeUs * 1e3);
     // The laser must have been on when the window began exposing. Switched on the frame
     // clock, the frame delivered is the one predicted: its timestamp within the lead of
     // the prediction (the end of the window is then covered too).
@@ -291,9 +291,7 @@ int main(int argc, char** argv) {
   app.add_option("--line-time-us", o.lineTimeUs, "the sensor's line time (0: not known)")
       ->check(CLI::Range(0.0, 1000.0))
       ->capture_default_str();
-  app.add_flag("--timestamp-at-exposure-end", o.timestampAtExposureEnd,
-               "the frame timestamp marks the end of the first row's exposure (Raspberry Pi; vimc stamps a frame "
-               "when it is made)");
+  app.add_flag("--global-shutter", o.globalShutter, "the sensor exposes all rows at once (camera.global_shutter)");
   if (const int exit = tools::parseCommandLine(app, argc, argv); exit >= 0) return exit;
   return run(o);
 }

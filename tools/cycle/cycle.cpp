@@ -74,6 +74,7 @@ struct Options {
   int workerLineTime = 1;    // 1: the worker is told the line time (config camera.line_time_us), 0: not
   std::string laserTiming = "frame-clock";  // --virtual-time: how the camera switches the laser (ports::LaserTiming)
   double laserLeadUs = 1000.0;
+  int globalShutter = 0;  // --virtual-time, frame-clock: the camera is told the sensor has a global shutter
   std::string exportDir;
   bool replay = false;
   std::vector<std::string> dirs;
@@ -340,7 +341,8 @@ int simulatedCycle(const Options& o) {
       ports::FrameSlotSource sensor(
           rendered, clock, sleeper, static_cast<TimeNs>(std::llround(1e9 / o.fps)), lineTimeNs == 0,
           o.laserTiming == "frame-clock" ? ports::LaserTiming::kFrameClock : ports::LaserTiming::kAtRequest,
-          static_cast<TimeNs>(std::llround(o.laserLeadUs * 1e3)));
+          static_cast<TimeNs>(std::llround(o.laserLeadUs * 1e3)), scene.truth.camera.heightPx,
+          o.workerLineTime != 0 ? lineTimeNs : 0, o.globalShutter != 0 && lineTimeNs == 0);
       ports::FrameSource& camera = o.virtualTime ? static_cast<ports::FrameSource&>(sensor) : rendered;
       app::WorkerDeps deps = workerDeps(clock, sleeper, limits, slide, laser, camera);
       deps.lineTimeNs = o.workerLineTime != 0 ? lineTimeNs : 0;
@@ -576,6 +578,11 @@ int main(int argc, char** argv) {
       ->capture_default_str();
   app.add_option("--laser-lead-us", o.laserLeadUs, "--virtual-time, frame-clock: the laser's lead before and after")
       ->check(CLI::Range(0.0, 10000.0))
+      ->capture_default_str();
+  app.add_option("--global-shutter", o.globalShutter,
+                 "--virtual-time, frame-clock: 1: the camera is told the sensor has a global shutter "
+                 "(camera.global_shutter); 0: not (the laser covers any readout)")
+      ->check(CLI::Range(0, 1))
       ->capture_default_str();
   app.add_option("--export", o.exportDir, "write the orchard scans as scan directories into DIR");
   app.add_flag("--replay", o.replay, "run the worker on the scan directories DIR...");

@@ -360,34 +360,23 @@ class Impl final : public LibcameraSource {
       return Status::ok();
     }
     void end() {
-      if (on || !ended) hooks.endNow();
+      // The time first: the line goes low somewhere inside the call (through the laser
+      // guard), so a frame is counted lit only up to when it was asked off.
       if (on) offNs = monotonicNowNs();
+      if (on || !ended) hooks.endNow();
       on = false;
       ended = true;
     }
     ~LaserWindow() { end(); }
   };
 
-  // A frame's start (its first row's exposure) and the rows of the window, in time.
-  struct FrameTiming {
-    TimeNs firstRowStartNs;
-    TimeNs windowStartNs;  // the window's first row starts exposing
-    TimeNs windowEndNs;    // its last row ends
-  };
-  FrameTiming timingOf(TimeNs timestampNs, int64_t exposureUs, const ports::CaptureRequest& r) const {
-    const TimeNs exposureNs = exposureUs * kNsPerUs;
-    const TimeNs firstNs = timestampNs - (cfg_.timestampAtExposureEnd ? exposureNs : 0);
-    // An unknown line time (0) could be anything from 0 (a global shutter) to the period
-    // over the height (any sensor reads out within its frame period): the window is taken
-    // to start as early and to end as late as either allows, so that the laser covers it.
-    const std::optional<TimeNs> period = frameClock_.periodNs();
-    const double startLineNs = static_cast<double>(cfg_.lineTimeNs);
-    const double endLineNs = cfg_.lineTimeNs > 0     ? startLineNs
-                             : period && height_ > 0 ? static_cast<double>(*period) / height_
-                                                     : 0.0;
+  // When the request's window exposed in a frame with this timestamp (ExposureSpan: for
+  // either meaning of the timestamp and any readout within `periodNs`).
+  ExposureSpan spanOf(TimeNs timestampNs, int64_t exposureUs, const ports::CaptureRequest& r, TimeNs periodNs) const {
     const int y0 = r.window.empty() ? 0 : std::clamp(r.window.y, 0, height_);
     const int y1 = r.window.empty() ? height_ : std::clamp(r.window.y + r.window.height, y0, height_);
-    return {firstNs, firstNs + std::llround(y0 * startLineNs), firstNs + std::llround(y1 * endLineNs) + exposureNs};
+    return exposureSpan(timestampNs, exposureUs * kNsPerUs, y0, y1, cfg_.lineTimeNs, cfg_.globalShutter ? 0 : periodNs,
+                        height_);
   }
 
   // Learns the frame clock from a completed request.
@@ -431,15 +420,19 @@ class Impl final : public LibcameraSource {
     return !interrupted_;
   }
 
-  // Switches the laser on for the next frame: when the clock is learnt, just before the
-  // window of the first frame it can still catch starts, and sets `offAtNs` to just after
-  // the window's exposure; else at once, `offAtNs` 0 (off at the delivery). A thread that
-  // wakes too late for its frame tries the next; after kMaxLateWakes in one capture (a
-  // loaded machine, a coarse timer) the capture takes the laser from now on.
-  static constexpr int kMaxLateWakes = 3;
+  // Switches the laser on for the next frame: when the clock is learnt, a lead before the
+  // window of the first frame it can still catch starts exposing, with `offAtNs` a lead
+  // after the window's end and `periodNs` the period that end was reckoned with; else at
+  // once, `offAtNs` 0 (off at the delivery). No frame it can catch before the deadline:
+  // the laser stays off (the capture times out). A thread that wakes too late for its
+  // frame (a loaded machine, a coarse timer) does not pulse the laser for it; after
+  // kMaxLateWakes in one capture the capture takes the laser from now on, so that a late
+  // wake costs at most one frame period (on the bench, 3 cost 60 ms a capture).
+  static constexpr int kMaxLateWakes = 1;
   Status armLaser(const ports::CaptureRequest& r, const ports::ExposureHooks& hooks, LaserWindow& laser,
-                  TimeNs deadlineNs, int& lateWakes, TimeNs& offAtNs) {
+                  TimeNs deadlineNs, int& lateWakes, TimeNs& offAtNs, TimeNs& periodNs) {
     offAtNs = 0;
+    periodNs = frameClock_.periodNs().value_or(0);
     const TimeNs leadNs = cfg_.laserLeadNs;
     while (cfg_.laserOnFrameClock && hooks.begin && lateWakes < kMaxLateWakes) {
       // A frame whose window starts before now + 2 leads is not caught: one lead to wake,
@@ -447,27 +440,29 @@ class Impl final : public LibcameraSource {
       const TimeNs notBefore = monotonicNowNs() + 2 * leadNs;
       std::optional<TimeNs> next = frameClock_.nextStart(notBefore);
       if (!next) break;
-      while (timingOf(*next, r.exposureUs, r).windowStartNs < notBefore) *next += *frameClock_.periodNs();
-      FrameTiming t = timingOf(*next, r.exposureUs, r);
-      if (t.windowEndNs > deadlineNs) break;
+      periodNs = *frameClock_.periodNs();
+      while (spanOf(*next, r.exposureUs, r, periodNs).startNs < notBefore) *next += periodNs;
+      ExposureSpan span = spanOf(*next, r.exposureUs, r, periodNs);
+      if (span.endNs > deadlineNs) return Status::ok();  // nothing to catch in time: no laser
       // Frames that complete meanwhile go back to the camera at once (a buffer must be
       // queued for the frame to catch); the clock they refine says when that frame starts.
-      while (monotonicNowNs() < t.windowStartNs - leadNs) {
-        if (!waitUntil(t.windowStartNs - leadNs, true)) return Status::ok();  // interrupted: the caller sees it
+      while (monotonicNowNs() < span.startNs - leadNs) {
+        if (!waitUntil(span.startNs - leadNs, true)) return Status::ok();  // interrupted: the caller sees it
         if (Status s = drainCompleted(r.exposureUs); !s) return s;
-        const std::optional<TimeNs> periodNs = frameClock_.periodNs();
-        next = periodNs ? frameClock_.nextStart(*next - *periodNs / 2) : std::nullopt;
+        const std::optional<TimeNs> refined = frameClock_.periodNs();
+        next = refined ? frameClock_.nextStart(*next - *refined / 2) : std::nullopt;
         if (!next) break;
-        t = timingOf(*next, r.exposureUs, r);
+        periodNs = *refined;
+        span = spanOf(*next, r.exposureUs, r, periodNs);
       }
       if (!next) break;  // the clock was lost meanwhile: from the request
       // Woke too late for this frame (half the lead gone): the next one, the laser not
       // pulsed for nothing.
-      const bool late = monotonicNowNs() > t.windowStartNs - leadNs / 2;
+      const bool late = monotonicNowNs() > span.startNs - leadNs / 2;
       if (!late) {
         if (Status s = laser.begin(); !s) return s;
-        if (laser.onNs <= t.windowStartNs) {
-          offAtNs = t.windowEndNs + leadNs;
+        if (laser.onNs <= span.startNs) {
+          offAtNs = span.endNs + leadNs;
           std::lock_guard<std::mutex> lock(mu_);
           ++stats_.laserOnFrameClock;
           stats_.lastPredictedStartNs = *next;
@@ -479,6 +474,7 @@ class Impl final : public LibcameraSource {
       std::lock_guard<std::mutex> lock(mu_);
       ++stats_.frameClockMisses;
     }
+    periodNs = frameClock_.periodNs().value_or(0);
     if (Status s = laser.begin(); !s) return s;
     std::lock_guard<std::mutex> lock(mu_);
     ++stats_.laserFromRequest;
@@ -509,12 +505,13 @@ class Impl final : public LibcameraSource {
     }
     if (Status s = drainCompleted(r.exposureUs); !s) return s;
     const TimeNs deadlineNs = monotonicNowNs() + r.timeoutMs * kNsPerMs;
-    TimeNs offAtNs = 0;  // when the laser goes off; 0: at the delivery
+    TimeNs offAtNs = 0;   // when the laser goes off; 0: at the delivery
+    TimeNs periodNs = 0;  // the period the laser's window was reckoned with
     bool armed = false;
     int lateWakes = 0;
     while (true) {
       if (!armed) {
-        if (Status s = armLaser(r, hooks, laser, deadlineNs, lateWakes, offAtNs); !s) return s;
+        if (Status s = armLaser(r, hooks, laser, deadlineNs, lateWakes, offAtNs, periodNs); !s) return s;
         armed = true;
       }
       if (laser.on && offAtNs > 0) {
@@ -524,17 +521,20 @@ class Impl final : public LibcameraSource {
       if (!next) return next.status();
       lc::Request* req = *next;
       learn(req);
-      if (std::optional<Result<ports::CapturedFrame>> out = take(req, r, laser)) return std::move(*out);
-      // Not this capture's frame. The laser went off before one that began under it
-      // ended (the clock was wrong): on again for the next.
-      if (armed && !laser.on) armed = false;
+      bool cameLate = false;
+      if (std::optional<Result<ports::CapturedFrame>> out = take(req, r, laser, periodNs, cameLate))
+        return std::move(*out);
+      // Not this capture's frame. One that began under the laser but ended after it went
+      // off (later than predicted, or the one predicted was dropped): on again for the
+      // next. An older one: the frame lit may still come.
+      if (cameLate) armed = false;
     }
   }
 
   // The capture's frame, or an error; nullopt for a frame that is not the capture's
   // (queued again, unseen).
-  std::optional<Result<ports::CapturedFrame>> take(lc::Request* req, const ports::CaptureRequest& r,
-                                                   LaserWindow& laser) {
+  std::optional<Result<ports::CapturedFrame>> take(lc::Request* req, const ports::CaptureRequest& r, LaserWindow& laser,
+                                                   TimeNs periodNs, bool& cameLate) {
     const lc::FrameBuffer* fb = req->buffers().begin()->second;
     const lc::FrameMetadata& meta = fb->metadata();
     const std::optional<int64_t> sensorNs = req->metadata().get(lc::controls::SensorTimestamp);
@@ -549,17 +549,18 @@ class Impl final : public LibcameraSource {
     const bool otherExposure =
         appliedUs && std::abs(*appliedUs - r.exposureUs) > std::max<int64_t>(kExposureToleranceUs, r.exposureUs / 20);
     // The laser lit the frame's window from its first row's start to its last row's end.
-    const FrameTiming t = timingOf(stampNs, exposureUs, r);
-    const bool begunUnder = laser.onNs > 0 && t.windowStartNs >= laser.onNs;
-    const bool endedUnder = laser.on || t.windowEndNs <= laser.offNs;
-    if (failed || !begunUnder || !endedUnder || otherExposure) {
+    const ExposureSpan span = spanOf(stampNs, exposureUs, r, periodNs);
+    const bool begunUnder = laser.onNs > 0 && span.startNs >= laser.onNs;
+    const bool lit = litBy(span, laser.onNs, laser.on ? 0 : laser.offNs);
+    cameLate = begunUnder && !laser.on;
+    if (failed || !lit || otherExposure) {
       // A frame of the stream that began before the laser was on, or ended after it went
       // off, or a failed one: its request goes back, with this capture's exposure for the
       // frames to come.
       {
         std::lock_guard<std::mutex> lock(mu_);
         ++(failed ? stats_.failedFrames : stats_.staleFramesSkipped);
-        if (!failed && begunUnder && !endedUnder) ++stats_.frameClockMisses;
+        if (!failed && begunUnder && !lit) ++stats_.frameClockMisses;
       }
       if (Status s = requeue(req, r.exposureUs); !s) {
         needReopen_ = true;

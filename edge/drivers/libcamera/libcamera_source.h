@@ -48,11 +48,12 @@ struct LibcameraConfig {
   TimeNs laserLeadNs = 1 * kNsPerMs;
   // A frame further than this from the learnt clock makes it learn again.
   TimeNs frameClockJitterNs = 300 * kNsPerUs;
-  // The sensor's rolling shutter (0: not known; the laser then covers the window's rows
-  // as if the readout took the whole frame period, which holds for any sensor) and what
-  // its timestamp marks (config camera.line_time_us, camera.timestamp_at_exposure_end).
+  // The sensor's rolling shutter (config camera.line_time_us; 0: not known, and the laser
+  // covers the window's rows as if the readout took anything up to the whole frame
+  // period). The laser covers either meaning of the timestamp (start or end of the first
+  // row's exposure: common/frame_clock.h, exposureSpan).
   TimeNs lineTimeNs = 0;
-  bool timestampAtExposureEnd = false;
+  bool globalShutter = false;  // config camera.global_shutter: no readout to cover
 };
 
 // What the adapter negotiated and counted; for diagnostics and the bench's tests.
