@@ -312,8 +312,8 @@ void writeOverlay(const std::string& dir, int scanIndex, const image::ImageView&
 
 Result<ports::CapturedFrame> ScanWorker::exposeStop(size_t stop, const ports::CaptureRequest& capture,
                                                      WorkerEvent& ev, double* midSlideMm) {
-  // Timeouts and corrupted frames are retried (laser on only for each attempt's
-  // exposure), then become a fault with the last reason.
+  // Timeouts and corrupted frames are retried (the camera switches the laser around each
+  // attempt's frame), then become a fault with the last reason.
   Result<ports::CapturedFrame> frame = Status(Error::kInternal, "no capture attempted");
   setPhase(protocol::ProgressPhase::kExposing);
   for (int attempt = 0; attempt <= deps_.captureRetries && !cancel_.load(); ++attempt) {
@@ -582,8 +582,8 @@ struct FramePlace {
 // (deps.lineTimeNs > 0) row v exposes v line times after row 0: the ROI's first and last
 // rows give the travel per row. A timestamp that cannot be this frame's (none, before the
 // request, or the ROI's exposure not over at the delivery: another clock, or a line time
-// too long) leaves `sampledMm`, the mean of the positions at the request and at the
-// source's end-of-exposure call.
+// too long) leaves `sampledMm`, the mean of the positions where the laser last went on
+// and off (the hooks' begin and end).
 FramePlace sweptFramePlace(const motion::StepLog& log, int64_t fromSteps, bool forward, const motion::SlideLimits& lim,
                            const ports::FrameInfo& info, const image::Roi& roi, const WorkerDeps& deps, TimeNs askedNs,
                            TimeNs deliveredNs, double sampledMm) {
