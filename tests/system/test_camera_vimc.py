@@ -82,10 +82,12 @@ def test_1000_frames_format_exposure_timestamps_memory(vimc, probe) -> None:
     assert rep["pixel_format"] in ("RGB888", "BGR888")
     assert (rep["width_px"], rep["height_px"]) == (WIDTH_PX, HEIGHT_PX)
     assert rep["stride_bytes"] >= 3 * WIDTH_PX
-    # Every frame, none dropped or failed, one exposure-end callback per capture.
+    # Every frame, none dropped or failed; every capture ended the laser, and every time the
+    # laser went on it went off (more than once a capture when a frame came off the clock).
     assert rep["frames_captured"] == 1000 and rep["capture_failures"] == []
     assert rep["timeouts"] == 0 and rep["failed_frames"] == 0
-    assert rep["exposure_end_callbacks"] == 1000 + rep["stale_frames_skipped"] * 0
+    assert rep["exposure_end_callbacks"] >= 1000
+    assert rep["laser_switched_on"] >= 1000 and rep["laser_switched_off"] == rep["laser_switched_on"]
     # The sensor's timestamps: strictly increasing, spaced by its frame period.
     assert rep["timestamps_increasing"]
     assert rep["frame_interval_median_ms"] > 1.0

@@ -150,13 +150,17 @@ int run(const Options& o) {
   int nextAfterInterruptFailed = 0;
   double rssEarlyMb = 0.0;
   int exposureEnds = 0;
+  int laserOns = 0;   // over the run: every switch on ...
+  int laserOffs = 0;  // ... and every switch off of a laser that was on
   LaserLog laser;
   const ports::ExposureHooks hooks(
-      [&laser]() -> Status {
+      [&laser, &laserOns]() -> Status {
         laser.begin();
+        ++laserOns;
         return Status::ok();
       },
-      [&laser, &exposureEnds] {
+      [&laser, &exposureEnds, &laserOffs] {
+        laserOffs += laser.on ? 1 : 0;
         laser.end();
         ++exposureEnds;
       });
@@ -231,6 +235,8 @@ int run(const Options& o) {
   out["timestamps_increasing"] = monotonic;
   out["frame_interval_median_ms"] = medianOf(periodsMs);
   out["exposure_end_callbacks"] = exposureEnds;
+  out["laser_switched_on"] = laserOns;
+  out["laser_switched_off"] = laserOffs;
   out["laser_timing"] = o.laserTiming;
   out["laser_on_per_frame_median_ms"] = medianOf(laserOnPerFrameMs);
   out["laser_on_per_frame_max_ms"] =
