@@ -50,6 +50,9 @@ for suite in ${ALACS_LIBCAMERA_SUITES:-trixie sid}; do
   ((ok)) && { "$cxx" -std=c++20 -O1 "${warn[@]}" -DALACS_HAVE_LIBCAMERA=1 -I "$root/edge" \
     -isystem "$sysroot/usr/include/libcamera" -c "$root/edge/drivers/libcamera/libcamera_source.cpp" \
     -o "$out/libcamera_source.o" >>"$log" 2>&1 || ok=0; }
+  # The frame clock the adapter learns (edge/common, plain C++).
+  ((ok)) && { "$cxx" -std=c++20 -O1 "${warn[@]}" -I "$root/edge" -c "$root/edge/common/frame_clock.cpp" \
+    -o "$out/frame_clock.o" >>"$log" 2>&1 || ok=0; }
   cat >"$out/smoke.cpp" <<'CPP'
 #include <cstdio>
 #include "drivers/libcamera/libcamera_source.h"
@@ -60,7 +63,7 @@ int main() {
   return 0;
 }
 CPP
-  ((ok)) && { link_smoke "$out" "$log" "$out/libcamera_source.o" -- \
+  ((ok)) && { link_smoke "$out" "$log" "$out/libcamera_source.o" "$out/frame_clock.o" -- \
     -L "$libdir" -Wl,--allow-shlib-undefined -Wl,-rpath-link,"$libdir" -lcamera -lcamera-base || ok=0; }
   report "$ok" "$log" \
     "libcamera-api: ok   libcamera_source.cpp compiles and links against libcamera $version (Debian $suite)" \
