@@ -19,6 +19,7 @@
 #include <optional>
 #include <sstream>
 #include <string_view>
+#include <utility>
 #include <vector>
 
 #include "common/frame_clock.h"
@@ -370,11 +371,16 @@ class Impl final : public LibcameraSource {
     ~LaserWindow() { end(); }
   };
 
+  // The request's window's rows [y0, y1), clamped to the frame (all of it when empty).
+  std::pair<int, int> windowRows(const ports::CaptureRequest& r) const {
+    const int y0 = r.window.empty() ? 0 : std::clamp(r.window.y, 0, height_);
+    return {y0, r.window.empty() ? height_ : std::clamp(r.window.y + r.window.height, y0, height_)};
+  }
+
   // When the request's window exposed in a frame with this timestamp (ExposureSpan: for
   // either meaning of the timestamp and any readout within `periodNs`).
   ExposureSpan spanOf(TimeNs timestampNs, int64_t exposureUs, const ports::CaptureRequest& r, TimeNs periodNs) const {
-    const int y0 = r.window.empty() ? 0 : std::clamp(r.window.y, 0, height_);
-    const int y1 = r.window.empty() ? height_ : std::clamp(r.window.y + r.window.height, y0, height_);
+    const auto [y0, y1] = windowRows(r);
     return exposureSpan(timestampNs, exposureUs * kNsPerUs, y0, y1, cfg_.lineTimeNs, cfg_.globalShutter ? 0 : periodNs,
                         height_);
   }
@@ -575,8 +581,7 @@ class Impl final : public LibcameraSource {
     // Copy only the rows of the requested window (a 5 MP frame is 15 MB; a target's
     // window a few hundred kB).
     const auto* src = static_cast<const uint8_t*>(maps_[index].first);
-    const int y0 = r.window.empty() ? 0 : std::clamp(r.window.y, 0, height_);
-    const int y1 = r.window.empty() ? height_ : std::clamp(r.window.y + r.window.height, y0, height_);
+    const auto [y0, y1] = windowRows(r);
     std::memcpy(copy_.get() + static_cast<size_t>(y0) * stride_, src + static_cast<size_t>(y0) * stride_,
                 static_cast<size_t>(y1 - y0) * stride_);
     ports::CapturedFrame out;
