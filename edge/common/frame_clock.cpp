@@ -9,7 +9,8 @@ void FrameClock::observe(uint64_t sequence, TimeNs startNs) {
   uint64_t index = 0;  // the frame's count on the sensor's clock
   if (count_ > 0) {
     const Sample& last = at(count_ - 1);
-    bool fits = sequence > lastSequence_ && startNs > last.startNs;
+    const bool onward = sequence > lastSequence_ && startNs > last.startNs;
+    bool fits = onward;
     if (fits && count_ >= 2) {
       // How many periods on: by the time, not the sequence number (some drivers, vimc
       // among them, count only the frames that had a buffer). Then, against the model:
@@ -21,11 +22,26 @@ void FrameClock::observe(uint64_t sequence, TimeNs startNs) {
     } else if (fits) {
       index = last.index + (sequence - lastSequence_);
     }
+    if (!fits && onward && count_ >= params_.minFrames && !outlier_) {
+      // One frame off a learnt clock is held aside: a late interrupt's timestamp leaves
+      // the clock as it was; a second frame off it (a mode change, a stall) restarts.
+      outlier_ = Sample{sequence, startNs};
+      lastSequence_ = sequence;
+      return;
+    }
     if (!fits) {
       count_ = 0;
-      index = 0;
+      if (onward && outlier_ && outlier_->index < sequence && outlier_->startNs < startNs) {
+        // Learn again from the frame held aside, counted on by the sequence numbers.
+        samples_[static_cast<size_t>(head_)] = {0, outlier_->startNs};
+        count_ = 1;
+        index = sequence - outlier_->index;
+      } else {
+        index = 0;
+      }
     }
   }
+  outlier_.reset();
   lastSequence_ = sequence;
   if (count_ == kFrames) {
     head_ = (head_ + 1) % kFrames;

@@ -8,8 +8,9 @@
 // The model is start(n) = anchor + n * period, fitted by least squares over the last
 // kFrames frames, n counted on the clock: from the driver's sequence numbers for the first
 // interval, then from the time (drivers differ on whether a frame dropped for want of a
-// buffer takes a sequence number; vimc's does not). A frame that does not fit the model
-// (a mode change, a stall, a restart) starts the learning again from that frame.
+// buffer takes a sequence number; vimc's does not). One frame that does not fit a learnt
+// model is held aside (a timestamp taken late); a second in a row (a mode change, a stall,
+// a restart) starts the learning again from the first of them.
 #pragma once
 
 #include <array>
@@ -22,7 +23,7 @@ namespace alacs {
 
 struct FrameClockParams {
   int minFrames = 4;                    // frames seen before a prediction is made
-  TimeNs maxJitterNs = 300 * kNsPerUs;  // a frame further than this from the model restarts it
+  TimeNs maxJitterNs = 300 * kNsPerUs;  // a frame further than this from the model is off it
   int maxPeriodsAhead = 16;             // no prediction this far past the last frame seen
 };
 
@@ -53,7 +54,10 @@ class FrameClock {
   // A frame's start, in sequence order (a sequence or a time that does not increase
   // restarts).
   void observe(uint64_t sequence, TimeNs startNs);
-  void reset() { count_ = 0; }
+  void reset() {
+    count_ = 0;
+    outlier_.reset();
+  }
 
   // The fitted period; nullopt until minFrames frames fit one.
   std::optional<TimeNs> periodNs() const;
@@ -80,6 +84,9 @@ class FrameClock {
   double interceptNs_ = 0.0;  // model start at the last sample's sequence
   TimeNs jitterNs_ = 0;
   uint64_t lastSequence_ = 0;  // the driver's, of the last frame seen
+  // A frame off the learnt clock, held aside until the next shows whether the clock
+  // changed (index: its driver sequence number).
+  std::optional<Sample> outlier_;
 };
 
 }  // namespace alacs

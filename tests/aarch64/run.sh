@@ -11,7 +11,12 @@
 # libopenexr-dev, ... are not Multi-Arch: same), and tools/bootstrap.sh needs the amd64
 # libopencv-dev. So those few packages are downloaded and unpacked into a directory of
 # their own instead of being installed; nothing else on the host changes.
+#
+# --build-only: stop after the cross build (tests/run starts it in the background early, at
+# nice 19, so that it takes the core the single-threaded steps leave idle).
 set -uo pipefail
+build_only=0
+[[ ${1:-} == --build-only ]] && build_only=1
 root=$(cd "$(dirname "${BASH_SOURCE[0]}")/../.." && pwd -P)
 cd "$root"
 build=build/aarch64
@@ -49,7 +54,7 @@ missing=()
 for p in "${host_packages[@]}"; do installed "$p" || missing+=("$p"); done
 if ((${#missing[@]})); then
   echo "installing: ${missing[*]}"
-  ((updated)) || "${sudo[@]}" apt-get update -q >/dev/null
+  ((updated)) || "${sudo[@]}" apt-get update -q -o DPkg::Lock::Timeout=600 >/dev/null
   updated=1
   DEBIAN_FRONTEND=noninteractive "${sudo[@]}" apt-get install -y -q --no-install-recommends \
     -o DPkg::Lock::Timeout=600 "${missing[@]}" >"$root/build/aarch64-apt.log" 2>&1 ||
@@ -60,7 +65,7 @@ pass "host packages"
 step "private arm64 root for ${extra_packages[*]}"
 stamp=$extra/.complete
 if [[ ! -f $stamp ]]; then
-  ((updated)) || "${sudo[@]}" apt-get update -q >/dev/null
+  ((updated)) || "${sudo[@]}" apt-get update -q -o DPkg::Lock::Timeout=600 >/dev/null
   tests/aarch64/unpack_arm64.sh "$extra" "${extra_packages[@]}" || { fail "unpack ${extra_packages[*]}"; finish; }
 fi
 pass "private arm64 root ($extra)"
@@ -93,6 +98,7 @@ fi
 for bin in "$build/edge/app/alacsd" "$build/tests/alacs_unit_tests"; do
   if file -b "$bin" | grep -q "ARM aarch64"; then pass "$(basename "$bin") is an aarch64 ELF"; else fail "$bin: $(file -b "$bin")"; fi
 done
+((build_only)) && finish
 
 step "alacsd under qemu"
 qemu=(timeout -s KILL 60 qemu-aarch64-static -L /)

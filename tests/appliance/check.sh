@@ -24,7 +24,7 @@ command -v systemd-analyze >/dev/null || need_apt+=(systemd)
 [[ -x $root/.venv/bin/python ]] || python3 -c 'import ensurepip' 2>/dev/null || need_apt+=(python3-venv)
 if ((${#need_apt[@]})); then
   echo "installing: ${need_apt[*]}"
-  "${sudo[@]}" apt-get update -q >/dev/null
+  "${sudo[@]}" apt-get update -q -o DPkg::Lock::Timeout=600 >/dev/null
   DEBIAN_FRONTEND=noninteractive "${sudo[@]}" apt-get install -y -q --no-install-recommends \
     -o DPkg::Lock::Timeout=600 "${need_apt[@]}" >"$tmp/apt.log" 2>&1 || { cat "$tmp/apt.log"; fail "apt-get install ${need_apt[*]}"; finish; }
 fi

@@ -52,14 +52,21 @@ TEST_CASE("A frame off the learnt clock (a mode change, a restart) makes it lear
   FrameClock clock;
   for (uint64_t seq = 0; seq < 10; ++seq) clock.observe(seq, startOf(seq));
   REQUIRE(clock.periodNs());
-  // 60 fps from frame 10 on: the first such frame is 16.7 ms early.
+  // 60 fps from frame 10 on, on a new phase: the first such frame is held aside (it could
+  // be one late timestamp), the second restarts the learning from the first.
   constexpr TimeNs kFastNs = kPeriodNs / 2;
-  const TimeNs base = startOf(9);
+  const TimeNs base = startOf(9) + 5 * kNsPerMs;
   clock.observe(10, base + kFastNs);
+  REQUIRE(clock.periodNs());
+  CHECK(std::abs(*clock.periodNs() - kPeriodNs) < 20 * kNsPerUs);
+  clock.observe(11, base + 2 * kFastNs);
   CHECK_FALSE(clock.periodNs().has_value());
-  for (uint64_t k = 2; k <= 4; ++k) clock.observe(9 + k, base + static_cast<TimeNs>(k) * kFastNs);
+  for (uint64_t k = 3; k <= 4; ++k) clock.observe(9 + k, base + static_cast<TimeNs>(k) * kFastNs);
   REQUIRE(clock.periodNs());
   CHECK(std::abs(*clock.periodNs() - kFastNs) < kNsPerUs);
+  const std::optional<TimeNs> next = clock.nextStart(base + 4 * kFastNs + kFastNs / 2);
+  REQUIRE(next);
+  CHECK(std::abs(*next - (base + 5 * kFastNs)) < kNsPerUs);
   // Timestamps that scatter more than the tolerance never give a prediction.
   FrameClock jittery;
   for (uint64_t seq = 0; seq < 20; ++seq)
@@ -70,6 +77,32 @@ TEST_CASE("A frame off the learnt clock (a mode change, a restart) makes it lear
   for (uint64_t seq = 0; seq < 10; ++seq) restarted.observe(seq, startOf(seq));
   restarted.observe(0, startOf(10));
   CHECK_FALSE(restarted.periodNs().has_value());
+}
+
+TEST_CASE("One late timestamp leaves the learnt clock as it was", "[common][frame_clock]") {
+  FrameClock clock;
+  for (uint64_t seq = 0; seq < 10; ++seq) clock.observe(seq, startOf(seq));
+  REQUIRE(clock.periodNs());
+  const TimeNs periodNs = *clock.periodNs();
+  // Frame 10's timestamp taken 2 ms late (an interrupt held off), far past the tolerance.
+  clock.observe(10, startOf(10) + 2 * kNsPerMs);
+  REQUIRE(clock.periodNs());
+  CHECK(*clock.periodNs() == periodNs);
+  // The clock still predicts frame 11 and, with frame 11 on it, frame 12; the late one is
+  // not in the fit.
+  std::optional<TimeNs> next = clock.nextStart(startOf(10) + kPeriodNs / 2);
+  REQUIRE(next);
+  CHECK(std::abs(*next - startOf(11)) <= 100 * kNsPerUs);
+  clock.observe(11, startOf(11));
+  next = clock.nextStart(startOf(11) + kPeriodNs / 2);
+  REQUIRE(next);
+  CHECK(std::abs(*next - startOf(12)) <= 100 * kNsPerUs);
+  CHECK(clock.jitterNs() <= 80 * kNsPerUs);
+  // Two in a row are not one late timestamp (the stream moved): the clock learns again.
+  clock.observe(12, startOf(12) + 2 * kNsPerMs);
+  REQUIRE(clock.periodNs());
+  clock.observe(13, startOf(13) + 2 * kNsPerMs);
+  CHECK_FALSE(clock.periodNs().has_value());
 }
 
 TEST_CASE("A driver that numbers only the frames it had a buffer for (vimc): the clock counts by the time",
