@@ -26,6 +26,12 @@ Status validateConfig(const DaemonConfig& c) {
     return bad("camera.frame_timeout_ms", "(" + std::to_string(c.frameTimeoutMs) + ") + camera.exposure_us (" +
                                               std::to_string(c.exposureUs) + " us) must stay below laser.max_on_ms (" +
                                               std::to_string(c.laserMaxOnMs) + ")");
+  if (c.frameDurationUs != 0 && c.frameDurationUs < 1000)
+    return bad("camera.frame_duration_us", "must be 0 (the camera's own) or at least 1000 (1000 fps)");
+  if (c.frameDurationUs != 0 && c.exposureUs >= c.frameDurationUs)
+    return bad("camera.exposure_us", "(" + std::to_string(c.exposureUs) +
+                                         ") must be shorter than camera.frame_duration_us (" +
+                                         std::to_string(c.frameDurationUs) + ")");
   if (c.globalShutter && c.lineTimeUs > 0)
     return bad("camera.global_shutter", "a global shutter has no line time: camera.line_time_us must be 0");
   if (c.scan.stops > 1 && (c.scan.stops - 1) * c.scan.stopSpacingMm > c.motion.strokeMm)
@@ -113,6 +119,7 @@ Status configFromJson(const Json& json, DaemonConfig& c) {
     cam->boolean("laser_on_frame_clock", c.laserOnFrameClock);
     cam->number("laser_lead_us", c.laserLeadUs, Need::kOptional, 100, 10000);
     cam->number("frame_clock_jitter_us", c.frameClockJitterUs, Need::kOptional, 1, 100000);
+    cam->integer("frame_duration_us", c.frameDurationUs, Need::kOptional, 0, 1000000);
     cam->text("id", c.cameraId);
     cam->finish();
   }
@@ -185,6 +192,7 @@ OrderedJson configToJson(const DaemonConfig& c) {
                  {"laser_on_frame_clock", c.laserOnFrameClock},
                  {"laser_lead_us", c.laserLeadUs},
                  {"frame_clock_jitter_us", c.frameClockJitterUs},
+                 {"frame_duration_us", c.frameDurationUs},
                  {"id", c.cameraId}};
   j["laser"] = {{"max_on_ms", c.laserMaxOnMs}};
   j["calibration"] = c.calibrationPath;

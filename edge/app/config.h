@@ -53,6 +53,10 @@ struct DaemonConfig {
   bool globalShutter = false;
   double laserLeadUs = 1000.0;
   double frameClockJitterUs = 300.0;
+  // The sensor's frame duration asked of the camera (libcamera's FrameDurationLimits, min
+  // = max); 0: the camera's own. A sensor mode cannot go faster than its limit; the
+  // daemon logs the period it learns (docs/daemon.md "Frame rate").
+  int frameDurationUs = 0;
   std::string calibrationPath = "/var/lib/alacs/calibration.json";
   std::string cameraId;
 };

@@ -4,6 +4,7 @@
 
 #include <atomic>
 
+#include "common/frame_clock.h"
 #include "common/log.h"
 #ifdef ALACS_HAVE_GPIOD
 #include "drivers/gpiod/gpiod_lines.h"
@@ -99,6 +100,8 @@ class CameraWhenAvailable final : public ports::FrameSource {
     }
     owner_ = std::move(*cam);
     error_ = Status::ok();
+    rateLogged_ = false;
+    capturesUnlearnt_ = 0;
     source_.store(owner_.get());
     return error_;
   }
@@ -110,7 +113,34 @@ class CameraWhenAvailable final : public ports::FrameSource {
       }
       ALACS_LOG_INFO("camera", "camera opened");
     }
-    return source_.load()->capture(r, hooks);
+    Result<ports::CapturedFrame> frame = source_.load()->capture(r, hooks);
+    if (!rateLogged_) logRate();
+    return frame;
+  }
+  static constexpr int kFramesToLearnTheClock = 30;
+  // The sensor's rate, once its clock is learnt: the first thing to look at when the cycle
+  // is slower than the docs say (docs/daemon.md "Frame rate").
+  void logRate() {
+    const drivers::LibcameraStats st = source_.load()->stats();
+    if (st.framePeriodNs <= 0) {
+      // Timestamps that never settle on one clock keep the laser on from each request to
+      // its delivery: say so once, with what the tolerance would need.
+      if (++capturesUnlearnt_ < kFramesToLearnTheClock) return;
+      rateLogged_ = true;
+      ALACS_LOG_WARN("camera",
+                     "no frame clock learnt in %d captures: the frames' timestamps do not keep to one clock within "
+                     "camera.frame_clock_jitter_us %lld%s",
+                     kFramesToLearnTheClock, static_cast<long long>(cfg_.frameClockJitterNs / kNsPerUs),
+                     cfg_.laserOnFrameClock ? "; the laser stays on from each request to its frame" : "");
+      return;
+    }
+    rateLogged_ = true;
+    const FrameRateNote note =
+        frameRateNote(cfg_.frameDurationNs / kNsPerUs, st.frameDurationControl, st.framePeriodNs);
+    if (note.warning)
+      ALACS_LOG_WARN("camera", "%s", note.text.c_str());
+    else
+      ALACS_LOG_INFO("camera", "%s", note.text.c_str());
   }
   void doInterrupt() override {
     if (drivers::LibcameraSource* s = source_.load()) s->interrupt();
@@ -123,6 +153,8 @@ class CameraWhenAvailable final : public ports::FrameSource {
   std::unique_ptr<drivers::LibcameraSource> owner_;  // set once, by the worker's thread
   std::atomic<drivers::LibcameraSource*> source_{nullptr};
   Status error_;
+  bool rateLogged_ = false;  // the worker's thread
+  int capturesUnlearnt_ = 0;
 };
 
 class HardwarePlatform final : public Platform {
@@ -152,6 +184,7 @@ class HardwarePlatform final : public Platform {
     lc.frameClockJitterNs = std::llround(cfg.frameClockJitterUs * 1e3);
     lc.lineTimeNs = std::llround(cfg.lineTimeUs * 1e3);
     lc.globalShutter = cfg.globalShutter;
+    lc.frameDurationNs = TimeNs{cfg.frameDurationUs} * kNsPerUs;
     if (p->calibration()) {
       lc.widthPx = p->calibration()->camera.widthPx;
       lc.heightPx = p->calibration()->camera.heightPx;

@@ -2,6 +2,8 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdio>
+#include <cstdlib>
 
 namespace alacs {
 
@@ -92,6 +94,22 @@ ExposureSpan exposureSpan(TimeNs timestampNs, TimeNs exposureNs, int y0Px, int y
                                                           : 0.0;
   return {timestampNs - exposureNs + std::llround(y0Px * startLineNs),
           timestampNs + std::llround(y1Px * endLineNs) + exposureNs};
+}
+
+FrameRateNote frameRateNote(int64_t askedUs, bool cameraHasControl, TimeNs periodNs) {
+  const int64_t periodUs = (periodNs + kNsPerUs / 2) / kNsPerUs;
+  char fps[32];
+  std::snprintf(fps, sizeof fps, "%.1f fps", periodNs > 0 ? 1e9 / static_cast<double>(periodNs) : 0.0);
+  const std::string rate = "frames every " + std::to_string(periodUs) + " us (" + fps + ")";
+  if (askedUs <= 0) return {false, rate + ", the camera's own rate (camera.frame_duration_us 0)"};
+  const std::string asked = "camera.frame_duration_us " + std::to_string(askedUs);
+  if (!cameraHasControl)
+    return {true, rate + ": " + asked + " not applied, the camera has no FrameDurationLimits control"};
+  // 2 %: a sensor's frame length is a whole number of lines, and the clock's fit is good to
+  // a few microseconds.
+  if (std::abs(periodUs - askedUs) * 50 > askedUs)
+    return {true, rate + ", not the " + asked + " asked: beyond the sensor mode's limits?"};
+  return {false, rate + ", as asked (" + asked + ")"};
 }
 
 std::optional<TimeNs> FrameClock::periodNs() const {

@@ -16,6 +16,7 @@
 #include <array>
 #include <cstdint>
 #include <optional>
+#include <string>
 
 #include "common/clock.h"
 
@@ -44,6 +45,15 @@ ExposureSpan exposureSpan(TimeNs timestampNs, TimeNs exposureNs, int y0Px, int y
 inline bool litBy(const ExposureSpan& span, TimeNs onNs, TimeNs offNs) {
   return onNs > 0 && span.startNs >= onNs && (offNs == 0 || span.endNs <= offNs);
 }
+
+// What the log says of the sensor's rate once its clock is learnt (`periodNs`), against the
+// frame duration asked (config camera.frame_duration_us; 0: none) and whether the camera
+// has the control to take it. Level: a warning when the rate is not the one asked.
+struct FrameRateNote {
+  bool warning = false;
+  std::string text;
+};
+FrameRateNote frameRateNote(int64_t askedUs, bool cameraHasControl, TimeNs periodNs);
 
 class FrameClock {
  public:

@@ -80,3 +80,21 @@ TEST_CASE("Config: the laser on the frame clock, and a sensor's shutter stated o
   CHECK(both.status().code() == Error::kBadInput);
   CHECK(both.status().reason().find("camera.global_shutter") != std::string::npos);
 }
+
+TEST_CASE("Config: the sensor's frame duration, the camera's own unless asked", "[config]") {
+  auto defaults = app::loadConfig(write("{}"));
+  REQUIRE(defaults.isOk());
+  CHECK(defaults->frameDurationUs == 0);
+  auto sixty = app::loadConfig(write(R"({"camera": {"frame_duration_us": 16667}})"));
+  REQUIRE(sixty.isOk());
+  CHECK(sixty->frameDurationUs == 16667);
+  CHECK(app::configToJson(*sixty)["camera"]["frame_duration_us"] == 16667);
+  // Faster than any sensor (and a likely unit slip: milliseconds, fps).
+  auto tiny = app::loadConfig(write(R"({"camera": {"frame_duration_us": 60}})"));
+  CHECK(tiny.status().code() == Error::kBadInput);
+  CHECK(tiny.status().reason().find("camera.frame_duration_us") != std::string::npos);
+  // An exposure cannot last longer than its frame.
+  auto longExposure = app::loadConfig(write(R"({"camera": {"frame_duration_us": 2000, "exposure_us": 3000}})"));
+  CHECK(longExposure.status().code() == Error::kBadInput);
+  CHECK(longExposure.status().reason().find("frame_duration_us") != std::string::npos);
+}

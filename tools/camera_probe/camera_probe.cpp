@@ -30,6 +30,7 @@
 #include <nlohmann/json.hpp>
 
 #include "app/process_memory.h"
+#include "common/frame_clock.h"
 #include "drivers/libcamera/libcamera_source.h"
 #include "tool_common/cli.h"
 
@@ -52,6 +53,7 @@ struct Options {
   double frameClockJitterUs = 300.0;
   double lineTimeUs = 0.0;
   bool globalShutter = false;
+  int64_t frameDurationUs = 0;
 };
 
 TimeNs nowNs() {
@@ -94,6 +96,10 @@ nlohmann::json statsJson(const drivers::LibcameraStats& s) {
           {"buffers", s.buffers},
           {"exposure_control", s.exposureControl},
           {"gain_control", s.gainControl},
+          {"frame_duration_control", s.frameDurationControl},
+          {"frame_duration_asked_us", s.frameDurationAskedUs},
+          {"frame_duration_reported_us",
+           s.frameDurationReportedUs < 0 ? nlohmann::json(nullptr) : nlohmann::json(s.frameDurationReportedUs)},
           {"sensor_timestamp", s.sensorTimestamp},
           {"exposure_requested_us", s.lastExposureRequestedUs},
           {"exposure_applied_us",
@@ -129,6 +135,7 @@ int run(const Options& o) {
   camera.frameClockJitterNs = std::llround(o.frameClockJitterUs * 1e3);
   camera.lineTimeNs = std::llround(o.lineTimeUs * 1e3);
   camera.globalShutter = o.globalShutter;
+  camera.frameDurationNs = o.frameDurationUs * kNsPerUs;
   Result<std::unique_ptr<drivers::LibcameraSource>> opened = drivers::LibcameraSource::open(camera);
   if (!opened) {
     std::cerr << "alacs_camera_probe: " << opened.status().toString() << "\n";
@@ -203,13 +210,12 @@ int run(const Options& o) {
     }
     ++captured;
     const int64_t startNs = f->info.exposureStartNs;
-    // The window's rows exposed from its first row's start (0 line times, unless told) to
-    // its last row's end (at most a whole period of readout, unless told).
+    // The window's rows exposed from its first row's start (0 line times, unless told).
     // (For either meaning of the timestamp: the first row's exposure start or its end.)
     const TimeNs windowStartNs = startNs - f->info.exposureUs * kNsPerUs + std::llround(y0 * o.lineTimeUs * 1e3);
-    // The laser must have been on when the window began exposing. Switched on the frame
-    // clock, the frame delivered is the one predicted: its timestamp within the lead of
-    // the prediction (the end of the window is then covered too).
+    // The laser must have been on when the window began exposing. Its end is the adapter's
+    // own check (litBy): off after the modelled span, or at the frame's completion, which
+    // the probe cannot see (vimc completes a frame long before a modelled readout ends).
     const drivers::LibcameraStats st = cam.stats();
     const bool onFrameClock = st.lastPredictedStartNs != 0;
     if (onFrameClock) {
@@ -235,6 +241,9 @@ int run(const Options& o) {
   out["timestamps_increasing"] = monotonic;
   out["frame_interval_median_ms"] = medianOf(periodsMs);
   out["exposure_end_callbacks"] = exposureEnds;
+  out["frame_rate_note"] = s.framePeriodNs > 0
+                               ? frameRateNote(o.frameDurationUs, s.frameDurationControl, s.framePeriodNs).text
+                               : std::string("no frame clock learnt");
   out["laser_switched_on"] = laserOns;
   out["laser_switched_off"] = laserOffs;
   out["laser_timing"] = o.laserTiming;
@@ -296,6 +305,15 @@ int main(int argc, char** argv) {
       ->capture_default_str();
   app.add_option("--line-time-us", o.lineTimeUs, "the sensor's line time (0: not known)")
       ->check(CLI::Range(0.0, 1000.0))
+      ->capture_default_str();
+  app.add_option("--frame-duration-us", o.frameDurationUs,
+                 "ask the sensor for this frame duration (FrameDurationLimits; 0: its own)")
+      ->check(CLI::Validator(
+          [](const std::string& s) {
+            const long long us = std::atoll(s.c_str());
+            return us == 0 || (us >= 1000 && us <= 1000000) ? std::string() : "0, or 1000 to 1000000";
+          },
+          "0|1000..1000000"))
       ->capture_default_str();
   app.add_flag("--global-shutter", o.globalShutter, "the sensor exposes all rows at once (camera.global_shutter)");
   if (const int exit = tools::parseCommandLine(app, argc, argv); exit >= 0) return exit;

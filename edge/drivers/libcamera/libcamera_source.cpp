@@ -195,6 +195,8 @@ class Impl final : public LibcameraSource {
     stats_.buffers = static_cast<int>(requests_.size());
     stats_.exposureControl = exposureControl_;
     stats_.gainControl = advertises(*camera_, lc::controls::AnalogueGain);
+    stats_.frameDurationControl = advertises(*camera_, lc::controls::FrameDurationLimits);
+    stats_.frameDurationAskedUs = stats_.frameDurationControl ? cfg_.frameDurationNs / kNsPerUs : 0;
     return Status::ok();
   }
 
@@ -228,7 +230,15 @@ class Impl final : public LibcameraSource {
       done_.assign(requests_.size(), nullptr);
       doneHead_ = doneCount_ = 0;
     }
-    if (camera_->start() != 0) return {Error::kIo, "camera start failed"};
+    // The frame duration, asked once for the stream (min = max): a Raspberry Pi pipeline
+    // holds it from start() on; a camera without the control keeps its own rate.
+    const bool askDuration = cfg_.frameDurationNs > 0 && advertises(*camera_, lc::controls::FrameDurationLimits);
+    lc::ControlList startControls(lc::controls::controls);
+    if (askDuration) {
+      const int64_t us = cfg_.frameDurationNs / kNsPerUs;
+      startControls.set(lc::controls::FrameDurationLimits, {us, us});
+    }
+    if (camera_->start(askDuration ? &startControls : nullptr) != 0) return {Error::kIo, "camera start failed"};
     started_ = true;
     for (const std::unique_ptr<lc::Request>& req : requests_)
       if (Status s = requeue(req.get(), 0); !s) return s;
@@ -392,6 +402,9 @@ class Impl final : public LibcameraSource {
     if (meta.status != lc::FrameMetadata::FrameSuccess) return;
     const std::optional<int64_t> sensorNs = req->metadata().get(lc::controls::SensorTimestamp);
     frameClock_.observe(meta.sequence, sensorNs ? static_cast<TimeNs>(*sensorNs) : static_cast<TimeNs>(meta.timestamp));
+    std::lock_guard<std::mutex> lock(mu_);
+    stats_.framePeriodNs = frameClock_.periodNs().value_or(0);
+    stats_.frameJitterNs = frameClock_.jitterNs();
   }
 
   // Frames completed before this capture: back to the camera at once (so that a buffer is
@@ -594,6 +607,8 @@ class Impl final : public LibcameraSource {
     ++stats_.framesDelivered;
     stats_.sensorTimestamp = sensorNs.has_value();
     stats_.lastExposureAppliedUs = appliedUs ? *appliedUs : -1;
+    const std::optional<int64_t> durationUs = req->metadata().get(lc::controls::FrameDuration);
+    stats_.frameDurationReportedUs = durationUs ? *durationUs : -1;
     stats_.framePeriodNs = frameClock_.periodNs().value_or(0);
     stats_.frameJitterNs = frameClock_.jitterNs();
     return out;

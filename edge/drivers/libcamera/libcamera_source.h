@@ -54,6 +54,10 @@ struct LibcameraConfig {
   // row's exposure: common/frame_clock.h, exposureSpan).
   TimeNs lineTimeNs = 0;
   bool globalShutter = false;  // config camera.global_shutter: no readout to cover
+  // The sensor's frame duration, asked as FrameDurationLimits (min = max) when the camera
+  // starts; 0: the camera's own. Cameras without the control run at their own rate
+  // (LibcameraStats::frameDurationControl says which).
+  TimeNs frameDurationNs = 0;
 };
 
 // What the adapter negotiated and counted; for diagnostics and the bench's tests.
@@ -66,6 +70,9 @@ struct LibcameraStats {
   int buffers = 0;
   bool exposureControl = false;  // the camera advertises ExposureTime
   bool gainControl = false;      // ... and AnalogueGain
+  bool frameDurationControl = false;     // ... and FrameDurationLimits
+  int64_t frameDurationAskedUs = 0;      // LibcameraConfig::frameDurationNs, when the camera took it
+  int64_t frameDurationReportedUs = -1;  // the last frame's FrameDuration metadata; -1: not reported
   bool sensorTimestamp = false;  // the last frame carried SensorTimestamp metadata
   int64_t lastExposureRequestedUs = 0;
   int64_t lastExposureAppliedUs = -1;  // from the metadata; -1: the pipeline did not report it
