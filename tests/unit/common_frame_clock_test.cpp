@@ -106,22 +106,29 @@ TEST_CASE("One late timestamp leaves the learnt clock as it was", "[common][fram
 }
 
 TEST_CASE("What the log says of the sensor's rate, against the frame duration asked", "[common][frame_clock]") {
-  // Not asked: the rate the camera runs at, for the record.
-  FrameRateNote own = frameRateNote(0, false, 33'333'333);
-  CHECK_FALSE(own.warning);
-  CHECK(own.text.find("frames every 33333 us (30.0 fps), the camera's own rate") != std::string::npos);
-  // Asked, and run at: within 2 % (a frame length is a whole number of lines).
-  FrameRateNote asked = frameRateNote(16667, true, 16'700'000);
-  CHECK_FALSE(asked.warning);
-  CHECK(asked.text.find("as asked") != std::string::npos);
-  // Asked of a sensor mode that cannot go so fast (an HQ camera's binned mode: 40 fps).
-  FrameRateNote slow = frameRateNote(16667, true, 25'000'000);
-  CHECK(slow.warning);
-  CHECK(slow.text.find("not the camera.frame_duration_us 16667 asked") != std::string::npos);
-  // Asked of a camera without the control (vimc).
-  FrameRateNote none = frameRateNote(16667, false, 20'000'000);
-  CHECK(none.warning);
-  CHECK(none.text.find("no FrameDurationLimits control") != std::string::npos);
+  struct Case {
+    const char* what;
+    int64_t askedUs;
+    bool control;
+    TimeNs periodNs;
+    bool warning;
+    const char* says;
+  };
+  const Case cases[] = {
+      {"not asked: the camera's rate, for the record", 0, false, 33'333'333, false,
+       "frames every 33333 us (30.0 fps), the camera's own rate"},
+      {"asked and run at, within 2 % (a frame is whole lines)", 16667, true, 16'700'000, false, "as asked"},
+      {"asked beyond the sensor mode (an HQ binned mode: 40 fps)", 16667, true, 25'000'000, true,
+       "not the camera.frame_duration_us 16667 asked"},
+      {"asked of a camera without the control (vimc)", 16667, false, 20'000'000, true,
+       "no FrameDurationLimits control"},
+  };
+  for (const Case& c : cases) {
+    INFO(c.what);
+    const FrameRateNote note = frameRateNote(c.askedUs, c.control, c.periodNs);
+    CHECK(note.warning == c.warning);
+    CHECK(note.text.find(c.says) != std::string::npos);
+  }
 }
 
 TEST_CASE("A driver that numbers only the frames it had a buffer for (vimc): the clock counts by the time",
