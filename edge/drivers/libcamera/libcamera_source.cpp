@@ -521,6 +521,8 @@ class Impl final : public LibcameraSource {
       needReopen_ = false;
       std::lock_guard<std::mutex> lock(mu_);
       ++stats_.reopens;
+      stats_.framePeriodNs = 0;  // learnt again from the new stream
+      stats_.frameJitterNs = 0;
     }
     if (Status s = drainCompleted(r.exposureUs); !s) return s;
     const TimeNs deadlineNs = monotonicNowNs() + r.timeoutMs * kNsPerMs;
