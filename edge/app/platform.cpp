@@ -114,20 +114,20 @@ class CameraWhenAvailable final : public ports::FrameSource {
       ALACS_LOG_INFO("camera", "camera opened");
     }
     Result<ports::CapturedFrame> frame = source_.load()->capture(r, hooks);
-    if (const uint64_t reopens = source_.load()->stats().reopens; reopens != reopensSeen_) {
+    const drivers::LibcameraStats st = source_.load()->stats();
+    if (st.reopens != reopensSeen_) {
       // The adapter reopened the camera after a timeout: its rate is learnt, and told, again.
-      reopensSeen_ = reopens;
+      reopensSeen_ = st.reopens;
       rateLogged_ = false;
       capturesUnlearnt_ = 0;
     }
-    if (!rateLogged_) logRate();
+    if (!rateLogged_) logRate(st);
     return frame;
   }
   static constexpr int kFramesToLearnTheClock = 30;
   // The sensor's rate, once its clock is learnt: the first thing to look at when the cycle
   // is slower than the docs say (docs/daemon.md "Frame rate").
-  void logRate() {
-    const drivers::LibcameraStats st = source_.load()->stats();
+  void logRate(const drivers::LibcameraStats& st) {
     if (st.framePeriodNs <= 0) {
       // Timestamps that never settle on one clock keep the laser on from each request to
       // its delivery: say so once, with what the tolerance would need.

@@ -9,8 +9,9 @@
 // kFrames frames, n counted on the clock: from the driver's sequence numbers for the first
 // interval, then from the time (drivers differ on whether a frame dropped for want of a
 // buffer takes a sequence number; vimc's does not). One frame that does not fit a learnt
-// model is held aside (a timestamp taken late); a second in a row (a mode change, a stall,
-// a restart) starts the learning again from the first of them.
+// model is held aside (a timestamp taken late); a second in a row (a mode change, a stall)
+// starts the learning again from the first of them, a sequence that goes back (a restart)
+// from that frame.
 #pragma once
 
 #include <array>
