@@ -65,6 +65,8 @@ Status ScanParams::validate() const {
     return {Error::kInvalidArgument, "scan.rough_gate_sigmas must be in 0..100"};
   if (followUpMinLines < 1 || followUpMinLines > 15) return {Error::kInvalidArgument, "scan.follow_up_min_lines must be in 1..15"};
   if (followUpMaxStops < 0 || followUpMaxStops > 16) return {Error::kInvalidArgument, "scan.follow_up_max_stops must be in 0..16"};
+  if (followUpUnseenMaxStops < 0 || followUpUnseenMaxStops > 32)
+    return {Error::kInvalidArgument, "scan.follow_up_unseen_max_stops must be in 0..32"};
   if (!(followUpHiddenPct >= 0.0 && followUpHiddenPct <= 100.0))
     return {Error::kInvalidArgument, "scan.follow_up_hidden_pct must be in 0..100"};
   if (!(otherObjectPrior >= 0.0 && otherObjectPrior < 1.0))
@@ -247,7 +249,10 @@ std::vector<double> Localizer::followUpStops(const ScanPlan& plan, const std::ve
   const double middleMm = seen > 0 ? seenSum / seen : cal_.laser.slideForPoint(plan.roughMm);
   std::sort(out.begin(), out.end(),
             [&](double a, double b) { return std::abs(a - middleMm) < std::abs(b - middleMm); });
-  if (out.size() > static_cast<size_t>(scan_.followUpMaxStops)) out.resize(static_cast<size_t>(scan_.followUpMaxStops));
+  // Nothing of the fruit seen: no span to follow, the gaps across its width are all
+  // candidates (ScanParams::followUpUnseenMaxStops).
+  const size_t cap = static_cast<size_t>(seen == 0 ? scan_.followUpUnseenMaxStops : scan_.followUpMaxStops);
+  if (out.size() > cap) out.resize(cap);
   if (plan.stopsMm.back() >= plan.stopsMm.front())
     std::sort(out.begin(), out.end(), std::greater<>());
   else

@@ -81,6 +81,10 @@ struct ScanParams {
   // the fruit: round the stops whose line put points on it, one spacing either side; at
   // most `followUpMaxStops` of them, the nearest the middle of what was seen first. All the
   // lines are then fused. 0 stops: off (the paper's scan).
+  // When the first pass saw nothing of the fruit (no line put points on it, or what the
+  // lines saw is likely another object: far from the rough position), there is no span to
+  // follow: the target may show through any gap in the leaves across its width round the
+  // rough position, and the cap is `followUpUnseenMaxStops` instead (docs/geometry.md).
   // Honest uncertainty (docs/geometry.md "Honest uncertainty"): a fitted fruit may be
   // another object than the target (a touching neighbour, a leaf and the fruit bent into
   // one sphere). The chance that it is the target weighs how far its centre lies from the
@@ -111,6 +115,7 @@ struct ScanParams {
   double followUpHiddenPct = 60.0;
   double followUpDiameterSigmaMm = 0.0;
   int followUpMaxStops = 6;
+  int followUpUnseenMaxStops = 6;
   Status validate() const;
   // The paper's scan: these defaults with five stops 2 cm apart (the twin's benchmark
   // scans, and the tests built on them).

@@ -64,3 +64,27 @@ def test_a_few_hard_scans_are_diagnosed(tmp_path):
     # they lack some (rendered before a change to the LLE or the plan), the text says so.
     assert res["stops_missing"] == 0 and "lack" not in text
     assert "second-pass stops the scans lack: 3" in diagnose.text_loc(dict(res, stops_missing=3))
+
+
+def test_a_generator_option_reaches_the_render_and_the_processing(tmp_path, monkeypatch):
+    # --follow-up-unseen-max-stops changes which second-pass stops are rendered: it goes to
+    # `alacs-twin generate` (so the set's signature changes and it is rendered again) and
+    # to `process`, ahead of the options after `--`.
+    seen = {}
+
+    def generate(tw, out, set_name, args, total, desc, quiet=False, sources=()):
+        seen["generate"] = dict(args)
+        return []
+
+    def process(tw, dirs, jobs, desc, quiet=False, extra=()):
+        seen["process"] = list(extra)
+        return {}
+
+    monkeypatch.setattr(twin, "generate", generate)
+    monkeypatch.setattr(twin, "process", process)
+    monkeypatch.setattr(twin, "find_twin", lambda t: t)
+    rc = cli.main(["diagnose", "--loc", "--per-cell", "1", "--work", str(tmp_path), "--twin", "/bin/true",
+                   "--follow-up-unseen-max-stops", "32", "--", "--fit-when-far-from-rough"])
+    assert rc == 0
+    assert seen["generate"]["follow-up-unseen-max-stops"] == "32"
+    assert seen["process"] == ["--follow-up-unseen-max-stops", "32", "--fit-when-far-from-rough"]

@@ -181,8 +181,10 @@ def _localize_args(d) -> list[str]:  # noqa: ANN001
             "--target", "42"]
 
 
-def _check_session(bus_args: list[str], d) -> None:  # noqa: ANN001
-    """version, status, config, localize, scan through the CLI; every answer right."""
+def _check_session(bus_args: list[str], d, scan: bool = True) -> None:  # noqa: ANN001
+    """version, status, config, localize and (`scan`) SCAN_ALL through the CLI; every answer
+    right. SCAN_ALL is the same exchange over any transport (a request, progress, a result),
+    and costs a minute in UML: the socketcan session takes it, the other transports do not."""
     counter = iter(range(1, 16))
     run = lambda *a: alacs(*bus_args, "--counter", str(next(counter)), "--json", *a)  # noqa: E731
     p = run("version")
@@ -202,6 +204,8 @@ def _check_session(bus_args: list[str], d) -> None:  # noqa: ANN001
     truth = d.scene["apples"][0]["center_mm"]
     center = result["objects"][0]["center_mm"]
     assert max(abs(a - b) for a, b in zip(center, truth)) < 5.0, (center, truth)
+    if not scan:
+        return
     # SCAN_ALL renders 26 full simulated frames inside UML: 60-130 s on a slow 2-core VM.
     p = alacs(*bus_args, "--counter", str(next(counter)), "--json", "scan", "--timeout", "240", timeout_s=260)
     assert p.returncode in (0, 1), p.stderr  # 1: the survey found nothing valid
@@ -246,13 +250,13 @@ def test_cli_on_udp_multicast(daemon, multicast_loopback) -> None:  # noqa: ANN0
     udp = can.Bus(interface="udp_multicast", channel=GROUP)
     with Bridge(udp, drop_own=True):
         time.sleep(0.3)
-        _check_session(["--interface", "udp_multicast", "--channel", GROUP], d)
+        _check_session(["--interface", "udp_multicast", "--channel", GROUP], d, scan=False)
 
 
 def test_cli_on_socketcand(daemon) -> None:  # noqa: ANN001, F811
     d, _bus = daemon
     with SocketcandServer() as server:
         _check_session(["--interface", "socketcand", "--channel", IFACE, "--bus-arg",
-                        "host=127.0.0.1", "--bus-arg", f"port={server.port}"], d)
+                        "host=127.0.0.1", "--bus-arg", f"port={server.port}"], d, scan=False)
         assert server.opened and server.opened[0] == f"< open {IFACE} >"
     assert os.environ.get("ALACS_IN_UML") == "1"

@@ -28,10 +28,12 @@ TEST_CASE("Config: defaults, overrides and errors that name the key", "[config]"
   CHECK(range.status().reason().find("can.node_id") != std::string::npos);
   auto type = app::loadConfig(write(R"({"motion": {"stroke_mm": "long"}})"));
   CHECK(type.status().reason().find("motion.stroke_mm") != std::string::npos);
-  auto followUp = app::loadConfig(write(R"({"scan": {"follow_up_min_lines": 4, "follow_up_max_stops": 0}})"));
+  auto followUp = app::loadConfig(
+      write(R"({"scan": {"follow_up_min_lines": 4, "follow_up_max_stops": 0, "follow_up_unseen_max_stops": 20}})"));
   REQUIRE(followUp.isOk());
   CHECK(followUp->scan.followUpMinLines == 4);
   CHECK(followUp->scan.followUpMaxStops == 0);
+  CHECK(followUp->scan.followUpUnseenMaxStops == 20);
   CHECK(ok->scan.followUpMinLines == 3);
   CHECK(ok->scan.followUpMaxStops == 6);
   CHECK(ok->scan.followUpDiameterSigmaMm == 0.0);

@@ -392,6 +392,18 @@ TEST_CASE("The second pass's reasons: a mostly hidden fruit, two surfaces, far f
     CHECK(s >= std::min(a, b) - 1e-9);
     CHECK(s <= std::max(a, b) + 1e-9);
   }
+  // Nothing of the target seen: the cap is followUpUnseenMaxStops, so that the thirds
+  // across its whole width round the rough position can be taken; where the fruit was
+  // seen, followUpMaxStops still holds.
+  REQUIRE(around.size() == static_cast<size_t>(k.scan.followUpUnseenMaxStops));
+  localize::ScanParams wide = k.scan;
+  wide.followUpUnseenMaxStops = 32;
+  const localize::Localizer wideLoc(k.cal, image::LleParams{}, wide);
+  const std::vector<double> across = wideLoc.followUpStops(plan, lines, far, 200.0);
+  CHECK(across.size() > around.size());
+  for (double s : around) CHECK(std::count(across.begin(), across.end(), s) == 1);
+  for (size_t i = 1; i < across.size(); ++i) CHECK(std::abs(across[i] - across[i - 1]) > 20.0 / 6.0);
+  CHECK(wideLoc.followUpStops(plan, lines, est, 200.0) == fromTwo);
   localize::ScanParams notHidden = k.scan;
   notHidden.followUpHiddenPct = 0.0;  // not a reason
   CHECK(localize::Localizer(k.cal, image::LleParams{}, notHidden).followUpStops(plan, lines, hidden, 200.0).empty());
@@ -439,6 +451,9 @@ TEST_CASE("Scan parameters are validated", "[localize]") {
   p = {};
   p.followUpMaxStops = 17;
   CHECK(p.validate().reason().find("follow_up_max_stops") != std::string::npos);
+  p = {};
+  p.followUpUnseenMaxStops = 33;
+  CHECK(p.validate().reason().find("follow_up_unseen_max_stops") != std::string::npos);
   p = {};
   p.followUpHiddenPct = 101.0;
   CHECK(p.validate().reason().find("follow_up_hidden_pct") != std::string::npos);

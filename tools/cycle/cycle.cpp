@@ -61,6 +61,7 @@ struct Options {
   int heightPx = 0;
   bool verbose = false;
   int followUpMaxStops = -1;              // -1: ScanParams' default
+  int followUpUnseenMaxStops = -1;        // -1: ScanParams' default
   double followUpDiameterSigmaMm = -1.0;  // -1: ScanParams' default
   int stops = 0;                          // 0: ScanParams' default
   double spacingMm = 0.0;                 // 0: ScanParams' default
@@ -84,6 +85,7 @@ struct Options {
 localize::ScanParams scanParamsOf(const Options& o) {
   localize::ScanParams sp;
   if (o.followUpMaxStops >= 0) sp.followUpMaxStops = o.followUpMaxStops;
+  if (o.followUpUnseenMaxStops >= 0) sp.followUpUnseenMaxStops = o.followUpUnseenMaxStops;
   if (o.followUpDiameterSigmaMm >= 0.0) sp.followUpDiameterSigmaMm = o.followUpDiameterSigmaMm;
   if (o.stops > 0) sp.stops = o.stops;
   if (o.spacingMm > 0.0) sp.stopSpacingMm = o.spacingMm;
@@ -546,6 +548,8 @@ int main(int argc, char** argv) {
   app.add_option("--height", o.heightPx, "frame height, px (with --width)");
   app.add_flag("--verbose", o.verbose, "every trial");
   app.add_option("--follow-up-max-stops", o.followUpMaxStops, "0: no second pass (default: ScanParams')");
+  app.add_option("--follow-up-unseen-max-stops", o.followUpUnseenMaxStops,
+                 "the second pass's cap when the first saw nothing of the fruit (default: ScanParams')");
   app.add_option("--follow-up-diameter-sigma-mm", o.followUpDiameterSigmaMm, "0: lines only (default: ScanParams')");
   app.add_option("--stops", o.stops, "stops of the first pass (default: ScanParams')");
   app.add_option("--spacing-mm", o.spacingMm, "spacing of the first pass's stops (default: ScanParams')");

@@ -10,8 +10,8 @@
 //              metering from laser-off frames (localize/exposure.h), which every scan
 //              follows: laser-off frames first, then the laser frames at the chosen exposure.
 //   The localize scans take the daemon's adaptive second pass (Localizer::followUpStops,
-//              its default parameters): the first pass is observed as `process` will, and
-//              the frames of the second pass it asks for are rendered too (tag "follow_up").
+//              its default parameters; --follow-up-unseen-max-stops to compare one): the first pass is observed as
+//              `process` will, and the frames of the second pass it asks for are rendered too (tag "follow_up").
 #include <cmath>
 #include <cstdio>
 #include <sys/stat.h>
@@ -116,10 +116,10 @@ image::ImageView viewOf(const cv::Mat& m) { return {m.data, m.cols, m.rows, m.st
 // back (a frame zero outside the region, the laser-off frame subtracted when metering kept
 // one). Returns the renders in the order taken, for exportScan.
 std::vector<cv::Mat> scanTwoPasses(const sim::SimScene& scene, const std::shared_ptr<const sim::RayTable>& rays,
-                                   const RenderPlan& rp, const cv::Mat& subtract,
+                                   const RenderPlan& rp, const cv::Mat& subtract, const localize::ScanParams& scan,
                                    const std::function<FrameTaken(double slideMm, int pass)>& take) {
   std::vector<cv::Mat> renders;
-  const localize::Localizer loc(scene.truth, image::LleParams{}, localize::ScanParams{});
+  const localize::Localizer loc(scene.truth, image::LleParams{}, scan);
   Result<localize::ScanPlan> plan = loc.plan(rp.plan.roughMm, 200.0);
   if (!plan) {
     // (The paper's plan was made; the default one differs only in its stops.)
@@ -188,6 +188,15 @@ int generateMain(const Args& args) {
     return 2;
   }
   const bool resume = args.has("resume") && args.integer("resume", 1) != 0;
+  // The second pass as the daemon takes it: ScanParams' defaults, unless overridden to
+  // compare a setting (alacs-eval diagnose --follow-up-unseen-max-stops).
+  localize::ScanParams scanParams;
+  scanParams.followUpUnseenMaxStops =
+      static_cast<int>(args.integer("follow-up-unseen-max-stops", scanParams.followUpUnseenMaxStops));
+  if (Status s = scanParams.validate(); !s) {
+    std::fprintf(stderr, "alacs-twin generate: %s\n", s.reason().c_str());
+    return 2;
+  }
   // The daemon's metering (metering.* in its config); its defaults unless overridden.
   const Result<MeteringArgs> meteringOrError = meteringArgs(args);
   if (!meteringOrError) {
@@ -313,7 +322,7 @@ int generateMain(const Args& args) {
           info.stopsMm = rp->plan.stopsMm;
           // The first pass at the plan's stops, then the second pass where the localizer
           // asks for one (tag "follow_up"), as the daemon scans.
-          laserRenders = scanTwoPasses(scene, rays, *rp, metered.subtract, [&](double s, int pass) {
+          laserRenders = scanTwoPasses(scene, rays, *rp, metered.subtract, scanParams, [&](double s, int pass) {
             laserFrame(s - 0.5 * smearMm, s + 0.5 * smearMm, pass == 1 ? "stop" : "follow_up");
             followUpFrames += pass == 2 ? 1 : 0;
             t += 0.25;  // a stop every 250 ms (move, settle, expose)

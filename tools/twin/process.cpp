@@ -126,6 +126,8 @@ int processMain(const Args& args) {
   localize::ScanParams scan;
   scan.otherObjectPrior = args.num("other-object-prior", scan.otherObjectPrior);
   if (args.has("fit-when-far-from-rough")) scan.roughWhenFarFromRough = false;
+  scan.followUpUnseenMaxStops =
+      static_cast<int>(args.integer("follow-up-unseen-max-stops", scan.followUpUnseenMaxStops));
   if (Status s = scan.validate(); !s) {
     std::fprintf(stderr, "alacs-twin process: %s\n", s.reason().c_str());
     return 2;

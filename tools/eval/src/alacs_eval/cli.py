@@ -91,8 +91,10 @@ def _diagnose(a: argparse.Namespace) -> int:
     """Where the LLE loses on a tuning world: worst frames, rows next to gaps, missed rows."""
     work = Path(a.work) if a.work else ROOT / "build" / "diagnose"
     extra = tuple(x for x in a.process_args if x != "--")
+    gen = (("follow-up-unseen-max-stops", str(a.follow_up_unseen_max_stops)),) \
+        if a.follow_up_unseen_max_stops is not None else ()
     cfg = diagnose.Config(world=a.world, seed=a.seed, count=a.count, work=work, twin=twin.find_twin(a.twin),
-                          jobs=a.jobs, process_args=extra, worst=a.worst, quiet=a.quiet)
+                          jobs=a.jobs, process_args=extra, generate_args=gen, worst=a.worst, quiet=a.quiet)
     try:
         res = diagnose.run_loc(cfg, a.per_cell) if a.loc else diagnose.run(cfg)
     except ValueError as e:
@@ -152,6 +154,9 @@ def main(argv: list[str] | None = None) -> int:
     g.add_argument("--twin", help="the alacs-twin binary (default $ALACS_TWIN or the newest build/*/tools/twin)")
     g.add_argument("--jobs", type=int, default=2)
     g.add_argument("--quiet", action="store_true", help="no progress bars")
+    g.add_argument("--follow-up-unseen-max-stops", type=int,
+                   help="--loc: ScanParams::followUpUnseenMaxStops, for the scans rendered and their processing "
+                        "(use another --work: the scans are rendered again)")
     g.add_argument("process_args", nargs=argparse.REMAINDER,
                    help="after --: options for `alacs-twin process` (e.g. --lle-subtracted-line-pct 20)")
     g.set_defaults(func=_diagnose)

@@ -47,6 +47,10 @@ class Config:
     twin: Path
     jobs: int = 2
     process_args: tuple[str, ...] = ()
+    # `alacs-twin generate` options that change the scans themselves (the second pass's
+    # stops are rendered where the generator's localizer asks for them), e.g.
+    # {"follow-up-unseen-max-stops": "16"}; they go to `process` too.
+    generate_args: tuple[tuple[str, str], ...] = ()
     worst: int = 10
     quiet: bool = False
 
@@ -188,11 +192,12 @@ def run_loc(cfg: Config, per_cell: int = 40) -> dict[str, Any]:
     out = cfg.work / f"{cfg.world}-{cfg.seed}" / "loc"
     total = per_cell * len(evaluate.DISTANCES) * 2
     cases = twin.generate(cfg.twin, out, "loc", {"world": cfg.world, "count": per_cell, "seed": cfg.seed,
-                                                 "jobs": cfg.jobs},
+                                                 "jobs": cfg.jobs, **dict(cfg.generate_args)},
                           total, f"{cfg.world}: generating", cfg.quiet, sources=worlds.WORLD_SOURCES)
     dirs = [c["dir"] for c in cases]
+    both = tuple(x for k, v in cfg.generate_args for x in (f"--{k}", v))
     raw = twin.process(cfg.twin, dirs, cfg.jobs, f"{cfg.world}: our localization", quiet=cfg.quiet,
-                       extra=cfg.process_args)
+                       extra=both + cfg.process_args)
     rows = []
     for c in cases:
         d = c["dir"]
@@ -226,7 +231,7 @@ def run_loc(cfg: Config, per_cell: int = 40) -> dict[str, Any]:
             cells[f"{'occluded' if occ else 'clear'} {dist}"] = float(np.mean(sel)) if sel else math.nan
     return {
         "world": cfg.world, "seed": cfg.seed, "scans": len(rows), "results": len(res),
-        "process_args": list(cfg.process_args), "cells": cells,
+        "process_args": [f"--{k} {v}" for k, v in cfg.generate_args] + list(cfg.process_args), "cells": cells,
         "stops_missing": sum(int(raw.get(c["dir"], {}).get("follow_up_missing", 0)) for c in cases),
         "work": str(out),
         "within20": float(np.mean([x["ok"] and x["approach"] <= LOC_MISS_MM for x in rows])),
