@@ -66,7 +66,7 @@ def test_a_few_hard_scans_are_diagnosed(tmp_path):
     assert "second-pass stops the scans lack: 3" in diagnose.text_loc(dict(res, stops_missing=3))
 
 
-def test_a_generator_option_reaches_the_render_and_the_processing(tmp_path, monkeypatch):
+def test_a_generator_option_reaches_the_render_and_the_processing(tmp_path, monkeypatch, capsys):
     # --follow-up-unseen-max-stops changes which second-pass stops are rendered: it goes to
     # `alacs-twin generate` (so the set's signature changes and it is rendered again) and
     # to `process`, ahead of the options after `--`.
@@ -88,3 +88,4 @@ def test_a_generator_option_reaches_the_render_and_the_processing(tmp_path, monk
     assert rc == 0
     assert seen["generate"]["follow-up-unseen-max-stops"] == "32"
     assert seen["process"] == ["--follow-up-unseen-max-stops", "32", "--fit-when-far-from-rough"]
+    assert "results (--follow-up-unseen-max-stops 32 --fit-when-far-from-rough)" in capsys.readouterr().out

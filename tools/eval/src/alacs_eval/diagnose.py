@@ -48,8 +48,8 @@ class Config:
     jobs: int = 2
     process_args: tuple[str, ...] = ()
     # `alacs-twin generate` options that change the scans themselves (the second pass's
-    # stops are rendered where the generator's localizer asks for them), e.g.
-    # {"follow-up-unseen-max-stops": "16"}; they go to `process` too.
+    # stops are rendered where the generator's localizer asks for them), as (name, value)
+    # pairs, e.g. (("follow-up-unseen-max-stops", "16"),); they go to `process` too.
     generate_args: tuple[tuple[str, str], ...] = ()
     worst: int = 10
     quiet: bool = False
@@ -231,7 +231,7 @@ def run_loc(cfg: Config, per_cell: int = 40) -> dict[str, Any]:
             cells[f"{'occluded' if occ else 'clear'} {dist}"] = float(np.mean(sel)) if sel else math.nan
     return {
         "world": cfg.world, "seed": cfg.seed, "scans": len(rows), "results": len(res),
-        "process_args": [f"--{k} {v}" for k, v in cfg.generate_args] + list(cfg.process_args), "cells": cells,
+        "process_args": list(both + cfg.process_args), "cells": cells,
         "stops_missing": sum(int(raw.get(c["dir"], {}).get("follow_up_missing", 0)) for c in cases),
         "work": str(out),
         "within20": float(np.mean([x["ok"] and x["approach"] <= LOC_MISS_MM for x in rows])),
