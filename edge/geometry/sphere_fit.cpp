@@ -574,6 +574,13 @@ Result<SphereFit> finishOneLine(const std::vector<Eigen::Vector3d>& pts, const P
   return out;
 }
 
+// Points within `bandMm` of the hypothesis' sphere.
+std::vector<bool> explainedPoints(const std::vector<Eigen::Vector3d>& pts, const Hypothesis& h, double bandMm) {
+  std::vector<bool> out(pts.size(), false);
+  for (size_t i = 0; i < pts.size(); ++i) out[i] = std::abs((pts[i] - h.c).norm() - h.r) <= bandMm;
+  return out;
+}
+
 // The chosen fit with its score and its strongest rival: the best other object whose
 // centre is more than kRivalSeparationMm away.
 Result<SphereFit> withRival(Result<SphereFit> chosen, double score,
@@ -621,9 +628,15 @@ Result<SphereFit> fit(const std::vector<Eigen::Vector3d>& pts, const std::vector
       const Hypothesis h = search(pts, remaining, objectScorer, mean, free, false);
       if (!(h.score > 0.0)) break;
       Result<SphereFit> f = finish(pts, lineIds, remaining, h, p);
-      if (!f) break;
-      const std::vector<bool> taken = f->inlier;
-      if (f->linesUsed >= 2) {
+      // A hypothesis whose refinement fails (its sphere leaves the fruit's sizes, or loses
+      // its points: often a sphere bent through a leaf and a piece of skin) is not an
+      // object, but it must not end the search: the target may be the next one (a heavily
+      // occluded target shows less skin than the leaves and neighbours round it). The
+      // pieces it scored on are set aside: those it explains by at least half the
+      // coherent share (a quarter of a full piece's weight in its score).
+      const std::vector<bool> taken = f ? f->inlier : explainedPoints(pts, h, p.ransacBandMm);
+      const double setAsideShare = f ? 0.5 : 0.5 * p.coherentShare;
+      if (f && f->linesUsed >= 2) {
         const double sc = std::max(scorer.score(h.c, h.r), scorer.score(f->centerMm, f->radiusMm));
         objects.emplace_back(sc, f->centerMm);
         if (sc > multiScore) {
@@ -636,7 +649,7 @@ Result<SphereFit> fit(const std::vector<Eigen::Vector3d>& pts, const std::vector
       for (size_t g = 0; g < remaining.members.size(); ++g) {
         size_t count = 0;
         for (size_t i : remaining.members[g]) count += taken[i] ? 1U : 0U;
-        if (static_cast<double>(count) >= 0.5 * static_cast<double>(remaining.members[g].size())) continue;
+        if (static_cast<double>(count) >= setAsideShare * static_cast<double>(remaining.members[g].size())) continue;
         rest.members.push_back(remaining.members[g]);
         rest.line.push_back(remaining.line[g]);
       }

@@ -453,8 +453,11 @@ Result<AppleEstimate> Localizer::estimate(const ScanPlan& plan, const std::vecto
       // is off, and that fruit goes out as found, however far (issue 16). When the lines lit
       // something else round it (leaves, another fruit's skin), the target may well be
       // there, hidden, and a fruit far beyond is more likely a neighbour.
-      weighDoubt(plan, scan_.searchMm, *wide);
-      return otherPointsInGate(lines, *wide) >= kOccupiedGatePoints ? targetOrRough(std::move(wide)) : wide;
+      // There, the fruit beyond is weighed as the gate's own fits are: against another object
+      // within the gate's ball, for in a cluster a neighbour is that near (issue 17).
+      const bool occupied = otherPointsInGate(lines, *wide) >= kOccupiedGatePoints;
+      weighDoubt(plan, occupied ? scan_.gateMm : scan_.searchMm, *wide);
+      return occupied ? targetOrRough(std::move(wide)) : wide;
     }
   }
   // One line (or the paper's candidate) that puts the centre far beyond the rough

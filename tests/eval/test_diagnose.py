@@ -37,6 +37,10 @@ def test_a_few_hard_frames_are_diagnosed(tmp_path):
     found_rows = sum(g["n"] for g in res["gap"])
     assert found_rows > 0
     assert res["missed"]["visible_rows"] > 0
+    # ... and every row measured came from the LLE's line or from another segment.
+    assert set(res["by_source"]) == set(diagnose.SOURCES)
+    assert sum(v["n"] for v in res["by_source"].values()) == found_rows
+    assert res["by_source"][diagnose.SOURCES[0]]["n"] > 0
     assert all(k in diagnose.STATUS.values() or k in ("no sample", "only another surface's sample",
                                                       "a sample not kept", "visible_rows") for k in res["missed"])
     # The same frames with another setting: the options reach `alacs-twin process`.

@@ -70,6 +70,26 @@ def _miss_reason(row: int, column: float, samples: dict[int, list]) -> str:
     return "only another surface's sample" if samples.get(row) else "no sample"
 
 
+SOURCES = ("the LLE's line", "another segment")
+
+
+def _kept_rows(frame: dict, samples: dict[int, list]) -> tuple[dict[int, float], dict[int, str]]:
+    """Per row, the kept sample `worlds` measures (evaluate._ours_lle: the LLE's line's where
+    the row has one, else the first kept) and where it came from: the line, or another
+    segment that passed the localizer's 3D gate (another surface, or the fruit where a leaf
+    made the line)."""
+    on_line = {(r, round(float(s[1]), 3)) for r, ss in samples.items() for s in ss if len(s) > 3 and s[3] == 0}
+    kept: dict[int, float] = {}
+    source: dict[int, str] = {}
+    for row, col in frame.get("kept", []):
+        r = int(round(row))
+        line = (r, round(float(col), 3)) in on_line
+        if r not in kept or line:
+            kept[r] = float(col)
+            source[r] = SOURCES[0] if line else SOURCES[1]
+    return kept, source
+
+
 def _refuse_second_world(world: str) -> None:
     if world not in TUNING_WORLDS:
         raise ValueError(f"diagnose looks at tuning worlds only ({', '.join(TUNING_WORLDS)}); "
@@ -96,6 +116,7 @@ def run(cfg: Config) -> dict[str, Any]:
     frames, by_light = [], {}
     gap_err: dict[int, list[float]] = {b: [] for b in GAP_BINS}
     missed: Counter = Counter()
+    by_source: dict[str, list[float]] = {k: [] for k in SOURCES}
     visible = 0
     for c in cases:
         d = c["dir"]
@@ -105,12 +126,10 @@ def run(cfg: Config) -> dict[str, Any]:
                        "mean50": disp[50], "found80": ours[d]["cover"][80], "note": notes[d]})
         by_light.setdefault(c["lighting"], []).append(frames[-1])
         f = raw.get(d, {}).get("frames", [{}])[0]
-        kept: dict[int, float] = {}
-        for row, col in f.get("kept", []):
-            kept.setdefault(int(round(row)), float(col))
         samples: dict[int, list] = {}
         for s in f.get("rows", []):
             samples.setdefault(int(s[0]), []).append(s)
+        kept, source = _kept_rows(f, samples)
         vis = metrics.visible_rows(truths[d])
         if len(vis) < 3:
             continue
@@ -121,6 +140,7 @@ def run(cfg: Config) -> dict[str, Any]:
             if r in kept:
                 g = _gap_distance(r, keys)
                 gap_err[next(b for b in GAP_BINS if g <= b)].append(abs(kept[r] - col))
+                by_source[source[r]].append(abs(kept[r] - col))
             if abs(row - centre) <= 0.8 * half + 1e-9:
                 visible += 1
                 if r not in kept:
@@ -138,6 +158,9 @@ def run(cfg: Config) -> dict[str, Any]:
         "gap": [{"upto": b, "n": len(v), "mean": float(np.mean(v)) if v else math.nan,
                  "beyond": int(np.sum(np.asarray(v) > WORST_PX))} for b, v in gap_err.items()],
         "missed": {"visible_rows": visible, **dict(missed.most_common())},
+        "by_source": {k: {"n": len(v), "beyond": int(np.sum(np.asarray(v) > WORST_PX)),
+                          "px_rows_beyond": float(np.sum([e for e in v if e > WORST_PX]))}
+                      for k, v in by_source.items()},
     }
 
 
@@ -161,6 +184,9 @@ def text(res: dict[str, Any]) -> str:
         label = f"{lo}" if g["upto"] == lo else (f"{lo}-{g['upto']}" if g["upto"] < 10**9 else f">={lo}")
         L.append(f"  {label:>6}: n {g['n']:6d}, mean {f2(g['mean'])} px, beyond {WORST_PX} px: {g['beyond']}")
         lo = g["upto"] + 1
+    L += ["", f"rows measured, by where their kept sample came from (beyond {WORST_PX} px: rows, px summed):"]
+    L += [f"  {k}: n {v['n']}, beyond {v['beyond']}, {v['px_rows_beyond']:.0f} px"
+          for k, v in res["by_source"].items()]
     m = dict(res["missed"])
     total = m.pop("visible_rows")
     L += ["", f"visible rows of the target (central 80 %): {total}; not found, by reason:"]
