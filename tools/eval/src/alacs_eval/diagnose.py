@@ -70,24 +70,10 @@ def _miss_reason(row: int, column: float, samples: dict[int, list]) -> str:
     return "only another surface's sample" if samples.get(row) else "no sample"
 
 
+# Where a measured row's kept sample came from (evaluate.kept_rows): the LLE's line, or
+# another segment that passed the localizer's 3D gate (another surface, or the fruit where a
+# leaf made the line).
 SOURCES = ("the LLE's line", "another segment")
-
-
-def _kept_rows(frame: dict, samples: dict[int, list]) -> tuple[dict[int, float], dict[int, str]]:
-    """Per row, the kept sample `worlds` measures (evaluate._ours_lle: the LLE's line's where
-    the row has one, else the first kept) and where it came from: the line, or another
-    segment that passed the localizer's 3D gate (another surface, or the fruit where a leaf
-    made the line)."""
-    on_line = {(r, round(float(s[1]), 3)) for r, ss in samples.items() for s in ss if len(s) > 3 and s[3] == 0}
-    kept: dict[int, float] = {}
-    source: dict[int, str] = {}
-    for row, col in frame.get("kept", []):
-        r = int(round(row))
-        line = (r, round(float(col), 3)) in on_line
-        if r not in kept or line:
-            kept[r] = float(col)
-            source[r] = SOURCES[0] if line else SOURCES[1]
-    return kept, source
 
 
 def _refuse_second_world(world: str) -> None:
@@ -129,7 +115,9 @@ def run(cfg: Config) -> dict[str, Any]:
         samples: dict[int, list] = {}
         for s in f.get("rows", []):
             samples.setdefault(int(s[0]), []).append(s)
-        kept, source = _kept_rows(f, samples)
+        per_row = evaluate.kept_rows(f)
+        kept = {r: col for r, (col, _) in per_row.items()}
+        source = {r: SOURCES[0] if line else SOURCES[1] for r, (_, line) in per_row.items()}
         vis = metrics.visible_rows(truths[d])
         if len(vis) < 3:
             continue

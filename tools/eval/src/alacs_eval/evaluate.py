@@ -121,20 +121,27 @@ def _paper_loc_case(task: tuple[str, str | None]) -> dict[str, Any]:
 
 # ---- the run -------------------------------------------------------------------------
 
-def _ours_lle(results: dict[str, dict], truths: dict[str, np.ndarray]) -> dict[str, dict]:
+def kept_rows(frame: dict) -> dict[int, tuple[float, bool]]:
     """Our line per row: the samples the localizer keeps of the frame (its LLE, gated in 3D
     around the rough position); where a row has several, the LLE's line's (RowStatus kLine,
-    when `process --rows` gave the statuses), else the first."""
+    when `process --rows` gave the statuses), else the first. Each with whether it is the
+    line's (else another segment's)."""
+    on_line = {(int(round(s[0])), round(float(s[1]), 3)) for s in frame.get("rows", []) if len(s) > 3 and s[3] == 0}
+    kept: dict[int, tuple[float, bool]] = {}
+    for row, col in frame.get("kept", []):
+        key = int(round(row))
+        line = (key, round(float(col), 3)) in on_line
+        if key not in kept or line:
+            kept[key] = (float(col), line)
+    return kept
+
+
+def _ours_lle(results: dict[str, dict], truths: dict[str, np.ndarray]) -> dict[str, dict]:
+    """Our line per row (kept_rows), against the truth per central segment."""
     out = {}
     for d, r in results.items():
         frames = r.get("frames", [])
-        f = frames[0] if frames else {}
-        on_line = {(int(round(s[0])), round(float(s[1]), 3)) for s in f.get("rows", []) if len(s) > 3 and s[3] == 0}
-        kept: dict[int, float] = {}
-        for row, col in f.get("kept", []):
-            key = int(round(row))
-            if key not in kept or (key, round(float(col), 3)) in on_line:
-                kept[key] = float(col)
+        kept = {row: col for row, (col, _) in kept_rows(frames[0] if frames else {}).items()}
         predict = None
         if kept:
             def predict(rows: np.ndarray, kept=kept) -> np.ndarray:
