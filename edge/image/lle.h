@@ -98,10 +98,10 @@ struct LleParams {
   double bridgePx = 3.0;     // two segments are one line when their ends, extrapolated to the
   double bridgePxPerRow = 0.08;  // middle of the gap between them, agree within bridgePx + this·gap
   bool keepOtherSegments = true;  // also report segments that are not the line (other surfaces)
-  double centrePriorShare = 0.2;  // the line is the one, grown from one of the strongest segments, whose
-                                  // strength times a Gaussian weight on its centre's offset from the ROI's centre (σ =
-                                  // this share of the ROI's width and height; the ROI is planned round the target) is
-                                  // largest; 0: grown from the strongest segment (0, 0.02..10)
+  double centrePriorShare = 0.15;  // the line is the one, grown from one of the strongest segments, whose
+                                   // rows' strengths, each times a Gaussian weight on the row's offset from the ROI's
+                                   // centre (σ = this share of the ROI's width and height; the ROI is planned round the
+                                   // target), sum largest; 0: grown from the strongest segment (0, 0.02..10)
   int smoothOrder = 1;       // of that local fit: 0 mean, 1 line, 2 quadratic
   int smoothRows = 8;        // a row's column: local fit through the centroids within ±this many rows (0: none) (0..32)
   int edgeRatio = 3;         // occluding edge: the background on one side of a run is darker than

@@ -117,6 +117,14 @@ inline RunSums runSums(const PeakRows& px, int w, int a, int b, int step, int ed
     s.sumXW += wq * x;
   }
   for (int x = a; x <= b; ++x) s.saturated = s.saturated || px.red(px.on[1], x) == 255;
+  // A clipped core is compared with the pixels `step` beyond the run's ends, as
+  // clippedRunsRow marked it (its own pixels `step` away lie on the plateau).
+  if (s.saturated && a - step >= 0 && b + step < w) {
+    const int l = px.brce(a - step);
+    const int r = px.brce(b + step);
+    for (int x = a; x <= b; ++x)
+      if (px.red(px.on[1], x) == 255) s.margin = std::max(s.margin, std::min(px.brce(x) - l, px.brce(x) - r));
+  }
   for (int x = xl; x <= xr; ++x) s.clipped = s.clipped || px.clipped(x);
   s.area = static_cast<int32_t>(s.sumW / (static_cast<int64_t>(span) * px.scale()));
   s.excess = static_cast<int32_t>(maxW / (static_cast<int64_t>(span) * px.scale()));
@@ -629,33 +637,25 @@ void growLine(const LleParams& p, int h, const Peak<Col>* peaks, Chain* chains, 
   }
 }
 
-// The grown line's rank: the area of its segments times the centre prior's weight (Q16),
-// exp(-½·((dx/σx)² + (dy/σy)²)), dx and dy the offsets of its centre (the mean of its
-// rows' peak columns, the middle of its first and last row) from the ROI's centre in
-// shares of the ROI's width and height, σ = centrePriorShare. The weight is rounded to an
-// integer once per line, so both arithmetics rank alike.
+// The grown line's rank: the sum over its rows of the row's peak area times the centre
+// prior's weight at that peak (Q16), exp(-½·((dx/σ)² + (dy/σ)²)), dx and dy the peak's
+// offset from the ROI's centre in shares of the ROI's width and height, σ =
+// centrePriorShare. Weighed row by row, a neighbour's long line counts only the rows it has
+// near the middle, where the target is; weighed as a whole (its mean column and middle
+// row), its rows far above or below outweighed the target's (docs/lle.md, "Which line is
+// the fruit's"). Each weight is rounded to an integer, so both arithmetics rank alike.
 template <class Col>
-int64_t lineRank(const LleParams& p, int w, int h, const Peak<Col>* peaks, const Chain* chains, const int32_t* order,
-                 int nSeg, const int32_t* owner) {
-  int64_t area = 0;
-  for (int s = 0; s < nSeg; ++s) area += chains[order[s]].onLine != 0 ? chains[order[s]].area : 0;
-  int64_t sumKeys = 0;
-  int rows = 0;
-  int first = -1;
-  int last = -1;
+int64_t lineRank(const LleParams& p, int w, int h, const Peak<Col>* peaks, const int32_t* owner) {
+  const double inv = 1.0 / (p.centrePriorShare * p.centrePriorShare);
+  int64_t rank = 0;
   for (int y = 0; y < h; ++y) {
     if (owner[y] < 0) continue;
-    sumKeys += peaks[owner[y]].key;
-    ++rows;
-    if (first < 0) first = y;
-    last = y;
+    const Peak<Col>& pk = peaks[owner[y]];
+    const double dx = pk.key / (256.0 * w) - 0.5;  // keys: Q8 columns
+    const double dy = (y + 0.5) / h - 0.5;
+    rank += static_cast<int64_t>(pk.area) * std::lround(65536.0 * std::exp(-0.5 * (dx * dx + dy * dy) * inv));
   }
-  if (rows == 0) return 0;
-  const double dx = static_cast<double>(sumKeys) / (256.0 * rows) / w - 0.5;  // keys: Q8 columns
-  const double dy = 0.5 * (first + last) / h - 0.5;
-  const double sigma = p.centrePriorShare;
-  const double weight = std::exp(-0.5 * (dx * dx + dy * dy) / (sigma * sigma));
-  return area * static_cast<int64_t>(std::lround(65536.0 * weight));
+  return rank;
 }
 
 // Stage 4b: the line. Without the centre prior (or on the whole frame, which is not a
@@ -680,7 +680,7 @@ void assembleLine(const LleParams& p, bool window, int w, int h, const Peak<Col>
       growLine(p, h, peaks, chains, order, nSeg, seed, owner, endRows, endKeys);
       grown = seed;
       for (int k = seed + 1; k < seeds; ++k) covered[k] = covered[k] || chains[order[k]].onLine != 0;
-      const int64_t rank = lineRank(p, w, h, peaks, chains, order, nSeg, owner);
+      const int64_t rank = lineRank(p, w, h, peaks, owner);
       if (rank > bestRank) {
         bestRank = rank;
         best = seed;

@@ -35,9 +35,22 @@ inline const uint8_t* roiRow(const ImageView* frame, const Roi& roi, int y) {
 // ROI width rounded up to whole 64-bit mask words (and so to whole SIMD vectors).
 constexpr int paddedWidth(int w) { return (w + 63) & ~63; }
 
+// Where the laser frame's red is at full scale (255) in a row: its first and last pixel
+// (first < 0: nowhere).
+struct FullScaleSpan {
+  int first = -1;
+  int last = -1;
+  bool any() const { return first >= 0; }
+  void add(int x0, int x1) {
+    if (first < 0) first = x0;
+    last = x1;
+  }
+};
+
 // Red plane of one ROI row: red[x] = R(x), or max(0, R(x) - Roff(x)) with a laser-off row;
-// `on`/`off` point at the ROI's first pixel (3 bytes per pixel), x in [0, w).
-void redRowScalar(const uint8_t* on, const uint8_t* off, int redOffset, int w, uint8_t* red);
+// `on`/`off` point at the ROI's first pixel (3 bytes per pixel), x in [0, w). Returns
+// where the laser frame's red is at full scale, for clippedRunsRow.
+FullScaleSpan redRowScalar(const uint8_t* on, const uint8_t* off, int redOffset, int w, uint8_t* red);
 
 // bRCE over x in [0, wv) of a padded red row (the scalar reference): a candidate is
 // x in [step, w - step) with the form's condition. Adds 1 (modulo 256) to counts8[x] per
@@ -48,6 +61,19 @@ void brceRowScalar(const uint8_t* red, int w, int wv, int step, int threshold, B
 // The [1 2 1]/4 average of three rows, rounded as two rounding halvings:
 // out[x] = avg(avg(above[x], below[x]), mid[x]) with avg(a, b) = (a + b + 1) >> 1, x in [0, w).
 void averageRowsScalar(const uint8_t* above, const uint8_t* mid, const uint8_t* below, int w, uint8_t* out);
+// A line whose core clips wider than 2·step − 1 px has no pixel brighter than both pixels
+// `step` away (they lie on the plateau or its bright shoulders), so bRCE misses it. Each
+// run of the laser frame's red at 255 (`on`: the ROI row, 3 bytes per pixel) within
+// `span` (where redRow saw full scale) is compared instead with the pixels `step` beyond
+// its ends, in the red bRCE saw: its pixels with red[x] − red[a − step] and
+// red[x] − red[b + step] both above `threshold` become candidates (bits; counts8 where bRCE
+// had not set them), so that the peak is the whole plateau and its centroid rests on both
+// shoulders, whether bRCE saw part of it or none. Skipped: a run where the laser-off frame
+// (`off`, or nullptr) is at full scale, and one wider than kClippedRunMaxSteps·step px
+// (glare, not a line). For the robust method only: the paper's bRCE is the paper's.
+constexpr int kClippedRunMaxSteps = 4;
+void clippedRunsRow(const uint8_t* on, const uint8_t* off, int redOffset, const uint8_t* red, int w, FullScaleSpan span,
+                    int step, int threshold, uint8_t* counts8, uint64_t* bits);
 // counts[x] += counts8[x], counts8[x] = 0, for x in [0, wv).
 void flushCounts(uint8_t* counts8, uint16_t* counts, int wv);
 
@@ -55,7 +81,7 @@ void flushCounts(uint8_t* counts8, uint16_t* counts, int wv);
 // takes `validLanes` (0xFF for x in [step, w - step), 0 elsewhere, wv bytes) instead of w.
 struct SimdKernels {
   const char* name;
-  void (*redRow)(const uint8_t* on, const uint8_t* off, int redOffset, int w, uint8_t* red);
+  FullScaleSpan (*redRow)(const uint8_t* on, const uint8_t* off, int redOffset, int w, uint8_t* red);
   void (*brceRow)(const uint8_t* red, const uint8_t* validLanes, int wv, int step, int threshold,
                   BrceForm form, uint8_t* counts8, uint64_t* bits);
   void (*averageRows)(const uint8_t* above, const uint8_t* mid, const uint8_t* below, int w, uint8_t* out);

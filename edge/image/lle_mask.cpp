@@ -30,13 +30,16 @@ void brceRow(const uint8_t* red, int pitch, int width, int step, int threshold, 
 
 namespace detail {
 
-void redRowScalar(const uint8_t* on, const uint8_t* off, int redOffset, int w, uint8_t* red) {
+FullScaleSpan redRowScalar(const uint8_t* on, const uint8_t* off, int redOffset, int w, uint8_t* red) {
   const auto ro = static_cast<size_t>(redOffset);
+  FullScaleSpan full;
   for (int x = 0; x < w; ++x) {
     const size_t i = 3U * static_cast<size_t>(x) + ro;
     const int v = off == nullptr ? on[i] : std::max(0, on[i] - off[i]);
     red[x] = static_cast<uint8_t>(v);
+    if (on[i] == 255) full.add(x, x);
   }
+  return full;
 }
 
 void averageRowsScalar(const uint8_t* above, const uint8_t* mid, const uint8_t* below, int w, uint8_t* out) {
@@ -62,6 +65,32 @@ void brceRowScalar(const uint8_t* red, int w, int wv, int step, int threshold, B
     if (hit) {
       counts8[x] = static_cast<uint8_t>(counts8[x] + 1);
       bits[x / 64] |= uint64_t{1} << (x % 64);
+    }
+  }
+}
+
+void clippedRunsRow(const uint8_t* on, const uint8_t* off, int redOffset, const uint8_t* red, int w, FullScaleSpan span,
+                    int step, int threshold, uint8_t* counts8, uint64_t* bits) {
+  const auto ro = static_cast<size_t>(redOffset);
+  const auto at = [ro](const uint8_t* px, int x) { return px[3U * static_cast<size_t>(x) + ro]; };
+  for (int x0 = std::max(0, span.first); x0 <= std::min(span.last, w - 1); ++x0) {
+    if (at(on, x0) != 255) continue;
+    const int first = x0;
+    int b = first;
+    while (b + 1 < w && at(on, b + 1) == 255) ++b;
+    x0 = b;  // on after the run
+    if (b - first + 1 > kClippedRunMaxSteps * step || first - step < 0 || b + step >= w) continue;
+    bool ambientClipped = false;
+    for (int x = first; off != nullptr && x <= b; ++x) ambientClipped = ambientClipped || at(off, x) == 255;
+    if (ambientClipped) continue;
+    const int l = red[first - step];
+    const int r = red[b + step];
+    for (int x = first; x <= b; ++x) {
+      if (red[x] - l <= threshold || red[x] - r <= threshold) continue;
+      uint64_t& word = bits[x / 64];
+      const uint64_t bit = uint64_t{1} << (x % 64);
+      if ((word & bit) == 0) counts8[x] = static_cast<uint8_t>(counts8[x] + 1);
+      word |= bit;
     }
   }
 }
@@ -131,12 +160,10 @@ class RedRows {
     difference(0);
   }
 
-  // Writes row y's red into red[0, w); rows are asked for in order 0, 1, ...
-  void row(int y, uint8_t* red) {
-    if (!averaged_) {
-      difference(y, red);
-      return;
-    }
+  // Writes row y's red into red[0, w); rows are asked for in order 0, 1, ... Returns
+  // where the laser frame's red in row y is at full scale.
+  FullScaleSpan row(int y, uint8_t* red) {
+    if (!averaged_) return difference(y, red);
     if (y + 1 < roi_.height) difference(y + 1);
     const uint8_t* mid = slot(y);
     const uint8_t* above = y > 0 ? slot(y - 1) : mid;
@@ -145,18 +172,17 @@ class RedRows {
       kernels_->averageRows(above, mid, below, roi_.width, red);
     else
       averageRowsScalar(above, mid, below, roi_.width, red);
+    return full_[y % 3];
   }
 
  private:
   uint8_t* slot(int y) const { return slots_ + static_cast<size_t>(y % 3) * static_cast<size_t>(roi_.width); }
-  void difference(int y) { difference(y, slot(y)); }
-  void difference(int y, uint8_t* red) const {
+  void difference(int y) { full_[y % 3] = difference(y, slot(y)); }
+  FullScaleSpan difference(int y, uint8_t* red) const {
     const uint8_t* on = roiRow(&frame_, roi_, y);
     const uint8_t* off = roiRow(off_, roi_, y);
-    if (kernels_ != nullptr)
-      kernels_->redRow(on, off, redOff_, roi_.width, red);
-    else
-      redRowScalar(on, off, redOff_, roi_.width, red);
+    return kernels_ != nullptr ? kernels_->redRow(on, off, redOff_, roi_.width, red)
+                               : redRowScalar(on, off, redOff_, roi_.width, red);
   }
 
   const ImageView& frame_;
@@ -166,6 +192,7 @@ class RedRows {
   bool averaged_;
   int redOff_;
   uint8_t* slots_ = nullptr;
+  FullScaleSpan full_[3];  // per slot: where the laser frame's red is at full scale in that row
 };
 
 }  // namespace
@@ -214,11 +241,14 @@ void candidateMask(const ImageView& frame, const ImageView* laserOff, const Roi&
   int pending = 0;  // rows in counts8
   for (int y = 0; y < h; ++y) {
     uint64_t* bits = ws.bits.data() + static_cast<size_t>(y) * static_cast<size_t>(words);
-    source.row(y, red);
+    const FullScaleSpan fullScale = source.row(y, red);
     if (kernels != nullptr)
       kernels->brceRow(red, ws.validLanes.data(), wv, step, threshold, p.brceForm, ws.counts8.data(), bits);
     else
       brceRowScalar(red, w, wv, step, threshold, p.brceForm, ws.counts8.data(), bits);
+    if (fullScale.any() && p.method == LleMethod::kRobust)
+      clippedRunsRow(roiRow(&frame, roi, y), roiRow(laserOff, roi, y), redOffset(frame.format), red, w, fullScale, step,
+                     threshold, ws.counts8.data(), bits);
     uint64_t any = 0;
     for (int k = 0; k < words; ++k) any |= bits[k];
     ws.rowAny[static_cast<size_t>(y)] = any != 0 ? 1 : 0;

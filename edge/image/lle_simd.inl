@@ -23,24 +23,42 @@ constexpr int kLanes = v_uint8::nlanes;
 static_assert(64 % kLanes == 0, "a mask word holds whole vectors");
 constexpr uint64_t kLaneBits = kLanes == 64 ? ~uint64_t{0} : (uint64_t{1} << (kLanes % 64)) - 1;
 
-void redRow(const uint8_t* on, const uint8_t* off, int redOffset, int w, uint8_t* red) {
+// Adds the lanes of `r` at full scale (x: its first lane) to `full`, exactly as the scalar
+// kernel finds them; a branch rarely taken (a clipped line core, glare).
+inline void addFullScale(const v_uint8& r, int x, FullScaleSpan& full) {
+  const v_uint8 eq = r == cv::vx_setall_u8(255);
+  if (!cv::v_check_any(eq)) return;
+  const uint64_t bits = static_cast<uint64_t>(cv::v_signmask(cv::v_reinterpret_as_s8(eq))) & kLaneBits;
+  full.add(x + __builtin_ctzll(bits), x + 63 - __builtin_clzll(bits));
+}
+
+FullScaleSpan redRow(const uint8_t* on, const uint8_t* off, int redOffset, int w, uint8_t* red) {
   int x = 0;
+  FullScaleSpan full;
   if (off == nullptr) {
     for (; x <= w - kLanes; x += kLanes) {
       v_uint8 b0, b1, b2;
       cv::v_load_deinterleave(on + 3 * x, b0, b1, b2);
-      cv::v_store(red + x, redOffset == 0 ? b0 : b2);
+      const v_uint8 r = redOffset == 0 ? b0 : b2;
+      addFullScale(r, x, full);
+      cv::v_store(red + x, r);
     }
   } else {
     for (; x <= w - kLanes; x += kLanes) {
       v_uint8 b0, b1, b2, o0, o1, o2;
       cv::v_load_deinterleave(on + 3 * x, b0, b1, b2);
       cv::v_load_deinterleave(off + 3 * x, o0, o1, o2);
+      addFullScale(redOffset == 0 ? b0 : b2, x, full);
       // operator- on u8 saturates: max(0, on - off), as the scalar kernel.
       cv::v_store(red + x, redOffset == 0 ? b0 - o0 : b2 - o2);
     }
   }
-  if (x < w) redRowScalar(on + 3 * x, off == nullptr ? nullptr : off + 3 * x, redOffset, w - x, red + x);
+  if (x < w) {
+    const FullScaleSpan tail =
+        redRowScalar(on + 3 * x, off == nullptr ? nullptr : off + 3 * x, redOffset, w - x, red + x);
+    if (tail.any()) full.add(x + tail.first, x + tail.last);
+  }
+  return full;
 }
 
 void averageRows(const uint8_t* above, const uint8_t* mid, const uint8_t* below, int w, uint8_t* out) {

@@ -115,10 +115,60 @@ TEST_CASE("SIMD red extraction is bit-exact with the scalar kernel", "[lle][simd
       for (int redOffset : {0, 2}) {
         for (bool useOff : {false, true}) {
           std::vector<uint8_t> a(static_cast<size_t>(w) + 64, 0xAA), b(a.size(), 0xAA);
-          detail::redRowScalar(on.data(), useOff ? off.data() : nullptr, redOffset, w, a.data());
-          k->redRow(on.data(), useOff ? off.data() : nullptr, redOffset, w, b.data());
+          const auto fa = detail::redRowScalar(on.data(), useOff ? off.data() : nullptr, redOffset, w, a.data());
+          const auto fb = k->redRow(on.data(), useOff ? off.data() : nullptr, redOffset, w, b.data());
           INFO("w " << w << " redOffset " << redOffset << " off " << useOff);
           CHECK(a == b);  // including no write past w
+          CHECK(fa.first == fb.first);
+          CHECK(fa.last == fb.last);
+        }
+      }
+    }
+  }
+}
+
+TEST_CASE("SIMD red extraction says where the laser frame's red reaches full scale, as the scalar kernel",
+          "[lle][simd][saturation]") {
+  // The span clippedRunsRow scans: red pixels at 255 anywhere (vector body or scalar
+  // tail), never a 255 in another channel nor in the laser-off frame.
+  std::mt19937 rng(12);
+  for (const SimdKernels* k : simdPaths()) {
+    INFO("kernels " << k->name);
+    for (int w : {1, 15, 16, 17, 64, 65, 100, 367}) {
+      for (int redOffset : {0, 2}) {
+        std::vector<uint8_t> on(static_cast<size_t>(w) * 3U), off(on.size(), 255);
+        for (auto& v : on) v = static_cast<uint8_t>(rng() % 255);  // 0..254
+        std::vector<uint8_t> red(static_cast<size_t>(w) + 64);
+        for (const uint8_t* o : {static_cast<const uint8_t*>(nullptr), static_cast<const uint8_t*>(off.data())}) {
+          INFO("w " << w << " redOffset " << redOffset << " off " << (o != nullptr));
+          CHECK_FALSE(detail::redRowScalar(on.data(), o, redOffset, w, red.data()).any());
+          CHECK_FALSE(k->redRow(on.data(), o, redOffset, w, red.data()).any());
+          auto& lastRed = on[3U * static_cast<size_t>(w - 1) + static_cast<size_t>(redOffset)];
+          for (int x = 0; x < w; ++x) {
+            for (int ch = 0; ch < 3; ++ch) {
+              auto& v = on[3U * static_cast<size_t>(x) + static_cast<size_t>(ch)];
+              const uint8_t keep = v;
+              v = 255;
+              INFO("x " << x << " channel " << ch);
+              const int expect = ch == redOffset ? x : -1;
+              for (const auto& s : {detail::redRowScalar(on.data(), o, redOffset, w, red.data()),
+                                    k->redRow(on.data(), o, redOffset, w, red.data())}) {
+                CHECK(s.first == expect);
+                CHECK(s.last == expect);
+              }
+              // With the last pixel's red at full scale as well: the span reaches it.
+              const uint8_t keepLast = lastRed;
+              lastRed = 255;
+              const int first = ch == redOffset ? x : w - 1;
+              for (const auto& s : {detail::redRowScalar(on.data(), o, redOffset, w, red.data()),
+                                    k->redRow(on.data(), o, redOffset, w, red.data())}) {
+                CHECK(s.first == first);
+                CHECK(s.last == w - 1);
+              }
+              lastRed = keepLast;
+              v = keep;
+            }
+          }
         }
       }
     }

@@ -475,6 +475,41 @@ TEST_CASE("A clipped line core still gives its centre; it is flagged and trusted
   }
 }
 
+TEST_CASE("A line whose core clips wider than 2·step - 1 px is found, with and without a laser-off frame",
+          "[lle][saturation]") {
+  // Close and bright (lle_0110 of the hard cases: 0.8 m in direct light), the line's core
+  // clips over 5-11 px on skin at 150 DN. bRCE compares a pixel with those `step` (4)
+  // columns away, which lie on the plateau or its bright shoulders: no pixel passes, and
+  // the rows were missing. A clipped run is compared with the pixels `step` beyond its ends.
+  const auto column = [](int y) { return 60.3 + 0.15 * y; };
+  Rgb off(140, 80, 0);
+  std::mt19937 rng(7);
+  std::normal_distribution<double> noise(0.0, 2.0);
+  for (int y = 0; y < off.height; ++y)
+    for (int x = 0; x < off.width; ++x) off.red(x, y) = static_cast<uint8_t>(std::lround(150.0 + noise(rng)));
+  Rgb on = off;
+  addLine(on, column, 3.0, 600);  // 150 + 600·exp(-d²/18) >= 255 for |d| <= 5.6 px
+  const ImageView offView = off.view();
+  for (const ImageView* laserOff : {static_cast<const ImageView*>(nullptr), &offView}) {
+    INFO((laserOff ? "laser-off subtracted" : "the laser frame alone"));
+    const LaserLine l = run(on, {}, nullptr, laserOff);
+    int found = 0;
+    for (const auto& r : l.rows) {
+      if (!r.valid()) continue;
+      INFO("row " << r.row << " column " << r.column);
+      CHECK(r.saturated);
+      CHECK(std::abs(r.column - column(r.row)) < 0.25);
+      ++found;
+    }
+    CHECK(found >= 76);
+  }
+  // A clipped patch far wider than a line (glare) is no line.
+  Rgb glare(140, 80, 150);
+  for (int y = 0; y < glare.height; ++y)
+    for (int x = 40; x < 100; ++x) glare.red(x, y) = 255;
+  CHECK(run(glare).rows.empty());
+}
+
 TEST_CASE("Edge cases give a result or a clear error, never a crash", "[lle][edge]") {
   LleWorkspace ws;
   LleParams p;
@@ -692,6 +727,25 @@ TEST_CASE("Smoothing along the line weighs rows by their peak's strength", "[lle
   const RowSample* dim = l.sampleAt(51);
   REQUIRE(dim != nullptr);
   CHECK(std::abs(dim->centroidQ8 / 256.0 - 61.5) < 0.2);  // its own centroid is where it is
+}
+
+TEST_CASE("A neighbour's long line beside the target counts only the rows it has near the middle",
+          "[lle][continuity][robust]") {
+  // The target's line crosses the middle (rows 60..139, dimmer). A touching neighbour's
+  // brighter line runs the ROI's whole height 60 px to its right. Weighed as a whole (its
+  // mean column and middle row), its 200 rows outweighed the target's 80; weighed row by
+  // row, only the rows near the middle, where the target is, count.
+  Rgb img(200, 200, 20);
+  auto target = [](int) { return 100.0; };
+  auto neighbour = [](int y) { return 160.0 + 0.02 * y; };
+  addLine(img, target, 1.3, 80, 60, 140);
+  addLine(img, neighbour, 1.3, 200, 0, 200);
+  const Roi window{2, 0, 196, 200};  // a window round a target, not the whole frame
+  const LaserLine l = run(img, {}, &window);
+  REQUIRE(l.valid);
+  CHECK(l.firstLineRow == 60);
+  CHECK(l.lastLineRow == 139);
+  CHECK(l.columnAt(100) == Approx(100.0).margin(0.1));
 }
 
 TEST_CASE("A neighbour's stronger line at the ROI's edge is not the line; the centred target's is",

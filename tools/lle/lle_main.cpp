@@ -86,8 +86,8 @@ int parseArgs(int argc, char** argv, Options& o) {
   app.add_option("--min-segment", p.minSegmentRows, "shortest segment, rows")->capture_default_str();
   app.add_option("--peaks", p.maxPeaksPerRow, "peaks per row")->capture_default_str();
   app.add_option("--centre-prior", p.centrePriorShare,
-                 "the line starts from the strongest segment weighted by its distance from the ROI's centre, "
-                 "sigma in shares of the ROI (0: the strongest)")
+                 "the line is the grown line whose rows' strengths, each weighted by the row's distance from the "
+                 "ROI's centre (sigma in shares of the ROI), sum largest (0: the strongest)")
       ->capture_default_str();
   app.add_option("--edge", p.edgeRatio, "occluding-edge ratio (0 off: rows at an occluding edge are kept valid)")
       ->capture_default_str();

@@ -228,7 +228,9 @@ def run_loc(cfg: Config, per_cell: int = 40) -> dict[str, Any]:
             row.update({"approach": float(np.linalg.norm(np.asarray(e["approach_mm"]) - approach)),
                         "sigma": float(e["sigma_mm"]), "confidence": float(e["confidence_pct"]),
                         "lines": int(e["lines_used"]), "doubt": e.get("doubt", "NONE"),
-                        "fitted": _what_was_fitted(fitted, scene, s.target_id),
+                        # No line used: the rough position stands in (FAR_FROM_ROUGH, or no fit).
+                        "fitted": (_what_was_fitted(fitted, scene, s.target_id) if int(e["lines_used"]) > 0
+                                   else "nothing (the rough position stands in)"),
                         "rival": (f"{_what_was_fitted(np.asarray(e['rival_center_mm']), scene, s.target_id)} "
                                   f"({100 * float(e['rival_share']):.0f} %)" if e.get("rival_share", 0) > 0
                                   else "none")})

@@ -380,16 +380,26 @@ RULES = [
     "(`diagnose`). Two rules came of them, with no parameter tuned (docs/geometry.md): a hypothesis whose "
     "refinement fails no longer ends the sphere fit's search for objects, and a fruit that the widened "
     "search finds while the gate holds other surfaces is weighed against another object within the gate's "
-    "ball, as the gate's own fits are. The second world's aggregates were read once, in the run below, after "
-    "both were fixed.",
+    "ball, as the gate's own fits are. The second world's aggregates were read once, in a run after both were "
+    "fixed. The worst LLE frame of the same seed (`lle_0110`, 0.8 m in direct light) then showed 42 visible "
+    "rows with no sample: the line's core clipped over 5–11 px, wider than bRCE's comparison (2·step − 1), "
+    "so the LLE now also takes a clipped run of the laser frame's red as a candidate, compared with the "
+    "pixels `step` beyond its ends (docs/lle.md, \"Clipped cores wider than bRCE sees\"). Its one bound, a "
+    "run of at most 4·step px, is the line's width, not tuned; the benchmark's seed 3 was checked beside it. "
+    "The second world's aggregates were read once, in a run after it was fixed. Then the LLE's own choice of "
+    "line (item 5, what `alacs_lle` reports) weighed each row at its place in the ROI instead of the line at "
+    "its centre, σ (`centrePriorShare`) 0.15 from a plateau of 0.1–0.17 on the hard cases' seed 3 and the "
+    "benchmark's seed 3 alone (docs/lle.md, \"Which line is the fruit's\"); the second world's aggregates were "
+    "read once, in the run below, after it was fixed.",
     "",
     "**Looking closer, on tuning worlds only.** `tools/eval/run.sh diagnose --world benchmark-hard --seed 3` "
     "lists a tuning world's worst LLE frames with their scenes, the row error against the distance to the "
     "nearest gap in the line, and why the target's visible rows were missed; options after `--` go to "
     "`alacs-twin process` (e.g. `-- --lle-subtracted-line-pct 20`) to compare settings on the same frames. "
     "`diagnose --loc` does the same for the five-stop scans: the approach error per distance and occlusion, and "
-    "each scan beyond 20 mm with its scene, what the fit took for the target (the target, a neighbour, or no "
-    "apple: leaves or pieces of two objects) and its rival (`-- --fit-when-far-from-rough` compares the rule "
+    "each scan beyond 20 mm with its scene, what the fit took for the target (the target, a neighbour, no "
+    "apple: leaves or pieces of two objects; or nothing, where no line was used and the rough position stands "
+    "in) and its rival (`-- --fit-when-far-from-rough` compares the rule "
     "above). Both refuse `--world holdout`.",
 ]
 
