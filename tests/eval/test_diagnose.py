@@ -43,12 +43,16 @@ def test_a_few_hard_frames_are_diagnosed(tmp_path):
     assert res["by_source"][diagnose.SOURCES[0]]["n"] > 0
     assert all(k in diagnose.STATUS.values() or k in ("no sample", "only another surface's sample",
                                                       "a sample not kept", "visible_rows") for k in res["missed"])
+    # Every frame's own line (what alacs_lle reports) is said to lie on something.
+    assert sum(res["line_on"].values()) == 8
+    assert set(res["line_on"]) <= {"the target", "a fragment of the target", "a neighbour", "another surface",
+                                   "no line", "nothing to find"}
     # The same frames with another setting: the options reach `alacs-twin process`.
     again = diagnose.run(dataclasses.replace(cfg, process_args=("--lle-smooth-rows", "0")))
     assert again["process_args"] == ["--lle-smooth-rows", "0"]
     assert again["segments"] != res["segments"]
     text = diagnose.text(res)
-    assert "worst frames:" in text and "not found, by reason:" in text
+    assert "worst frames:" in text and "not found, by reason:" in text and "lies on:" in text
 
 
 def test_a_few_hard_scans_are_diagnosed(tmp_path):

@@ -76,6 +76,29 @@ def _miss_reason(row: int, column: float, samples: dict[int, list]) -> str:
 SOURCES = ("the LLE's line", "another segment")
 
 
+def _line_on(raw: dict, scan: Scan, target_truth: np.ndarray) -> str:
+    """What the LLE's own line (its valid rows, what `alacs_lle` reports) lies on: the
+    target's (the worlds' measure: at least half of its visible rows within 2 px), a
+    fragment of it, a neighbour's, another surface (leaf, branch, backdrop), or no line."""
+    if len(metrics.visible_rows(target_truth)) < metrics.MIN_VISIBLE_ROWS:
+        return "nothing to find"
+    if worlds._line_alone(raw, target_truth) >= 0.5:
+        return "the target"
+    frames = raw.get("frames", [])
+    line = [(int(round(r[0])), float(r[1])) for r in (frames[0].get("rows", []) if frames else []) if r[2]]
+    if not line:
+        return "no line"
+    frame = next(f for f in scan.frames if f.laser_on)
+    on: Counter = Counter()
+    for a in scan.truth_scene()["apples"]:
+        vis = metrics.visible_rows(target_truth if a["id"] == scan.target_id else scan.truth_rows(frame, a["id"]))
+        cols = {int(r): float(c) for r, c in zip(vis["row"], vis["column"])}
+        on["a fragment of the target" if a["id"] == scan.target_id else "a neighbour"] += sum(
+            1 for r, c in line if r in cols and abs(cols[r] - c) <= 2.0)
+    best, n = on.most_common(1)[0] if on else ("", 0)
+    return best if 2 * n >= len(line) else "another surface"
+
+
 def _refuse_second_world(world: str) -> None:
     if world not in TUNING_WORLDS:
         raise ValueError(f"diagnose looks at tuning worlds only ({', '.join(TUNING_WORLDS)}); "
@@ -92,11 +115,12 @@ def run(cfg: Config) -> dict[str, Any]:
     step, th = evaluate.DEFAULT_COMBO
     raw = twin.process(cfg.twin, dirs, cfg.jobs, f"{cfg.world}: our LLE", rows=True, step=step, threshold=th,
                        quiet=cfg.quiet, extra=cfg.process_args)
-    truths, notes = {}, {}
+    truths, notes, line_on = {}, {}, Counter()
     for d in dirs:
         s = Scan.load(d)
         truths[d] = s.truth_rows(next(f for f in s.frames if f.laser_on), s.target_id)
         notes[d] = s.note
+        line_on[_line_on(raw.get(d, {}), s, truths[d])] += 1
     ours = evaluate._ours_lle(raw, truths)
 
     frames, by_light = [], {}
@@ -146,6 +170,7 @@ def run(cfg: Config) -> dict[str, Any]:
         "gap": [{"upto": b, "n": len(v), "mean": float(np.mean(v)) if v else math.nan,
                  "beyond": int(np.sum(np.asarray(v) > WORST_PX))} for b, v in gap_err.items()],
         "missed": {"visible_rows": visible, **dict(missed.most_common())},
+        "line_on": dict(line_on.most_common()),
         "by_source": {k: {"n": len(v), "beyond": int(np.sum(np.asarray(v) > WORST_PX)),
                           "px_rows_beyond": float(np.sum([e for e in v if e > WORST_PX]))}
                       for k, v in by_source.items()},
@@ -177,6 +202,11 @@ def text(res: dict[str, Any]) -> str:
           for k, v in res["by_source"].items()]
     m = dict(res["missed"])
     total = m.pop("visible_rows")
+    on = res["line_on"]
+    L += ["", "the LLE's own line, before the 3D gate (what alacs_lle reports), lies on: "
+          + ", ".join(f"{k} {n}" for k, n in on.items())
+          + f" (the target's in {on.get('the target', 0)} of {sum(on.values()) - on.get('nothing to find', 0)} frames "
+          "with something to find)"]
     L += ["", f"visible rows of the target (central 80 %): {total}; not found, by reason:"]
     L += [f"  {100 * n / max(total, 1):5.1f} %  {k}" for k, n in m.items()]
     return "\n".join(L)

@@ -394,7 +394,8 @@ RULES = [
     "",
     "**Looking closer, on tuning worlds only.** `tools/eval/run.sh diagnose --world benchmark-hard --seed 3` "
     "lists a tuning world's worst LLE frames with their scenes, the row error against the distance to the "
-    "nearest gap in the line, and why the target's visible rows were missed; options after `--` go to "
+    "nearest gap in the line, why the target's visible rows were missed, and what the LLE's own line (what "
+    "`alacs_lle` reports) lies on in each frame; options after `--` go to "
     "`alacs-twin process` (e.g. `-- --lle-subtracted-line-pct 20`) to compare settings on the same frames. "
     "`diagnose --loc` does the same for the five-stop scans: the approach error per distance and occlusion, and "
     "each scan beyond 20 mm with its scene, what the fit took for the target (the target, a neighbour, no "
