@@ -732,16 +732,19 @@ TEST_CASE("Smoothing along the line weighs rows by their peak's strength", "[lle
 TEST_CASE("A neighbour's long line beside the target counts only the rows it has near the middle",
           "[lle][continuity][robust]") {
   // The target's line crosses the middle (rows 60..139, dimmer). A touching neighbour's
-  // brighter line runs the ROI's whole height 60 px to its right. Weighed as a whole (its
-  // mean column and middle row), its 200 rows outweighed the target's 80; weighed row by
-  // row, only the rows near the middle, where the target is, count.
+  // brighter line runs the ROI's whole height about 50 px to its right. Weighed as a whole
+  // (its mean column and middle row), its 200 rows outweighed the target's 80 (by 1.3 at
+  // σ 0.15); weighed row by row, only the rows near the middle, where the target is, count
+  // (the target's by 1.6).
   Rgb img(200, 200, 20);
   auto target = [](int) { return 100.0; };
-  auto neighbour = [](int y) { return 160.0 + 0.02 * y; };
+  auto neighbour = [](int y) { return 150.0 + 0.02 * y; };
   addLine(img, target, 1.3, 80, 60, 140);
   addLine(img, neighbour, 1.3, 200, 0, 200);
   const Roi window{2, 0, 196, 200};  // a window round a target, not the whole frame
-  const LaserLine l = run(img, {}, &window);
+  LleParams p;
+  p.centrePriorShare = 0.15;
+  const LaserLine l = run(img, p, &window);
   REQUIRE(l.valid);
   CHECK(l.firstLineRow == 60);
   CHECK(l.lastLineRow == 139);
