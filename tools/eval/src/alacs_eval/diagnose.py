@@ -84,8 +84,7 @@ def _line_on(raw: dict, scan: Scan, target_truth: np.ndarray) -> str:
         return "nothing to find"
     if worlds._line_alone(raw, target_truth) >= 0.5:
         return "the target"
-    frames = raw.get("frames", [])
-    line = [(int(round(r[0])), float(r[1])) for r in (frames[0].get("rows", []) if frames else []) if r[2]]
+    line = worlds.line_columns(raw).items()
     if not line:
         return "no line"
     frame = next(f for f in scan.frames if f.laser_on)

@@ -85,16 +85,19 @@ def _saturated_share(scan: Scan, frame, truth: np.ndarray) -> float:
     return sat / len(vis)
 
 
+def line_columns(raw: dict) -> dict[int, float]:
+    """The LLE's own line in a processed frame (`process --rows`): its valid rows' columns."""
+    frames = raw.get("frames", [])
+    return {int(round(r[0])): float(r[1]) for r in (frames[0].get("rows", []) if frames else []) if r[2]}
+
+
 def _line_alone(raw: dict, truth: np.ndarray) -> float:
     """Share of the target's visible truth rows that the LLE's own line (its inlier rows)
     puts within 2 px of the true column."""
     vis = metrics.visible_rows(truth)
-    frames = raw.get("frames", [])
     if len(vis) < metrics.MIN_VISIBLE_ROWS:
         return math.nan  # nothing to find
-    if not frames:
-        return 0.0
-    cols = {int(round(r[0])): r[1] for r in frames[0].get("rows", []) if r[2]}
+    cols = line_columns(raw)
     hit = sum(1 for r, c in zip(vis["row"], vis["column"])
               if int(round(r)) in cols and abs(cols[int(round(r))] - c) <= 2.0)
     return hit / len(vis)
