@@ -88,6 +88,11 @@ struct LleParams {
   // 3 with the threshold at 15 finds more of a sunlit line, but on the worlds it also lets
   // in other surfaces' weak segments: not the default (docs/lle.md).
   int subtractedRows = 1;
+  // Either rerun lowers its bar to find a weak line: with this, its segments off the line
+  // are reported only when two of their rows pass the first pass's strong threshold, as the
+  // first pass would have required. With 3 rows at 15 % it gains on the tuning worlds and
+  // loses on the second world: not the default (docs/lle.md, "The rerun's other segments").
+  bool rerunOthersFirm = false;
   int weakThresholdPct = 75; // hysteresis: candidates at this share of the strong threshold; a
                              // segment needs two rows, and a quarter of its rows, whose margin
                              // exceeds the strong threshold itself (10..100; 100: no hysteresis)

@@ -216,6 +216,7 @@ struct Peak {
   uint8_t saturated;
   uint8_t strong;   // its bRCE margin passes the strong threshold (not only the weak share)
   uint8_t edge;     // at an occluding edge (RunSums::edge): reported kEdge, not smoothed over
+  uint8_t firm;     // its margin passes the first pass's strong threshold (a rerun's other segments need it)
 };
 
 struct Chain {
@@ -230,6 +231,7 @@ struct Chain {
   int32_t tail;     // last peak
   int32_t segment;  // index in LaserLine::segments, -1: too short
   int32_t strong;   // rows whose peak is strong
+  int32_t firm;     // rows whose peak is firm (Peak::firm)
   uint8_t onLine;
 };
 
@@ -407,7 +409,7 @@ RobustArrays<Col> carveArrays(LleWorkspace& ws, int h, int kMax) {
 // kMax peaks of the row go on, ordered by area (ties: leftmost first).
 template <class A>
 void findPeaks(const ImageView& frame, const ImageView* laserOff, const Roi& roi, const LleParams& p, int rows,
-               const LleWorkspace& ws, Peak<typename A::Col>* peaks, int32_t* nPeaks) {
+               int firmTh, const LleWorkspace& ws, Peak<typename A::Col>* peaks, int32_t* nPeaks) {
   const int w = roi.width;
   const int h = roi.height;
   const int words = paddedWidth(w) / 64;
@@ -448,10 +450,16 @@ void findPeaks(const ImageView& frame, const ImageView* laserOff, const Roi& roi
         row[i] = row[i - 1];
         --i;
       }
-      row[i] = Peak<typename A::Col>{A::ratio(s.sumXW, s.sumW), Q::ratio(s.sumXW, s.sumW), s.area, s.excess, -1, -1,
+      row[i] = Peak<typename A::Col>{A::ratio(s.sumXW, s.sumW),
+                                     Q::ratio(s.sumXW, s.sumW),
+                                     s.area,
+                                     s.excess,
+                                     -1,
+                                     -1,
                                      static_cast<uint8_t>(s.saturated ? 1 : 0),
                                      static_cast<uint8_t>(s.margin > strongTh ? 1 : 0),
-                                     static_cast<uint8_t>(s.edge ? 1 : 0)};
+                                     static_cast<uint8_t>(s.edge ? 1 : 0),
+                                     static_cast<uint8_t>(s.margin > firmTh ? 1 : 0)};
     }
     nPeaks[y] = n;
   }
@@ -492,7 +500,7 @@ int linkChains(const LleParams& p, int h, Peak<Col>* peaks, const int32_t* nPeak
       }
       if (best < 0) {
         best = nChains++;
-        chains[best] = Chain{y, y, -1, 0, 0, pk.key, pk.key, pi, pi, -1, 0, 0};
+        chains[best] = Chain{y, y, -1, 0, 0, pk.key, pk.key, pi, pi, -1, 0, 0, 0};
         active[nActive++] = best;
       } else {
         Chain& c = chains[best];
@@ -507,6 +515,7 @@ int linkChains(const LleParams& p, int h, Peak<Col>* peaks, const int32_t* nPeak
       c.count += 1;
       c.area += pk.area;
       c.strong += pk.strong;
+      c.firm += pk.firm;
       pk.chain = best;
     }
   }
@@ -758,10 +767,14 @@ RobustFit robustFit(const Roi& roi, const LleParams& p, const RobustArrays<typen
 }
 
 // Numbers the segments (Chain::segment, in chain order) and lists them in out.segments.
-void listSegments(const Roi& roi, const LleParams& p, Chain* chains, int nChains, LaserLine& out) {
+// `firmOnly` (a rerun at a lower bar): a segment off the line needs two firm rows, as the
+// first pass would have found it; the bar came down to find a weak line, not to let in
+// other surfaces' weak ones (docs/lle.md, "The rerun's other segments").
+void listSegments(const Roi& roi, const LleParams& p, Chain* chains, int nChains, bool firmOnly, LaserLine& out) {
   int nOut = 0;
   for (int c = 0; c < nChains; ++c)
-    if (isSegment(chains[c], p)) chains[c].segment = nOut++;
+    if (isSegment(chains[c], p) && (!firmOnly || chains[c].onLine != 0 || chains[c].firm >= 2))
+      chains[c].segment = nOut++;
   for (int c = 0; c < nChains; ++c)
     if (chains[c].segment >= 0)
       out.segments.push_back(LineSegment{roi.y + chains[c].first, roi.y + chains[c].last, 0, chains[c].onLine != 0});
@@ -945,10 +958,10 @@ int lineStrength(int h, const RobustArrays<Col>& a, bool fitted) {
 // (DN) of the line's kLine rows, 0 without a line: how strong the line is.
 template <class A>
 int focusRobust(const ImageView& frame, const ImageView* laserOff, const Roi& roi, const LleParams& p, int rows,
-                LleWorkspace& ws, LaserLine& out) {
+                int firmTh, LleWorkspace& ws, LaserLine& out) {
   const int h = roi.height;
   const RobustArrays<typename A::Col> a = carveArrays<typename A::Col>(ws, h, p.maxPeaksPerRow);
-  findPeaks<A>(frame, laserOff, roi, p, rows, ws, a.peaks, a.nPeaks);
+  findPeaks<A>(frame, laserOff, roi, p, rows, firmTh, ws, a.peaks, a.nPeaks);
   const int nChains = linkChains(p, h, a.peaks, a.nPeaks, a.chains, a.active);
   const int nSeg = segmentsByStrength(p, a.chains, nChains, a.order);
   // The centre prior only where the ROI is a window planned round the target, not the whole frame.
@@ -956,7 +969,7 @@ int focusRobust(const ImageView& frame, const ImageView* laserOff, const Roi& ro
   assembleLine(p, window, roi.width, h, a.peaks, a.chains, a.order, nSeg, a.owner, a.endRows, a.endKeys);
   typename A::Fit curve;
   const RobustFit f = robustFit<A>(roi, p, a, curve);
-  listSegments(roi, p, a.chains, nChains, out);
+  listSegments(roi, p, a.chains, nChains, firmTh > p.strongThreshold(), out);
   const double sumSq = emitRows<A>(roi, p, a, a.chains, f, curve, out);
   markEdges(p, a, out);
   if (p.smoothRows > 0) smoothAlongLine<A>(p, a, out);
@@ -975,7 +988,7 @@ template <class A>
 void extractRobust(const ImageView& frame, const ImageView* laserOff, const Roi& roi, const LleParams& p,
                    const SimdKernels* kernels, LleWorkspace& ws, LaserLine& out) {
   candidateMask(frame, laserOff, roi, p, kernels, ws, 1);
-  const int strength = focusRobust<A>(frame, laserOff, roi, p, 1, ws, out);
+  const int strength = focusRobust<A>(frame, laserOff, roi, p, 1, p.strongThreshold(), ws, out);
   // With the laser-off frame subtracted, what is left besides the line is noise, not
   // ambient texture: the rerun may go lower there (docs/lle.md "weak line").
   const int lowPct = laserOff != nullptr ? p.subtractedLineThresholdPct : p.weakLineThresholdPct;
@@ -986,7 +999,9 @@ void extractRobust(const ImageView& frame, const ImageView* laserOff, const Roi&
   // There, too, the difference is averaged over rows where asked: more signal per decision.
   const int rows = laserOff != nullptr ? p.subtractedRows : 1;
   candidateMask(frame, laserOff, roi, low, kernels, ws, rows);
-  focusRobust<A>(frame, laserOff, roi, low, rows, ws, out);
+  // rerunOthersFirm: its segments off the line still need the first pass's strong bar (listSegments).
+  focusRobust<A>(frame, laserOff, roi, low, rows, p.rerunOthersFirm ? p.strongThreshold() : low.strongThreshold(), ws,
+                 out);
 }
 
 template <class A>

@@ -131,3 +131,32 @@ def test_a_target_without_visible_rows_has_nothing_to_find():
     assert metrics.segment_metrics(seen, None, segments=(50,))[50][1] == 0.0
     assert metrics.mean_found([1.0, 0.0, math.nan]) == pytest.approx(0.5)
     assert math.isnan(metrics.mean_found([math.nan]))
+
+
+def test_the_line_alone_reads_the_lle_line_not_the_gated_samples():
+    """worlds' reading of `alacs_lle`'s `line`: only its valid rows count, not the other
+    segments the localizer's 3D gate keeps, so a row the line leaves to another surface is
+    read on the line or not at all."""
+    from alacs_eval import evaluate, worlds
+
+    rows = np.arange(100, 140)
+    t = truth(rows, np.full(len(rows), 50.0))
+    # The line lies on the target in rows 100-119 and on another surface (8 px off) in
+    # 120-139; a segment kept by the gate lies on the target in 120-139.
+    line = [[int(r), 50.0 if r < 120 else 58.0, 1, 0] for r in rows]
+    other = [[int(r), 50.0, 0, 2] for r in rows if r >= 120]
+    raw = {"frames": [{"rows": line + other, "kept": [[s[0], s[1]] for s in other + line]}]}
+    gated = evaluate._ours_lle({"d": raw}, {"d": t})["d"]
+    alone = evaluate._ours_lle({"d": worlds._as_line_alone(raw)}, {"d": t})["d"]
+    # Gated, a row with both reads the line's sample: the same 8 px where the line is off.
+    # Alone, only the line's rows are there, and they are what is read.
+    assert alone["disp"][80] == pytest.approx(gated["disp"][80])
+    assert alone["cover"][80] == pytest.approx(1.0)
+    # Rows whose line sample is invalid are not the line's: dropped from the reading.
+    raw_invalid = {"frames": [{"rows": [[s[0], s[1], 0 if s[0] >= 120 else 1, s[3]] for s in line] + other,
+                               "kept": [[s[0], s[1]] for s in other + line]}]}
+    alone_invalid = evaluate._ours_lle({"d": worlds._as_line_alone(raw_invalid)}, {"d": t})["d"]
+    assert alone_invalid["disp"][80] == pytest.approx(0.0)
+    assert alone_invalid["cover"][80] == pytest.approx(0.5)
+    gated_invalid = evaluate._ours_lle({"d": raw_invalid}, {"d": t})["d"]
+    assert gated_invalid["cover"][80] == pytest.approx(1.0)

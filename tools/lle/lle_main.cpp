@@ -104,6 +104,8 @@ int parseArgs(int argc, char** argv, Options& o) {
                  "rows that rerun averages the difference over: 1 (the row alone) or 3 ([1 2 1]/4)")
       ->check(CLI::IsMember({1, 3}))
       ->capture_default_str();
+  app.add_flag("--rerun-others-firm", p.rerunOthersFirm,
+               "a rerun's segments off the line need the first pass's strong threshold (docs/lle.md)");
   bool onlyLine = false, scalar = false;
   app.add_flag("--only-line", onlyLine, "no other segments");
   app.add_flag("--scalar", scalar, "scalar kernels");

@@ -264,6 +264,8 @@ int main(int argc, char** argv) {
                {"lle-weak-line-pct", Kind::kInteger, "LleParams::weakLineThresholdPct (default LleParams')"},
                {"lle-subtracted-line-pct", Kind::kInteger, "LleParams::subtractedLineThresholdPct"},
                {"lle-subtracted-rows", Kind::kInteger, "LleParams::subtractedRows: 1 (the row alone) or 3"},
+               {"lle-rerun-others-firm", Kind::kInteger,
+                "LleParams::rerunOthersFirm: 1, a rerun's other segments need the first pass's bar"},
                {"rows", Kind::kFlag, "every frame's rows, kept pixels and curve"},
                {"other-object-prior", Kind::kNumber,
                 "ScanParams::otherObjectPrior (0: σ and confidence from the fit alone)"},

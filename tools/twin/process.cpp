@@ -119,6 +119,7 @@ int processMain(const Args& args) {
   lle.subtractedLineThresholdPct =
       static_cast<int>(args.integer("lle-subtracted-line-pct", lle.subtractedLineThresholdPct));
   lle.subtractedRows = static_cast<int>(args.integer("lle-subtracted-rows", lle.subtractedRows));
+  lle.rerunOthersFirm = args.integer("lle-rerun-others-firm", lle.rerunOthersFirm ? 1 : 0) != 0;
   if (Status s = lle.validate(); !s) {
     std::fprintf(stderr, "alacs-twin process: %s\n", s.reason().c_str());
     return 2;
