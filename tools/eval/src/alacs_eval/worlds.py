@@ -139,10 +139,11 @@ def _lle(cfg: Config, world: str, cases: list[dict]) -> tuple[dict[str, Any], li
                     "rows_matched": float(np.mean(alone)) if alone else math.nan}
     # ... and its `line` read as the displacement is read above, row by row against the truth.
     line_only = evaluate._ours_lle({d: _as_line_alone(raw.get(d, {})) for d in dirs}, truths)
-    out["alone"]["segments"] = {
-        str(s): {"mean": metrics.summarize(line_only[d]["disp"][s] for d in dirs).avg,
-                 "worst": metrics.summarize(line_only[d]["disp"][s] for d in dirs).max,
-                 "found": metrics.mean_found(line_only[d]["cover"][s] for d in dirs)} for s in (10, 50, 80)}
+    out["alone"]["segments"] = {}
+    for s in (10, 50, 80):
+        disp = metrics.summarize(line_only[d]["disp"][s] for d in dirs)
+        out["alone"]["segments"][str(s)] = {"mean": disp.avg, "worst": disp.max,
+                                            "found": metrics.mean_found(line_only[d]["cover"][s] for d in dirs)}
     out["no_rows_to_find"] = sum(not metrics.has_rows_to_find(truths[d]) for d in dirs)
     for s in metrics.SEGMENTS:
         o = metrics.summarize(ours[d]["disp"][s] for d in dirs)
