@@ -51,7 +51,11 @@ class LaserTimelineWriter final : public ScanObserver {
     j["edges"] = nlohmann::json::array();
     for (const ports::Edge& e : laser_.edges()) j["edges"].push_back({e.timeNs, e.level ? 1 : 0});
     j["exposures"] = nlohmann::json::array();
-    for (const ExposureWindow& w : ev.exposures) j["exposures"].push_back({w.startNs, w.endNs});
+    j["exposure_end_told"] = nlohmann::json::array();
+    for (const ExposureWindow& w : ev.exposures) {
+      j["exposures"].push_back({w.startNs, w.endNs});
+      j["exposure_end_told"].push_back(w.endToldNs);
+    }
     const std::string path = dir_ + "/laser_timeline.json";
     if (Status w = geometry::writeFileAtomically(path, j.dump(2) + "\n"); !w) {
       ALACS_LOG_WARN("debug", "%s", w.toString().c_str());

@@ -26,10 +26,14 @@ struct WorkerJob {
   TimeNs commandTimeNs = 0;
 };
 
-// One exposure as the camera reported it, for the laser timeline (docs/daemon.md).
+// One exposure as the camera reported it, for the laser timeline (docs/daemon.md), and
+// when the camera told its end (the laser's `end` hook called, the last time in the
+// capture): the laser goes off then, so the daemon's own share of the laser's time past
+// the exposure is the line's off edge minus endToldNs.
 struct ExposureWindow {
   TimeNs startNs = 0;
   TimeNs endNs = 0;
+  TimeNs endToldNs = 0;
 };
 
 struct WorkerEvent {

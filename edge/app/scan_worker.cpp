@@ -315,6 +315,7 @@ Result<ports::CapturedFrame> ScanWorker::exposeStop(size_t stop, const ports::Ca
   // Timeouts and corrupted frames are retried (the camera switches the laser around each
   // attempt's frame), then become a fault with the last reason.
   Result<ports::CapturedFrame> frame = Status(Error::kInternal, "no capture attempted");
+  TimeNs endToldNs = 0;
   setPhase(protocol::ProgressPhase::kExposing);
   for (int attempt = 0; attempt <= deps_.captureRetries && !cancel_.load(); ++attempt) {
     // The camera switches the laser on just before the frame it will deliver starts (at
@@ -328,7 +329,8 @@ Result<ports::CapturedFrame> ScanWorker::exposeStop(size_t stop, const ports::Ca
           startMm = positionMm();
           return laserRefused;
         },
-        [this, &endMm] {
+        [this, &endMm, &endToldNs] {
+          endToldNs = deps_.clock->now();
           (void)deps_.laser->off();
           endMm = positionMm();
         });
@@ -368,7 +370,7 @@ Result<ports::CapturedFrame> ScanWorker::exposeStop(size_t stop, const ports::Ca
   const TimeNs exposureNs = frame->info.exposureUs * kNsPerUs;
   const TimeNs startNs = frame->info.exposureStartNs - (deps_.timestampAtExposureEnd ? exposureNs : 0);
   ev.lastExposureNs = startNs + exposureNs;
-  ev.exposures.push_back({startNs, ev.lastExposureNs});
+  ev.exposures.push_back({startNs, ev.lastExposureNs, endToldNs});
   return frame;
 }
 

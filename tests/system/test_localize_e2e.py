@@ -33,18 +33,28 @@ def test_localize_over_vcan(tmp_path, alacsd, seed):
     assert ex.overlay_png.exists() and ex.overlay_png.stat().st_size > 1000
     # The laser's timeline (recorded by alacsd --sim --debug-dir from the LASER line it
     # drives): one on-interval per exposure, each around its exposure and no longer than
-    # the guard's maximum. The slack covers the GPIO write before and after the exposure.
+    # the guard's maximum. The simulated camera exposes on request: the laser goes on
+    # before the exposure starts, and off when the camera tells the exposure's end, which
+    # it does when its thread wakes after it (inside UML, on a loaded host, that wake can
+    # be late by a scheduler's slice). The slack bounds the daemon's own part, the GPIO
+    # write before the exposure and the one after the camera's word.
     timeline = json.loads((tmp_path / "laser_timeline.json").read_text())
     edges, exposures = timeline["edges"], timeline["exposures"]
+    told = timeline["exposure_end_told"]
     # The default first pass: seven stops (firmware/config/alacsd.json, ScanParams); the
     # scene's single apple in full view needs no second pass.
     assert len(exposures) == 7
+    assert len(told) == len(exposures)
     assert [lvl for _, lvl in edges] == [1, 0] * len(exposures), edges
     slack_ns = 5_000_000
-    for (on, _), (off, _), (start, end) in zip(edges[0::2], edges[1::2], exposures):
+    late_ns = []
+    for (on, _), (off, _), (start, end), end_told in zip(edges[0::2], edges[1::2], exposures, told):
         assert start - slack_ns <= on <= start, (on, start)
-        assert end <= off <= end + slack_ns, (off, end)
+        assert end <= end_told <= off <= end_told + slack_ns, (end, end_told, off)
         assert off - on <= timeline["laser_max_on_ms"] * 1_000_000
+        late_ns.append(off - end)
+    print(f"\nlaser off after the exposure's end: max {max(late_ns) / 1e6:.2f} ms "
+          f"(the daemon's part at most {max(o - t for (o, _), t in zip(edges[1::2], told)) / 1e6:.2f} ms)")
     # The laser and the motor driver are off after the scan and after SIGTERM.
     assert gpio_sim.read_output("LASER") == 0
     assert gpio_sim.read_output("ENABLE") == 0

@@ -213,6 +213,7 @@ TEST_CASE("A continuous scan's result is out while the slide brakes; a job sent 
   for (size_t i = 0; i < 3; ++i) {
     const app::ExposureWindow& x = ev->exposures[i];
     CHECK(x.endNs - x.startNs == 1000 * kNsPerUs);
+    CHECK(x.endToldNs == x.endNs);  // the fake camera tells the end when it is (virtual time)
     const TimeNs mid = (x.startNs + x.endNs) / 2;
     CHECK(std::llabs(rig.step.positionAt(mid, 0) - lim.stepsFor(scan.plan.stopsMm[i])) <= 1);
   }

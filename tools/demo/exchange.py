@@ -116,6 +116,7 @@ def run_exchange(
     decoded: list[tuple[float, str, dict]] = []
     collector = ac.ResultCollector(node_db)
     ex = Exchange(tuple(c), approach, r, rough, None, decoded, log_path, workdir / "overlay.png", None, "")
+    failure = ""
 
     def note(msg: can.Message) -> None:
         name = ac.message_name(node_db, msg)
@@ -176,6 +177,8 @@ def run_exchange(
             if msg.arbitration_id == ack_id and str(ac.decode(node_db, msg)["AckResult"]) == "NACK":
                 done = True
         say(f"exchange took {time.monotonic() - sent_at:.2f} s")
+    except RuntimeError as e:
+        failure = str(e)
     finally:
         bus.shutdown()
         daemon.send_signal(signal.SIGTERM)
@@ -189,6 +192,10 @@ def run_exchange(
         time.sleep(0.2)
         dump.send_signal(signal.SIGINT)
         dump.wait(timeout=5)
+    if failure:
+        # What the daemon said is the first thing to read: say it with the failure.
+        tail = "\n".join(ex.alacsd_log.splitlines()[-30:])
+        raise RuntimeError(f"{failure} (alacsd `{' '.join(cmd)}` exited {ex.alacsd_exit}; its log ends:\n{tail})")
     if ex.result is not None and ex.result.objects and ex.result.objects[0].center_mm is not None:
         o = ex.result.objects[0]
         ex.center_error_mm = math.dist(o.center_mm, ex.truth_center_mm)

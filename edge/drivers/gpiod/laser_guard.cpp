@@ -27,6 +27,10 @@ constexpr char kOff = '0';
 constexpr char kCut = 'C';
 constexpr char kReady = 'R';
 constexpr int kGuardFd = 3;
+// The guard is alacsd itself, executed again: it is ready once it is loaded (with OpenCV
+// and libcamera) and holds the line. Inside UML that load alone took 1.7-2.3 s; a board
+// takes a fraction of a second. The daemon waits this long before it gives up.
+constexpr int kGuardReadyTimeoutMs = 15000;
 
 int64_t monotonicMs() {
   timespec ts{};
@@ -126,9 +130,13 @@ Result<std::unique_ptr<LaserGuardProcess>> LaserGuardProcess::spawn(const std::s
     return guardError("cannot start " + exe);
   }
   std::unique_ptr<LaserGuardProcess> g(new LaserGuardProcess(sv[0], pid));
-  Result<char> ready = g->reply(2000);
-  if (!ready || *ready != kReady)
-    return Status(Error::kIo, "laser guard: did not take the " + line + " line on " + chip + " (see its log)");
+  Result<char> ready = g->reply(kGuardReadyTimeoutMs);
+  if (!ready)
+    return Status(ready.status().code(), "laser guard: did not take the " + line + " line on " + chip + ": " +
+                                             ready.status().reason() + " (its own reason, if any, is logged above)");
+  if (*ready != kReady)
+    return Status(Error::kIo, "laser guard: did not take the " + line + " line on " + chip + ": it answered '" +
+                                  std::string(1, *ready) + "' before it was ready");
   return g;
 }
 
