@@ -92,12 +92,13 @@ TEST_CASE("Laser guard: follows on/off, cuts a pulse left on, off when the daemo
 #ifdef ALACS_HAVE_GPIOD
 // A guard that exits before it holds the line (here a program that is not alacsd): the
 // daemon's error names the line and why, not only "see its log".
-TEST_CASE("Laser guard: one that never gets ready is an error naming the line and the reason", "[drivers][gpio][guard]") {
+TEST_CASE("Laser guard: one that never gets ready is an error naming the line and the reason",
+          "[drivers][gpio][guard]") {
   Result<std::unique_ptr<drivers::LaserGuardProcess>> g =
       drivers::LaserGuardProcess::spawn("/bin/false", "/dev/gpiochip-none", "LASER", 250);
   REQUIRE_FALSE(g);
   CHECK(g.status().code() == Error::kIo);
-  CHECK_THAT(g.status().reason(), Catch::Contains("LASER line on /dev/gpiochip-none") &&
-                                      Catch::Contains("the process is gone"));
+  CHECK_THAT(g.status().reason(),
+             Catch::Contains("LASER line on /dev/gpiochip-none") && Catch::Contains("the process is gone"));
 }
 #endif
