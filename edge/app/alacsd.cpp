@@ -186,8 +186,9 @@ int runDaemon(const Options& o, const DaemonConfig& cfg, const std::string& conf
 int main(int argc, char** argv) {
   using namespace alacs;
 #ifdef ALACS_HAVE_GPIOD
-  // The laser's guard process (drivers/gpiod/laser_guard.h): started by alacsd itself as
-  // `alacsd --laser-guard FD CHIP LINE MAX_ON_MS`; not an option for people.
+  // The laser's guard process (drivers/gpiod/laser_guard.h) is alacs-laser-guard beside
+  // alacsd; when that is missing, alacsd serves it itself, started as `alacsd --laser-guard
+  // FD CHIP LINE MAX_ON_MS` (app/platform.cpp laserGuardFor). Not an option for people.
   if (argc == 6 && std::string_view(argv[1]) == "--laser-guard")
     return drivers::runLaserGuard(std::atoi(argv[2]), argv[3], argv[4], std::atoi(argv[5]));
 #endif

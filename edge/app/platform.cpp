@@ -2,6 +2,9 @@
 
 #include <nlohmann/json.hpp>
 
+#include <unistd.h>
+
+#include <array>
 #include <atomic>
 
 #include "common/frame_clock.h"
@@ -249,8 +252,26 @@ WorkerDeps workerDepsFor(const DaemonConfig& cfg, Platform& platform, const Cloc
 }
 
 #ifdef ALACS_HAVE_GPIOD
+namespace {
+// alacs-laser-guard beside this executable (installed with it, laser_guard_main.cpp); when
+// it is missing (an alacsd copied alone), alacsd itself, which serves the same call.
+std::string laserGuardExe() {
+  std::array<char, 4096> self{};
+  const ssize_t n = ::readlink("/proc/self/exe", self.data(), self.size() - 1);
+  const std::string path(self.data(), n > 0 ? static_cast<size_t>(n) : 0);
+  const size_t slash = path.rfind('/');
+  if (slash != std::string::npos) {
+    const std::string guard = path.substr(0, slash + 1) + "alacs-laser-guard";
+    if (::access(guard.c_str(), X_OK) == 0) return guard;
+    ALACS_LOG_WARN("gpio", "no %s: alacsd is its own laser guard (slower to start, and it pins all its libraries)",
+                   guard.c_str());
+  }
+  return "/proc/self/exe";
+}
+}  // namespace
+
 drivers::LaserGuardOptions laserGuardFor(const DaemonConfig& cfg) {
-  return {"/proc/self/exe", cfg.laserMaxOnMs + kLaserGuardMarginMs};
+  return {laserGuardExe(), cfg.laserMaxOnMs + kLaserGuardMarginMs};
 }
 #endif
 

@@ -54,7 +54,11 @@ def test_frozen_daemon_cannot_hold_the_laser(tmp_path, alacsd) -> None:
     sensor = Sensor(alacsd, tmp_path)
     try:
         assert sensor.status(_idle_and_homed, 30) is not None, "never IDLE and homed"
-        assert _guard_pids(sensor.proc.pid), "no laser guard process under alacsd"
+        guards = _guard_pids(sensor.proc.pid)
+        assert guards, "no laser guard process under alacsd"
+        # The small program installed beside alacsd, not alacsd executed again (which would
+        # load and pin all of the daemon's libraries): laser_guard_main.cpp.
+        assert [os.path.basename(os.readlink(f"/proc/{p}/exe")) for p in guards] == ["alacs-laser-guard"]
         sensor.localize()
         rose = _wait_laser(1, 10.0)
         assert rose is not None, "the laser never came on"
@@ -76,6 +80,7 @@ def test_frozen_daemon_cannot_hold_the_laser(tmp_path, alacsd) -> None:
         rc = sensor.stop()
     assert rc == 0, sensor.log[-3000:]
     assert "laser cut after" in sensor.log, sensor.log[-3000:]
+    assert "is its own laser guard" not in sensor.log, sensor.log[-3000:]
 
 
 def test_kill_9_in_an_exposure_leaves_the_laser_off_and_no_guard(tmp_path, alacsd) -> None:
