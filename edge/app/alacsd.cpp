@@ -189,8 +189,7 @@ int main(int argc, char** argv) {
   // The laser's guard process (drivers/gpiod/laser_guard.h) is alacs-laser-guard beside
   // alacsd; when that is missing, alacsd serves it itself, started as `alacsd --laser-guard
   // FD CHIP LINE MAX_ON_MS` (app/platform.cpp laserGuardFor). Not an option for people.
-  if (argc == 6 && std::string_view(argv[1]) == "--laser-guard")
-    return drivers::runLaserGuard(std::atoi(argv[2]), argv[3], argv[4], std::atoi(argv[5]));
+  if (const int exit = drivers::runLaserGuardFromArgs(argc, argv); exit >= 0) return exit;
 #endif
   app::mapLargeBlocks();
   app::Options o;

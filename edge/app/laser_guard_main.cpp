@@ -6,15 +6,12 @@
 // mlockall pins libgpiod and the C++ runtime, not the daemon's OpenCV and libcamera
 // (alacsd itself took 2 s to load inside UML, and pinned 65 MB as its own guard).
 #include <cstdio>
-#include <cstdlib>
-#include <string_view>
 
 #include "drivers/gpiod/laser_guard.h"
 
 int main(int argc, char** argv) {
-  if (argc != 6 || std::string_view(argv[1]) != "--laser-guard") {
-    std::fprintf(stderr, "usage: alacs-laser-guard --laser-guard FD CHIP LINE MAX_ON_MS (started by alacsd)\n");
-    return 2;
-  }
-  return alacs::drivers::runLaserGuard(std::atoi(argv[2]), argv[3], argv[4], std::atoi(argv[5]));
+  const int exit = alacs::drivers::runLaserGuardFromArgs(argc, argv);
+  if (exit >= 0) return exit;
+  std::fprintf(stderr, "usage: alacs-laser-guard --laser-guard FD CHIP LINE MAX_ON_MS (started by alacsd)\n");
+  return 2;
 }

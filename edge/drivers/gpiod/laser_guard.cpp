@@ -11,6 +11,7 @@
 #include <cerrno>
 #include <csignal>
 #include <cstdio>
+#include <cstdlib>
 #include <cstring>
 #include <ctime>
 
@@ -27,9 +28,9 @@ constexpr char kOff = '0';
 constexpr char kCut = 'C';
 constexpr char kReady = 'R';
 constexpr int kGuardFd = 3;
-// The guard is alacsd itself, executed again: it is ready once it is loaded (with OpenCV
-// and libcamera) and holds the line. Inside UML that load alone took 1.7-2.3 s; a board
-// takes a fraction of a second. The daemon waits this long before it gives up.
+// The guard is ready once it is loaded and holds the line. alacsd executed again as its
+// guard (with OpenCV and libcamera) took 1.7-2.3 s to load inside UML, alacs-laser-guard
+// 0.2 s. The daemon waits this long before it gives up.
 constexpr int kGuardReadyTimeoutMs = 15000;
 
 int64_t monotonicMs() {
@@ -107,6 +108,11 @@ int runLaserGuard(int fd, const std::string& chip, const std::string& line, int 
   if (!sendByte(fd, kReady)) return 1;
   serveLaserGuard(fd, **out, maxOnMs);
   return 0;
+}
+
+int runLaserGuardFromArgs(int argc, char** argv) {
+  if (argc != 6 || std::strcmp(argv[1], "--laser-guard") != 0) return -1;
+  return runLaserGuard(std::atoi(argv[2]), argv[3], argv[4], std::atoi(argv[5]));
 }
 
 Result<std::unique_ptr<LaserGuardProcess>> LaserGuardProcess::spawn(const std::string& exe, const std::string& chip,

@@ -1,13 +1,13 @@
 // The LASER line owned by a process of its own, so that the laser's on-time is bounded
 // outside the daemon's scheduling (issue 15; docs/appliance.md "Laser on-time").
 //
-// alacsd starts `alacsd --laser-guard` (the same binary, exec'd: a clean, single-threaded
-// process) with one end of a socket pair. The guard requests the LASER line, and drives it
-// on and off as the daemon asks; it ends any pulse itself after `maxOnMs`, whatever the
-// daemon does (frozen by SIGSTOP, starved, stuck in a driver), and turns the line off and
-// exits when the daemon's end of the socket closes (the daemon died: kill -9, a crash).
-// It runs SCHED_FIFO when allowed, memory locked, ignores SIGTERM/SIGINT/SIGHUP (the daemon
-// ends it by closing the socket) and logs each cut to stderr (the journal).
+// alacsd starts `alacs-laser-guard --laser-guard FD CHIP LINE MAX_ON_MS` (a small program
+// beside it, app/laser_guard_main.cpp; alacsd itself when that is missing: either way a
+// clean, single-threaded process, exec'd) with one end of a socket pair. The guard requests the LASER line, and drives
+// it on and off as the daemon asks; it ends any pulse itself after `maxOnMs`, whatever the daemon does (frozen by
+// SIGSTOP, starved, stuck in a driver), and turns the line off and exits when the daemon's end of the socket closes
+// (the daemon died: kill -9, a crash). It runs SCHED_FIFO when allowed, memory locked, ignores SIGTERM/SIGINT/SIGHUP
+// (the daemon ends it by closing the socket) and logs each cut to stderr (the journal).
 //
 // What it cannot cover: the guard frozen together with the daemon (SIGSTOP to the whole
 // process group or cgroup), or the kernel itself stuck. The board's hardware one-shot
@@ -49,6 +49,9 @@ class LaserGuardProcess final : public ports::DigitalOut {
 // The guard process's main (alacsd --laser-guard): serves `fd` until it closes. Returns
 // the process's exit code.
 int runLaserGuard(int fd, const std::string& chip, const std::string& line, int maxOnMs);
+// `PROGRAM --laser-guard FD CHIP LINE MAX_ON_MS`, as LaserGuardProcess::spawn starts it:
+// runs the guard and returns its exit code; -1 when argv is not that call.
+int runLaserGuardFromArgs(int argc, char** argv);
 
 // The guard's loop on any line (the unit tests drive it with a recording fake): '1' turns
 // the line on (a pulse of at most maxOnMs), '0' off; each is answered with the same byte
