@@ -78,7 +78,8 @@ void Sensor::start(TimeNs now) {
   (void)ports_.laser->off();
   node_.start(now);
   canRxNs_ = canTxNs_ = now;
-  bootUpSent_ = false;
+  bootUpNs_ = kNotYet;
+  heartbeatStarted_ = false;
   // Not calibrated is not a fault state: the sensor still homes and answers. A refused
   // configuration file leaves the slide where it is: the defaults need not fit it.
   state_ = State::kIdle;
@@ -524,7 +525,8 @@ void Sensor::tick(TimeNs now) {
   if (node_.takeResetRequest()) {
     ALACS_LOG_INFO("can", "NMT reset: restarting the node");
     node_.start(now);
-    bootUpSent_ = false;
+    bootUpNs_ = kNotYet;
+    heartbeatStarted_ = false;
   }
   if (workerSettingsPending_ && !ports_.worker->busy()) pushWorkerSettings();
   checkFrameRead(now);
@@ -538,10 +540,21 @@ void Sensor::tick(TimeNs now) {
   keepHeartbeat(now);
 }
 
+TimeNs Sensor::nextDeadline() const {
+  const TimeNs node = node_.nextDeadline();
+  if (heartbeatStarted_ || bootUpNs_ == kNotYet || !ports_.can->hasCyclic()) return node;
+  return std::min(node, heartbeatStartNs());
+}
+
 void Sensor::keepHeartbeat(TimeNs now) {
   if (!ports_.can->hasCyclic()) return;  // the node queues the heartbeat itself (poll)
-  // The boot-up is the node's first frame (CiA 301): no cyclic heartbeat before it.
-  const TimeNs period = bootUpSent_ ? node_.heartbeatPeriod() : 0;
+  // The boot-up is the node's first frame (CiA 301), and the first heartbeat follows it one
+  // producer period later, as the node's own timing does on a bus without cyclic sending
+  // (the kernel's cyclic job sends at once when started). A master that waits for the boot-up
+  // can miss one followed at once by a heartbeat: python-canopen's wait_for_bootup reads the
+  // last state received, which the heartbeat has already replaced.
+  if (!heartbeatStarted_ && bootUpNs_ != kNotYet && now >= heartbeatStartNs()) heartbeatStarted_ = true;
+  const TimeNs period = heartbeatStarted_ ? node_.heartbeatPeriod() : 0;
   if (Status s = ports_.can->keepCyclic(node_.heartbeatFrame(), period, now); !s)
     ALACS_LOG_WARN("can", "heartbeat: %s", s.toString().c_str());
 }
@@ -560,7 +573,7 @@ void Sensor::flushTx(TimeNs now) {
       node_.onTxRefused(now);
       return;
     }
-    if (isBootUp(*f, node_.nodeId())) bootUpSent_ = true;
+    if (isBootUp(*f, node_.nodeId())) bootUpNs_ = now;
     node_.popTx();
     node_.onTxDone();
   }

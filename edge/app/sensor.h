@@ -8,6 +8,7 @@
 // CLEAR_FAULT -> IDLE. See docs/daemon.md for the state diagram.
 #pragma once
 
+#include <limits>
 #include <optional>
 #include <string>
 
@@ -97,7 +98,7 @@ class Sensor {
   void setWorkerSlack(TimeNs slackNs) { workerSlackNs_ = slackNs; }
 
   // The next time tick() has something to do (INT64_MAX: nothing scheduled).
-  TimeNs nextDeadline() const { return node_.nextDeadline(); }
+  TimeNs nextDeadline() const;
   size_t txPending() const { return node_.txPending(); }
   protocol::State state() const { return state_; }
   uint16_t faults() const { return node_.faults(); }
@@ -164,7 +165,10 @@ class Sensor {
   CancelCause cancelCause_ = CancelCause::kNone;
   Status cancelReason_;
   bool workerSettingsPending_ = false;  // SET_CONFIG/SDO accepted while the worker was busy
-  bool bootUpSent_ = false;             // the cyclic heartbeat starts only after the boot-up
+  static constexpr TimeNs kNotYet = std::numeric_limits<TimeNs>::min();
+  TimeNs bootUpNs_ = kNotYet;      // when the boot-up was written (kNotYet: not since the last start)
+  bool heartbeatStarted_ = false;  // the cyclic heartbeat, one period after the boot-up
+  TimeNs heartbeatStartNs() const { return bootUpNs_ + node_.heartbeatPeriod(); }
   bool resultOwed_ = false;
   uint16_t faultCause_ = 0;  // the fault bit that cancelled the running job
   struct ConfigRefusal {

@@ -102,11 +102,19 @@ def network() -> Iterator[canopen.Network]:
 def test_canopen_master_boot_heartbeat_sdo_nmt(sensor: Alacsd, network: canopen.Network) -> None:
     node = network.add_node(sensor.node_id, str(EDS))
     node.sdo.RESPONSE_TIMEOUT = 1.0
+    error_control: list[tuple[float, int]] = []
+    node.nmt.add_heartbeat_callback(lambda state: error_control.append((time.monotonic(), state)))
     sensor.start()
     node.nmt.wait_for_bootup(timeout=20)
     # autoStart: OPERATIONAL without an NMT master (the default config).
     node.nmt.wait_for_heartbeat(timeout=3)
     assert node.nmt.state == "OPERATIONAL"
+    # The first heartbeat comes one producer period (1000 ms) after the boot-up, not at once:
+    # wait_for_bootup reads the last state received, and a heartbeat right behind the boot-up
+    # can replace it before the waiting thread looks.
+    assert [s for _, s in error_control[:2]] == [0, 5], error_control
+    gap_s = error_control[1][0] - error_control[0][0]
+    assert 0.9 < gap_s < 1.2, error_control
 
     # Identity and device type, as the EDS says.
     assert node.sdo["Device type"].raw == 0

@@ -197,21 +197,33 @@ bool laserEverOn(const Rig& r) {
 
 }  // namespace
 
-TEST_CASE("Sensor boot: the boot-up is the node's first frame; the cyclic heartbeat starts after it", "[app][sensor]") {
+TEST_CASE("Sensor boot: the boot-up is the node's first frame; the cyclic heartbeat starts one period after it",
+          "[app][sensor]") {
   Rig r;
   r.sensor->start(r.now());
   CHECK(r.can.cyclic().empty());  // nothing cyclic before the boot-up went out
+  const TimeNs bootNs = r.now();
   r.tick();
   REQUIRE(!r.can.sent().empty());
   CHECK(r.can.sent().front().frame.id == 0x700U + kNode);
   CHECK(r.can.sent().front().frame.dlc == 1);
   CHECK(r.can.sent().front().frame.data[0] == 0x00);
-  REQUIRE(r.can.cyclic().size() == 1);
-  CHECK(r.can.cyclic()[0].periodNs == 1000 * kNsPerMs);
-  CHECK(r.can.cyclic()[0].frame.data[0] == 0x05);  // OPERATIONAL (auto start)
   CHECK(r.sensor->state() == State::kHoming);
   REQUIRE(r.worker.submitted().size() == 1);
   CHECK(r.worker.submitted()[0].kind == app::WorkerJob::Kind::kHome);
+  // Not at once: a master waiting for the boot-up would read the heartbeat's state instead.
+  CHECK(r.can.cyclicPeriodNs() == 0);
+  CHECK(r.sensor->nextDeadline() <= bootNs + 1000 * kNsPerMs);  // the loop wakes for it
+  r.advanceMs(999);
+  CHECK(r.can.cyclicPeriodNs() == 0);
+  r.advanceMs(1);
+  std::vector<ports::CyclicRequest> started;
+  for (const ports::CyclicRequest& c : r.can.cyclic())
+    if (c.periodNs > 0) started.push_back(c);
+  REQUIRE(started.size() == 1);
+  CHECK(started[0].timeNs == bootNs + 1000 * kNsPerMs);
+  CHECK(started[0].periodNs == 1000 * kNsPerMs);
+  CHECK(started[0].frame.data[0] == 0x05);  // OPERATIONAL (auto start)
 }
 
 TEST_CASE("Sensor boot: a refused first write keeps the boot-up first and the heartbeat waiting", "[app][sensor]") {
@@ -225,6 +237,8 @@ TEST_CASE("Sensor boot: a refused first write keeps the boot-up first and the he
   REQUIRE(!r.can.sent().empty());
   CHECK(r.can.sent().front().frame.id == 0x700U + kNode);
   CHECK(r.can.sent().front().frame.data[0] == 0x00);
+  CHECK(r.can.cyclicPeriodNs() == 0);  // one period after the boot-up went out, not after start()
+  r.advanceMs(1000);
   CHECK(r.can.cyclicPeriodNs() == 1000 * kNsPerMs);
 }
 
@@ -508,7 +522,9 @@ TEST_CASE("Sensor: SET_CONFIG and SDO writes while busy are accepted, the scan s
   const auto answers = r.sentWithId(0x580U + kNode);
   REQUIRE(answers.size() == 1);
   CHECK(answers[0].data[0] == 0x60);  // download confirmed, not aborted
-  CHECK(r.can.cyclicPeriodNs() == 500 * kNsPerMs);  // the heartbeat at once
+  CHECK(r.can.cyclicPeriodNs() == 0);  // the first heartbeat comes one (new) period after the boot-up
+  r.advanceMs(500);
+  CHECK(r.can.cyclicPeriodNs() == 500 * kNsPerMs);
   r.finish();
   CHECK(r.worker.exposureUs() == 2500);  // applied once idle
   REQUIRE(r.worker.localizer().has_value());
@@ -517,8 +533,9 @@ TEST_CASE("Sensor: SET_CONFIG and SDO writes while busy are accepted, the scan s
 TEST_CASE("Sensor: heartbeat period changes over SET_CONFIG; 0 stops it", "[app][sensor]") {
   Rig r;
   r.bootIdle();
+  r.advanceMs(1000);  // the heartbeat has started
   CHECK(r.answer(r.setConfigScan(7, 13.3, 200)).result == protocol::AckResult::kAck);
-  CHECK(r.can.cyclicPeriodNs() == 200 * kNsPerMs);
+  CHECK(r.can.cyclicPeriodNs() == 200 * kNsPerMs);  // the new period at once
   CHECK(r.answer(r.setConfigScan(7, 13.3, 0)).result == protocol::AckResult::kAck);
   CHECK(r.can.cyclicPeriodNs() == 0);
 }
@@ -538,6 +555,8 @@ TEST_CASE("Sensor: NMT reset sends a new boot-up before any heartbeat", "[app][s
   const auto hb = r.sentWithId(0x700U + kNode);
   REQUIRE(hb.size() == 1);
   CHECK(hb[0].data[0] == 0x00);
+  CHECK(r.can.cyclicPeriodNs() == 0);  // one period after the new boot-up
+  r.advanceMs(1000);
   CHECK(r.can.cyclicPeriodNs() == 1000 * kNsPerMs);
 }
 
