@@ -193,17 +193,24 @@ def test_line_names_match_gpioinfo():
 )
 def test_gpioset_output_is_read_back(line, pull, level):
     gpio_sim.drive_input(line, pull)   # the level the line idles at
-    assert gpio_sim.read_output(line) == pull
-    chip, offset = gpiofind(line)
-    with subprocess.Popen(["gpioset", "--mode=signal", chip, f"{offset}={level}"]) as holder:
-        try:
-            wait_for(lambda: gpio_sim.read_output(line) == level, f"{line}={level}")
-        finally:
-            holder.terminate()
-    assert holder.returncode == 0
-    # Released: gpio-sim falls back to the pull.
-    wait_for(lambda: gpio_sim.read_output(line) == pull, f"{line} released")
-    gpio_sim.drive_input(line, 0)
+    try:
+        assert gpio_sim.read_output(line) == pull
+        chip, offset = gpiofind(line)
+        # --mode=wait, ended by a newline on stdin: a SIGTERM (--mode=signal) that came before
+        # gpioset had set up its handler killed it (-15) on a loaded CI run.
+        with subprocess.Popen(["gpioset", "--mode=wait", chip, f"{offset}={level}"],
+                              stdin=subprocess.PIPE, text=True) as holder:
+            try:
+                wait_for(lambda: gpio_sim.read_output(line) == level, f"{line}={level}")
+            finally:
+                holder.communicate(input="\n", timeout=TIMEOUT_S)
+        assert holder.returncode == 0
+        # Released: gpio-sim falls back to the pull.
+        wait_for(lambda: gpio_sim.read_output(line) == pull, f"{line} released")
+    finally:
+        # Back to idling low whatever happened: a LASER left pulled high failed every later
+        # test that reads the laser off.
+        gpio_sim.drive_input(line, 0)
 
 
 def gpioget(name: str) -> int:
