@@ -241,17 +241,37 @@ WorkerEvent ScanWorker::doHome(const WorkerJob& job) {
   return ev;
 }
 
-Status ScanWorker::moveTo(double mm, WorkerEvent& ev) {
+Status ScanWorker::moveTo(double mm, WorkerEvent& ev, const std::function<void()>& meanwhile) {
   const int64_t from = positionSteps_.load();
   const int64_t to = deps_.limits.stepsFor(mm);
   Result<motion::TrapezoidMove> move = motion::planMove(deps_.limits, from, to);
   if (!move) return move.status();
+  setPhase(protocol::ProgressPhase::kMoving);
+  if (meanwhile) {
+    const std::unique_ptr<Sweep> m = startMove(*move, to > from);
+    meanwhile();
+    joinSweep(*m);
+    markProgress();
+    return moveOutcome(m->report, ev);
+  }
   motion::StepRunner runner(deps_.limits, deps_.stepLines, *deps_.clock, *deps_.sleeper);
   runner.trackPosition(&positionSteps_);
-  setPhase(protocol::ProgressPhase::kMoving);
   const motion::MoveReport report = runner.run(*move, to > from, cancel_);
   markProgress();
   return moveOutcome(report, ev);
+}
+
+std::unique_ptr<ScanWorker::Sweep> ScanWorker::startMove(const motion::TrapezoidMove& move, bool forward) {
+  auto sweep = std::make_unique<Sweep>(deps_.limits, deps_.stepLines, *deps_.clock, *deps_.sleeper, move, forward);
+  sweep->runner.trackPosition(&positionSteps_);
+  Sweep* sw = sweep.get();
+  deps_.sleeper->attach();  // for the move's thread, which detaches at its end
+  sweep->thread = std::thread([this, sw] {
+    sw->report = sw->runner.run(sw->move, sw->forward, cancel_);
+    sw->moving.store(false);
+    deps_.sleeper->detach();
+  });
+  return sweep;
 }
 
 Status ScanWorker::moveOutcome(const motion::MoveReport& r, WorkerEvent& ev) {
@@ -446,19 +466,25 @@ WorkerEvent ScanWorker::doLocalize(const WorkerJob& job) {
     ev.faultBit = protocol::kFaultInternal;
     return ev;
   }
-  meterExposure(plan, capture, ev);
-  if (cancel_.load()) {
-    // STOP while metering: nothing moved, the slide stays homed.
-    ev.resultStatus = protocol::ResultStatus::kAborted;
-    ev.status = Status(Error::kFault, "scan stopped by command");
-    return ev;
-  }
   const bool continuous = job.localize.mode == protocol::ScanMode::kContinuous;
+  // The exposure is metered on laser-off frames before the first laser frame: in a sweep
+  // while the slide runs up to the first stop (sweepStops()), otherwise before the first move.
+  const std::function<void()> meter = [&] { meterExposure(plan, capture, ev); };
+  if (!continuous) {
+    meter();
+    if (cancel_.load()) {
+      // STOP while metering: nothing moved, the slide stays homed.
+      ev.resultStatus = protocol::ResultStatus::kAborted;
+      ev.status = Status(Error::kFault, "scan stopped by command");
+      return ev;
+    }
+  }
   // One pass over some stops; the frames' image work overlaps the motion.
   TimeNs motionDone = 0;
-  const auto pass = [&](const localize::ScanPlan& p, std::vector<localize::LineObservation>& lines) {
+  const auto pass = [&](const localize::ScanPlan& p, std::vector<localize::LineObservation>& lines,
+                        const std::function<void()>& runUp) {
     pipeline_.begin(localizer, p);
-    const Status scanned = continuous ? sweepStops(p, capture, ev) : stopAndGo(p, capture, ev);
+    const Status scanned = continuous ? sweepStops(p, capture, ev, runUp) : stopAndGo(p, capture, ev);
     motionDone = deps_.clock->now();
     // Whatever happened, let the frames already handed over finish before reporting.
     std::vector<localize::LineObservation> got = pipeline_.finish();
@@ -466,7 +492,7 @@ WorkerEvent ScanWorker::doLocalize(const WorkerJob& job) {
     return scanned;
   };
   std::vector<localize::LineObservation> lines;
-  Status scanned = pass(plan, lines);
+  Status scanned = pass(plan, lines, meter);
   phase_.store(protocol::ProgressPhase::kFitting);
   Result<localize::AppleEstimate> est = scanned ? localizer.estimate(plan, lines) : Result<localize::AppleEstimate>(scanned);
   // Adaptive scan: a first pass that leaves the fit in doubt (too few lines, the fruit mostly
@@ -483,7 +509,7 @@ WorkerEvent ScanWorker::doLocalize(const WorkerJob& job) {
     scanned = settleBraking(ev);
     // (A replayed scan holds no frame at these stops: the replay serves the nearest recorded
     // one, already seen; estimate() leaves the repeats out.)
-    if (scanned) scanned = pass(second, lines);
+    if (scanned) scanned = pass(second, lines, {});
     ev.followUpStops = static_cast<int>(second.stopsMm.size());
     if (scanned) est = localizer.estimate(plan, lines);
   }
@@ -553,6 +579,14 @@ void ScanWorker::meterExposure(const localize::ScanPlan& plan, ports::CaptureReq
                  ev.laserOffSubtracted ? "laser-off subtracted" : "no subtraction", ev.laserOffFrames);
 }
 
+namespace {
+// A scan ended by STOP.
+Status aborted(WorkerEvent& ev) {
+  ev.resultStatus = protocol::ResultStatus::kAborted;
+  return {Error::kFault, "scan stopped by command"};
+}
+}  // namespace
+
 Status ScanWorker::stopAndGo(const localize::ScanPlan& plan, const ports::CaptureRequest& capture, WorkerEvent& ev) {
   for (size_t i = 0; i < plan.stopsMm.size(); ++i) {
     if (Status s = moveTo(plan.stopsMm[i], ev); !s) return s;
@@ -560,10 +594,7 @@ Status ScanWorker::stopAndGo(const localize::ScanPlan& plan, const ports::Captur
     if (!frame) return frame.status();
     // The image work of this stop runs while the slide moves to the next one.
     pipeline_.push(frame->view, recordedOr(deps_, positionMm()));
-    if (cancel_.load()) {
-      ev.resultStatus = protocol::ResultStatus::kAborted;
-      return {Error::kFault, "scan stopped by command"};
-    }
+    if (cancel_.load()) return aborted(ev);
   }
   return Status::ok();
 }
@@ -610,19 +641,28 @@ FramePlace sweptFramePlace(const motion::StepLog& log, int64_t fromSteps, bool f
 }
 }  // namespace
 
-Status ScanWorker::sweepStops(const localize::ScanPlan& plan, const ports::CaptureRequest& capture, WorkerEvent& ev) {
+Status ScanWorker::sweepStops(const localize::ScanPlan& plan, ports::CaptureRequest& capture, WorkerEvent& ev,
+                              const std::function<void()>& runUp) {
   // One move through every stop; each frame is exposed as the slide passes its stop, and
-  // its position is the slide's (counted steps) at mid-exposure.
+  // its position is the slide's (counted steps) at mid-exposure. `runUp` (the metering: its
+  // frames are laser-off, and the camera is fixed) runs while the slide runs up to the
+  // first stop, or before any move when the sweep starts at it. It may shorten
+  // capture.exposureUs; the overrun, planned before it, then keeps a little to spare.
   std::vector<double> stops = plan.stopsMm;
   const double here = positionMm();
   const double nearStart = std::abs(here - stops.front()) <= std::abs(here - stops.back()) ? stops.front() : stops.back();
   if (nearStart == stops.back()) std::reverse(stops.begin(), stops.end());
   const bool forward = stops.back() >= stops.front();
-  // Start from outside the span so that no stop lies behind the slide.
-  if ((forward && here > stops.front()) || (!forward && here < stops.front())) {
-    if (Status s = moveTo(stops.front(), ev); !s) return s;
-  }
   const motion::SlideLimits& lim = deps_.limits;
+  // Start from outside the span so that no stop lies behind the slide.
+  const bool positioned = (forward && here > stops.front()) || (!forward && here < stops.front());
+  const bool runsUp = !positioned && lim.stepsFor(stops.front()) != positionSteps_.load();
+  if (positioned) {
+    if (Status s = moveTo(stops.front(), ev, runUp); !s) return s;
+  } else if (runUp && !runsUp) {
+    runUp();
+  }
+  if (cancel_.load()) return aborted(ev);
   // Run on past the last stop by half an exposure's travel (so that its exposure is
   // centred) and by the braking distance, so that the slide passes every stop at cruise
   // speed and brakes only after the last frame, while the result is already out.
@@ -632,17 +672,14 @@ Status ScanWorker::sweepStops(const localize::ScanPlan& plan, const ports::Captu
   const int64_t from = positionSteps_.load();
   Result<motion::TrapezoidMove> move = motion::planMove(lim, from, lim.stepsFor(endMm));
   if (!move) return move.status();
-  auto sweep = std::make_unique<Sweep>(lim, deps_.stepLines, *deps_.clock, *deps_.sleeper, *move, forward);
-  sweep->runner.trackPosition(&positionSteps_);
   const TimeNs moveStart = deps_.clock->now() + lim.dirSetupNs;
+  std::unique_ptr<Sweep> sweep = startMove(*move, forward);
   Sweep* sw = sweep.get();
-  deps_.sleeper->attach();  // for the sweep's thread, which detaches at its end
-  sweep->thread = std::thread([this, sw] {
-    sw->report = sw->runner.run(sw->move, sw->forward, cancel_);
-    sw->moving.store(false);
-    deps_.sleeper->detach();
-  });
   Status status = Status::ok();
+  if (runUp && runsUp) {
+    runUp();
+    if (cancel_.load()) status = aborted(ev);
+  }
   const TimeNs halfExposure = capture.exposureUs * kNsPerUs / 2;
   // Half an exposure's travel at cruise speed, in steps: the exposure is centred on the stop.
   const auto halfTravel = static_cast<int64_t>(lim.maxSpeedMmPerS * lim.stepsPerMm *
@@ -672,10 +709,7 @@ Status ScanWorker::sweepStops(const localize::ScanPlan& plan, const ports::Captu
       pipeline_.push(frame->view, recordedMm);
     else
       pipeline_.push(frame->view, place.slideMm, place.slideMmPerRow);
-    if (cancel_.load()) {
-      ev.resultStatus = protocol::ResultStatus::kAborted;
-      status = Status(Error::kFault, "scan stopped by command");
-    }
+    if (cancel_.load()) status = aborted(ev);
   }
   if (status.isOk() && sw->moving.load()) {
     // Every frame taken: the slide brakes while the result is made and posted (run()).

@@ -96,11 +96,13 @@ class ScanWorker final : public ScanJobs {
   // fails the scan: a frame that cannot be had (a replayed scan without laser-off frames, a
   // camera error) ends metering with what is known, logged.
   void meterExposure(const localize::ScanPlan& plan, ports::CaptureRequest& capture, WorkerEvent& ev);
-  Status moveTo(double mm, WorkerEvent& ev);
+  // `meanwhile` (optional) runs on this thread while the slide moves (the metering).
+  Status moveTo(double mm, WorkerEvent& ev, const std::function<void()>& meanwhile = {});
   Status moveOutcome(const motion::MoveReport& r, WorkerEvent& ev);
   // The two ways through a localize plan's stops; both hand frames to pipeline_.
   Status stopAndGo(const localize::ScanPlan& plan, const ports::CaptureRequest& capture, WorkerEvent& ev);
-  Status sweepStops(const localize::ScanPlan& plan, const ports::CaptureRequest& capture, WorkerEvent& ev);
+  Status sweepStops(const localize::ScanPlan& plan, ports::CaptureRequest& capture, WorkerEvent& ev,
+                    const std::function<void()>& runUp);
   // Posts `ev` to the loop (queue + eventfd).
   void post(WorkerEvent ev);
   // Waits for the braking after a continuous scan's last frame; a second event when it
@@ -144,6 +146,8 @@ class ScanWorker final : public ScanJobs {
   std::atomic<bool> cancel_{false};
   std::atomic<uint64_t> cancelEpoch_{0};
   // Waits for the sweep's thread to end (detached from the sleeper meanwhile).
+  // Runs `move` on a thread of its own; joinSweep() waits for it.
+  std::unique_ptr<Sweep> startMove(const motion::TrapezoidMove& move, bool forward);
   void joinSweep(Sweep& sweep);
   std::unique_ptr<Sweep> braking_;  // a continuous scan's sweep still braking after its last frame
   std::atomic<bool> busy_{false};

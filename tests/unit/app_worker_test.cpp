@@ -166,6 +166,15 @@ app::WorkerJob twoStopScan() {
   return scan;
 }
 
+// A continuous LOCALIZE through 20, 25 and 30 mm over a 32 px square ROI.
+app::WorkerJob threeStopSweep() {
+  app::WorkerJob scan = jobOf(app::WorkerJob::Kind::kLocalize);
+  scan.localize.mode = protocol::ScanMode::kContinuous;
+  scan.plan.stopsMm = {20.0, 25.0, 30.0};
+  scan.plan.roi = {0, 0, 32, 32};
+  return scan;
+}
+
 std::optional<app::WorkerEvent> Rig::home(app::ScanWorker& w) {
   w.submit(jobOf(app::WorkerJob::Kind::kHome));
   std::optional<app::WorkerEvent> ev = next(w);
@@ -197,10 +206,7 @@ TEST_CASE("A continuous scan's result is out while the slide brakes; a job sent 
     CHECK(worker.submit(jobOf(app::WorkerJob::Kind::kMoveTo, 10.0)));
     busyAfter = worker.busy();
   };
-  app::WorkerJob scan = jobOf(app::WorkerJob::Kind::kLocalize);
-  scan.localize.mode = protocol::ScanMode::kContinuous;
-  scan.plan.stopsMm = {20.0, 25.0, 30.0};
-  scan.plan.roi = {0, 0, 32, 32};
+  const app::WorkerJob scan = threeStopSweep();
   worker.submit(scan);
   ev = rig.next(worker);
   REQUIRE(ev);
@@ -337,6 +343,60 @@ TEST_CASE(
   CHECK_FALSE(ev->laserOffSubtracted);
   CHECK(seen.size() == ev->exposures.size());
   for (const Seen& s : seen) CHECK(s.laser);
+}
+
+TEST_CASE("A sweep meters its exposure while the slide runs up to the first stop, or while it is positioned there",
+          "[app][worker]") {
+  // Long exposures, so that the metering lasts long enough for steps: 20 ms, then the laser-off
+  // frame at 10 ms (red 200 DN at 20 ms, the target 100 DN). Stops at 20, 25 and 30 mm.
+  struct Case {
+    const char* name;
+    double fromMm;  // where the slide waits for the scan
+  };
+  for (const Case c : {Case{"runs up from 2 mm", 2.0}, Case{"positioned from 23 mm, inside the span", 23.0}}) {
+    DYNAMIC_SECTION(c.name) {
+      Rig rig(2.0);
+      rig.deps.capture.exposureUs = 20000;
+      rig.deps.metering.targetDn = 100;
+      rig.deps.metering.subtractAboveDn = 50;
+      const motion::SlideLimits lim = Rig::limits();
+      const localize::Localizer loc(sim::defaultScene().truth, image::LleParams{}, localize::ScanParams{});
+      app::ScanWorker worker(rig.deps, loc, rig.efd);
+      std::optional<app::WorkerEvent> ev = rig.home(worker);
+      worker.submit(jobOf(app::WorkerJob::Kind::kMoveTo, c.fromMm));
+      REQUIRE(rig.next(worker));
+      rig.camera.setRed(200);
+      struct Seen {
+        bool laser;
+        int64_t positionSteps;
+      };
+      std::vector<Seen> seen;
+      rig.camera.onCapture = [&] { seen.push_back({rig.laserLine.level(), rig.slide.positionSteps()}); };
+      const app::WorkerJob scan = threeStopSweep();
+      worker.submit(scan);
+      ev = rig.next(worker);
+      REQUIRE(ev);
+      CHECK(ev->status.isOk());
+      REQUIRE(ev->laserOffFrames == 2);
+      CHECK(ev->exposureUs == 10000);
+      REQUIRE(seen.size() == 2 + ev->exposures.size());
+      // The laser-off frames with the laser off, the slide moving under them (the first
+      // at the move's start, the second 20 ms later).
+      CHECK_FALSE(seen[0].laser);
+      CHECK_FALSE(seen[1].laser);
+      CHECK(seen[1].positionSteps != seen[0].positionSteps);
+      // Each laser frame at the metered exposure, centred on its stop to a step.
+      REQUIRE(ev->exposures.size() == 3);
+      for (size_t i = 0; i < 3; ++i) {
+        const app::ExposureWindow& x = ev->exposures[i];
+        CHECK(seen[2 + i].laser);
+        CHECK(x.endNs - x.startNs == 10000 * kNsPerUs);
+        const TimeNs mid = (x.startNs + x.endNs) / 2;
+        CHECK(std::llabs(rig.step.positionAt(mid, 0) - lim.stepsFor(scan.plan.stopsMm[i])) <= 1);
+      }
+      CHECK(rig.laserLine.level() == false);
+    }
+  }
 }
 
 TEST_CASE("One job waits behind the running one; cancel() ends both, and a job sent afterwards runs", "[app][worker]") {
@@ -690,6 +750,38 @@ TEST_CASE("Enough lines on the fruit: no second pass", "[app][worker][render]") 
   CHECK(laserOnlyDuringExposures(run));
 }
 
+namespace {
+// `scan` with a STOP as its first laser-off frame is taken (the camera returns it; the next
+// one is not asked for): ABORTED, that one capture, no laser frame, the laser low.
+void stopWhileMetering(Rig& rig, app::ScanWorker& worker, const app::WorkerJob& scan) {
+  int captures = 0;
+  rig.camera.onCapture = [&] {
+    if (++captures == 1) worker.cancel();
+  };
+  worker.submit(scan);
+  std::optional<app::WorkerEvent> ev = rig.next(worker);
+  REQUIRE(ev);
+  CHECK_FALSE(ev->status.isOk());
+  CHECK(ev->resultStatus == protocol::ResultStatus::kAborted);
+  CHECK(captures == 1);
+  CHECK(ev->exposures.empty());
+  CHECK(rig.laserLine.level() == false);
+  rig.camera.onCapture = nullptr;
+}
+}  // namespace
+
+TEST_CASE("STOP while a sweep meters: ABORTED, no laser frame, the laser low, the run-up stopped", "[app][worker]") {
+  Rig rig(2.0);
+  rig.deps.capture.exposureUs = 20000;
+  const localize::Localizer loc(sim::defaultScene().truth, image::LleParams{}, localize::ScanParams{});
+  app::ScanWorker worker(rig.deps, loc, rig.efd);
+  REQUIRE(rig.home(worker));
+  rig.camera.setRed(200);
+  stopWhileMetering(rig, worker, threeStopSweep());
+  CHECK(rig.slide.positionSteps() < Rig::limits().stepsFor(20.0));  // stopped before the first stop
+  CHECK(!worker.takeEvent());
+}
+
 TEST_CASE("STOP while metering: the scan ends ABORTED before any move, and the slide stays homed", "[app][worker]") {
   Rig rig(2.0);
   const localize::Localizer loc(sim::defaultScene().truth, image::LleParams{}, localize::ScanParams{});
@@ -697,24 +789,10 @@ TEST_CASE("STOP while metering: the scan ends ABORTED before any move, and the s
   std::optional<app::WorkerEvent> ev = rig.home(worker);
   REQUIRE(worker.homed());
   const size_t stepsBefore = rig.step.steps().size();
-  int captures = 0;
-  // STOP as the first laser-off frame is taken (the camera returns it; the next one is not asked for).
-  rig.camera.onCapture = [&] {
-    if (++captures == 1) worker.cancel();
-  };
-  const app::WorkerJob scan = twoStopScan();
-  worker.submit(scan);
-  ev = rig.next(worker);
-  REQUIRE(ev);
-  CHECK_FALSE(ev->status.isOk());
-  CHECK(ev->resultStatus == protocol::ResultStatus::kAborted);
-  CHECK(captures == 1);
-  CHECK(ev->exposures.empty());
+  stopWhileMetering(rig, worker, twoStopScan());
   CHECK(rig.step.steps().size() == stepsBefore);  // not one step
   CHECK(worker.homed());
-  CHECK(rig.laserLine.level() == false);
   // A move cut short, by contrast, leaves the position in doubt.
-  rig.camera.onCapture = nullptr;
   rig.step.onStep = [&](int64_t) { worker.cancel(); };
   worker.submit(jobOf(app::WorkerJob::Kind::kMoveTo, 30.0));
   ev = rig.next(worker);

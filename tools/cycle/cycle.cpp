@@ -21,6 +21,7 @@
 // memory (VmHWM). docs/daemon.md.
 //
 // usage: alacs_cycle [--cases N] [--mode stop-and-go|continuous|both] [--width W --height H] [--verbose]
+//                    [--log-level debug]
 //        alacs_cycle --virtual-time [--fps F] [--world W] ...
 //        alacs_cycle --export DIR [--cases N] [--width W --height H]
 //        alacs_cycle --replay [--mode stop-and-go|continuous|scan-all|all] [--verbose] DIR...
@@ -39,6 +40,7 @@
 #include "app/laser_guard.h"
 #include "app/process_memory.h"
 #include "app/scan_worker.h"
+#include "common/log.h"
 #include "common/virtual_timeline.h"
 #include "ports/frame_slot_source.h"
 #include "replay/replay_source.h"
@@ -60,6 +62,7 @@ struct Options {
   int widthPx = 0;
   int heightPx = 0;
   bool verbose = false;
+  std::string logLevel = "info";          // the worker's log (debug: each frame's rows and points)
   int followUpMaxStops = -1;              // -1: ScanParams' default
   int followUpUnseenMaxStops = -1;        // -1: ScanParams' default
   double followUpDiameterSigmaMm = -1.0;  // -1: ScanParams' default
@@ -547,6 +550,9 @@ int main(int argc, char** argv) {
   app.add_option("--width", o.widthPx, "frame width, px (with --height)");
   app.add_option("--height", o.heightPx, "frame height, px (with --width)");
   app.add_flag("--verbose", o.verbose, "every trial");
+  app.add_option("--log-level", o.logLevel, "the worker's log, as alacsd's (debug: each frame's rows and points)")
+      ->check(CLI::IsMember({"error", "warning", "info", "debug"}))
+      ->capture_default_str();
   app.add_option("--follow-up-max-stops", o.followUpMaxStops, "0: no second pass (default: ScanParams')");
   app.add_option("--follow-up-unseen-max-stops", o.followUpUnseenMaxStops,
                  "the second pass's cap when the first saw nothing of the fruit (default: ScanParams')");
@@ -599,6 +605,9 @@ int main(int argc, char** argv) {
   if (!o.replay && !o.dirs.empty()) return tools::usageError(app, "DIR... only with --replay");
   if (o.virtualTime && (o.replay || !o.exportDir.empty()))
     return tools::usageError(app, "--virtual-time is for the simulated cycle (not --replay or --export)");
+  log::Level level = log::Level::kInfo;
+  (void)log::parseLevel(o.logLevel.c_str(), &level);
+  log::setLevel(level);
   if (!o.exportDir.empty()) return exportScans(o);
   if (o.replay) return replayCycle(o);
   return simulatedCycle(o);

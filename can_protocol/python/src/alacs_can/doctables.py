@@ -122,7 +122,9 @@ MEANINGS: dict[type[IntEnum], dict[str, str]] = {
     },
     c.ProgressPhase: {
         "MOVING": "the slide moves to the next stop",
-        "EXPOSING": "the camera exposes at a stop, or meters the light before the first move (laser off, stop 0)",
+        "EXPOSING": "the camera exposes at a stop, or meters the light (laser off, stop 0): before a "
+                    "stop-and-go scan's first move, or in a continuous scan while the slide runs up to its "
+                    "first stop",
         "FITTING": "the lines are being fitted",
         "SECOND_PASS": "the second pass (follow-up stops) runs",
     },
