@@ -274,12 +274,19 @@ std::unique_ptr<ScanWorker::Sweep> ScanWorker::startMove(const motion::Trapezoid
   return sweep;
 }
 
+namespace {
+// A move that did not complete leaves the position in doubt; one cancelled before its first
+// step does not.
+bool positionKnownAfter(const motion::MoveReport& r) {
+  return r.outcome == motion::MoveOutcome::kCompleted ||
+         (r.outcome == motion::MoveOutcome::kCancelled && r.stepsDone == 0);
+}
+}  // namespace
+
 Status ScanWorker::moveOutcome(const motion::MoveReport& r, WorkerEvent& ev) {
   ev.maxStepLatenessNs = std::max(ev.maxStepLatenessNs, r.maxLatenessNs);
   if (r.outcome == motion::MoveOutcome::kCompleted) return Status::ok();
-  // A move that did not complete leaves the position in doubt; one cancelled before its
-  // first step does not.
-  if (!(r.outcome == motion::MoveOutcome::kCancelled && r.stepsDone == 0)) homed_.store(false);
+  if (!positionKnownAfter(r)) homed_.store(false);
   if (r.outcome == motion::MoveOutcome::kLimitHit) ev.faultBit = protocol::kFaultLimitHit;
   if (r.outcome == motion::MoveOutcome::kIoError) ev.faultBit = protocol::kFaultInternal;
   if (r.outcome == motion::MoveOutcome::kCancelled) ev.resultStatus = protocol::ResultStatus::kAborted;
@@ -720,7 +727,7 @@ Status ScanWorker::sweepStops(const localize::ScanPlan& plan, ports::CaptureRequ
   if (!status) {
     // The sweep was cut short on purpose: the failure above is the reason, not the stop.
     ev.maxStepLatenessNs = std::max(ev.maxStepLatenessNs, sweep->report.maxLatenessNs);
-    homed_.store(homed_.load() && sweep->report.outcome == motion::MoveOutcome::kCompleted);
+    homed_.store(homed_.load() && positionKnownAfter(sweep->report));
     return status;
   }
   return moveOutcome(sweep->report, ev);

@@ -145,9 +145,9 @@ class ScanWorker final : public ScanJobs {
   bool quit_ = false;
   std::atomic<bool> cancel_{false};
   std::atomic<uint64_t> cancelEpoch_{0};
-  // Waits for the sweep's thread to end (detached from the sleeper meanwhile).
   // Runs `move` on a thread of its own; joinSweep() waits for it.
   std::unique_ptr<Sweep> startMove(const motion::TrapezoidMove& move, bool forward);
+  // Waits for the sweep's thread to end (detached from the sleeper meanwhile).
   void joinSweep(Sweep& sweep);
   std::unique_ptr<Sweep> braking_;  // a continuous scan's sweep still braking after its last frame
   std::atomic<bool> busy_{false};

@@ -39,10 +39,11 @@ struct AckSeen {
 };
 
 struct Rig {
-  explicit Rig(bool calibrated = true, bool cyclic = true, bool autoStart = true)
+  explicit Rig(bool calibrated = true, bool cyclic = true, bool autoStart = true, int statusPeriodMs = 100)
       : can(clock, cyclic), laser(laserLine, clock, 250 * kNsPerMs) {
     cfg.nodeId = kNode;
     cfg.nmtAutoStart = autoStart;
+    cfg.statusPeriodMs = statusPeriodMs;
     Result<geometry::Calibration> cal =
         calibrated ? Result<geometry::Calibration>(sim::defaultScene().truth)
                    : Result<geometry::Calibration>(Status(Error::kBadInput, "calibration.json: laser.plane_normal: missing"));
@@ -199,7 +200,7 @@ bool laserEverOn(const Rig& r) {
 
 TEST_CASE("Sensor boot: the boot-up is the node's first frame; the cyclic heartbeat starts one period after it",
           "[app][sensor]") {
-  Rig r;
+  Rig r(true, true, true, 0);  // no cyclic status: the heartbeat's start is the only deadline
   r.sensor->start(r.now());
   CHECK(r.can.cyclic().empty());  // nothing cyclic before the boot-up went out
   const TimeNs bootNs = r.now();
@@ -213,7 +214,7 @@ TEST_CASE("Sensor boot: the boot-up is the node's first frame; the cyclic heartb
   CHECK(r.worker.submitted()[0].kind == app::WorkerJob::Kind::kHome);
   // Not at once: a master waiting for the boot-up would read the heartbeat's state instead.
   CHECK(r.can.cyclicPeriodNs() == 0);
-  CHECK(r.sensor->nextDeadline() <= bootNs + 1000 * kNsPerMs);  // the loop wakes for it
+  CHECK(r.sensor->nextDeadline() == bootNs + 1000 * kNsPerMs);  // the loop wakes for it
   r.advanceMs(999);
   CHECK(r.can.cyclicPeriodNs() == 0);
   r.advanceMs(1);
@@ -237,8 +238,12 @@ TEST_CASE("Sensor boot: a refused first write keeps the boot-up first and the he
   REQUIRE(!r.can.sent().empty());
   CHECK(r.can.sent().front().frame.id == 0x700U + kNode);
   CHECK(r.can.sent().front().frame.data[0] == 0x00);
-  CHECK(r.can.cyclicPeriodNs() == 0);  // one period after the boot-up went out, not after start()
-  r.advanceMs(1000);
+  // One period after the boot-up went out (a few ms late), not after start().
+  const TimeNs bootUpNs = r.can.sent().front().timeNs;
+  REQUIRE(bootUpNs > 0);
+  while (r.now() < bootUpNs + 999 * kNsPerMs) r.advanceMs(1);
+  CHECK(r.can.cyclicPeriodNs() == 0);
+  r.advanceMs(1);
   CHECK(r.can.cyclicPeriodNs() == 1000 * kNsPerMs);
 }
 
@@ -555,8 +560,14 @@ TEST_CASE("Sensor: NMT reset sends a new boot-up before any heartbeat", "[app][s
   const auto hb = r.sentWithId(0x700U + kNode);
   REQUIRE(hb.size() == 1);
   CHECK(hb[0].data[0] == 0x00);
-  CHECK(r.can.cyclicPeriodNs() == 0);  // one period after the new boot-up
-  r.advanceMs(1000);
+  CHECK(r.can.cyclicPeriodNs() == 0);  // one period after the new boot-up, not after the reset
+  TimeNs bootUpNs = 0;
+  for (const ports::SentFrame& f : r.can.sent())
+    if (f.frame.id == 0x700U + kNode) bootUpNs = f.timeNs;
+  REQUIRE(bootUpNs > 0);
+  while (r.now() < bootUpNs + 999 * kNsPerMs) r.advanceMs(1);
+  CHECK(r.can.cyclicPeriodNs() == 0);
+  r.advanceMs(1);
   CHECK(r.can.cyclicPeriodNs() == 1000 * kNsPerMs);
 }
 

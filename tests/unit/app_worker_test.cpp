@@ -751,34 +751,44 @@ TEST_CASE("Enough lines on the fruit: no second pass", "[app][worker][render]") 
 }
 
 namespace {
-// `scan` with a STOP as its first laser-off frame is taken (the camera returns it; the next
-// one is not asked for): ABORTED, that one capture, no laser frame, the laser low.
-void stopWhileMetering(Rig& rig, app::ScanWorker& worker, const app::WorkerJob& scan) {
+// `scan` with a STOP as its `nth` laser-off frame is taken (the camera returns it; the next
+// one is not asked for): ABORTED, that many captures, no laser frame, the laser low.
+void stopWhileMetering(Rig& rig, app::ScanWorker& worker, const app::WorkerJob& scan, int nth = 1) {
   int captures = 0;
   rig.camera.onCapture = [&] {
-    if (++captures == 1) worker.cancel();
+    if (++captures == nth) worker.cancel();
   };
   worker.submit(scan);
   std::optional<app::WorkerEvent> ev = rig.next(worker);
   REQUIRE(ev);
   CHECK_FALSE(ev->status.isOk());
   CHECK(ev->resultStatus == protocol::ResultStatus::kAborted);
-  CHECK(captures == 1);
+  CHECK(captures == nth);
   CHECK(ev->exposures.empty());
   CHECK(rig.laserLine.level() == false);
   rig.camera.onCapture = nullptr;
 }
 }  // namespace
 
-TEST_CASE("STOP while a sweep meters: ABORTED, no laser frame, the laser low, the run-up stopped", "[app][worker]") {
+TEST_CASE("STOP while a sweep meters: ABORTED, no laser frame, the laser low; homed unless the slide had stepped",
+          "[app][worker]") {
   Rig rig(2.0);
   rig.deps.capture.exposureUs = 20000;
+  rig.deps.metering.targetDn = 100;  // two laser-off frames: 20 ms, then 10 ms
+  rig.deps.metering.subtractAboveDn = 50;
   const localize::Localizer loc(sim::defaultScene().truth, image::LleParams{}, localize::ScanParams{});
   app::ScanWorker worker(rig.deps, loc, rig.efd);
   REQUIRE(rig.home(worker));
   rig.camera.setRed(200);
+  // At the first frame, before the run-up's first step: nothing moved, the slide stays homed.
   stopWhileMetering(rig, worker, threeStopSweep());
-  CHECK(rig.slide.positionSteps() < Rig::limits().stepsFor(20.0));  // stopped before the first stop
+  CHECK(rig.slide.positionSteps() == 0);
+  CHECK(worker.homed());
+  // At the second, 20 ms into the run-up: cut short like any move, the position in doubt.
+  stopWhileMetering(rig, worker, threeStopSweep(), 2);
+  CHECK(rig.slide.positionSteps() > 0);
+  CHECK(rig.slide.positionSteps() < Rig::limits().stepsFor(20.0));  // before the first stop
+  CHECK_FALSE(worker.homed());
   CHECK(!worker.takeEvent());
 }
 
