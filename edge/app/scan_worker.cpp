@@ -261,12 +261,14 @@ Status ScanWorker::moveTo(double mm, WorkerEvent& ev, const std::function<void()
   return moveOutcome(report, ev);
 }
 
-std::unique_ptr<ScanWorker::Sweep> ScanWorker::startMove(const motion::TrapezoidMove& move, bool forward) {
+std::unique_ptr<ScanWorker::Sweep> ScanWorker::startMove(const motion::TrapezoidMove& move, bool forward,
+                                                         TimeNs startNs) {
   auto sweep = std::make_unique<Sweep>(deps_.limits, deps_.stepLines, *deps_.clock, *deps_.sleeper, move, forward);
   sweep->runner.trackPosition(&positionSteps_);
   Sweep* sw = sweep.get();
   deps_.sleeper->attach();  // for the move's thread, which detaches at its end
-  sweep->thread = std::thread([this, sw] {
+  sweep->thread = std::thread([this, sw, startNs] {
+    if (startNs > 0) deps_.sleeper->sleepUntil(startNs);
     sw->report = sw->runner.run(sw->move, sw->forward, cancel_);
     sw->moving.store(false);
     deps_.sleeper->detach();
@@ -552,6 +554,7 @@ void ScanWorker::meterExposure(const localize::ScanPlan& plan, ports::CaptureReq
   // every stop, so it is metered once, before the first move. The laser is off (every job
   // ends with it off, and these captures never switch it on).
   setPhase(protocol::ProgressPhase::kExposing);
+  const TimeNs startNs = deps_.clock->now();
   const localize::TakeLaserOffFrame take = [&](int64_t exposureUs,
                                                localize::LaserOffUse) -> Result<localize::LaserOffFrame> {
     if (cancel_.load()) return Status(Error::kFault, "scan stopped by command");
@@ -567,6 +570,7 @@ void ScanWorker::meterExposure(const localize::ScanPlan& plan, ports::CaptureReq
   };
   const localize::MeteringRun run = localize::runMetering(deps_.metering, capture.exposureUs, 0, plan.roi, take);
   if (cancel_.load()) return;
+  meterNs_ = deps_.clock->now() - startNs;
   // A frame that failed: the configured exposure (or, when only the one to subtract
   // failed, the one chosen), without subtraction.
   if (!run.status)
@@ -652,9 +656,10 @@ Status ScanWorker::sweepStops(const localize::ScanPlan& plan, ports::CaptureRequ
                               const std::function<void()>& runUp) {
   // One move through every stop; each frame is exposed as the slide passes its stop, and
   // its position is the slide's (counted steps) at mid-exposure. `runUp` (the metering: its
-  // frames are laser-off, and the camera is fixed) runs while the slide runs up to the
-  // first stop, or before any move when the sweep starts at it. It may shorten
-  // capture.exposureUs; the overrun, planned before it, then keeps a little to spare.
+  // frames are laser-off, and the camera is fixed) runs while the slide moves back to the
+  // first stop, or during the sweep's own run-up to it (see below), or before the sweep
+  // when the slide is on the first stop. It may shorten capture.exposureUs; the overrun,
+  // planned before it, then keeps a little to spare.
   std::vector<double> stops = plan.stopsMm;
   const double here = positionMm();
   const double nearStart = std::abs(here - stops.front()) <= std::abs(here - stops.back()) ? stops.front() : stops.back();
@@ -663,13 +668,10 @@ Status ScanWorker::sweepStops(const localize::ScanPlan& plan, ports::CaptureRequ
   const motion::SlideLimits& lim = deps_.limits;
   // Start from outside the span so that no stop lies behind the slide.
   const bool positioned = (forward && here > stops.front()) || (!forward && here < stops.front());
-  const bool runsUp = !positioned && lim.stepsFor(stops.front()) != positionSteps_.load();
   if (positioned) {
     if (Status s = moveTo(stops.front(), ev, runUp); !s) return s;
-  } else if (runUp && !runsUp) {
-    runUp();
+    if (cancel_.load()) return aborted(ev);
   }
-  if (cancel_.load()) return aborted(ev);
   // Run on past the last stop by half an exposure's travel (so that its exposure is
   // centred) and by the braking distance, so that the slide passes every stop at cruise
   // speed and brakes only after the last frame, while the result is already out.
@@ -679,11 +681,33 @@ Status ScanWorker::sweepStops(const localize::ScanPlan& plan, ports::CaptureRequ
   const int64_t from = positionSteps_.load();
   Result<motion::TrapezoidMove> move = motion::planMove(lim, from, lim.stepsFor(endMm));
   if (!move) return move.status();
-  const TimeNs moveStart = deps_.clock->now() + lim.dirSetupNs;
-  std::unique_ptr<Sweep> sweep = startMove(*move, forward);
+  // The metering overlaps the sweep's own run-up to the first stop, expected to last as
+  // long as the last one. It may make the first laser frame late by up to half a stop's
+  // travel (a sweep's frames are not all on their stops anyway: each one's position is
+  // measured); when it would make it later, the slide starts that much later. With no
+  // metering before (the first scan) it runs before the sweep.
+  const int64_t firstStopSteps = std::llabs(lim.stepsFor(stops.front()) - from);
+  const bool overlap = runUp && !positioned && firstStopSteps > 0 && meterNs_ > 0;
+  if (runUp && !positioned && !overlap) {
+    runUp();
+    if (cancel_.load()) return aborted(ev);
+  }
+  TimeNs startNs = deps_.clock->now();
+  if (overlap) {
+    const auto halfStopNs =
+        static_cast<TimeNs>(stops.size() > 1 ? std::abs(stops[1] - stops[0]) / lim.maxSpeedMmPerS * 0.5e9 : 0.0);
+    const TimeNs firstExposureNs = move->stepTimeNs(firstStopSteps) - capture.exposureUs * kNsPerUs / 2;
+    const TimeNs lateNs = std::max<TimeNs>(0, meterNs_ - firstExposureNs - halfStopNs);
+    startNs += lateNs;
+    ALACS_LOG_DEBUG("scan", "sweep: metering (%.0f ms expected) in a %.0f ms run-up, the slide starts %.0f ms later",
+                    static_cast<double>(meterNs_) / 1e6, static_cast<double>(firstExposureNs) / 1e6,
+                    static_cast<double>(lateNs) / 1e6);
+  }
+  const TimeNs moveStart = startNs + lim.dirSetupNs;
+  std::unique_ptr<Sweep> sweep = startMove(*move, forward, startNs);
   Sweep* sw = sweep.get();
   Status status = Status::ok();
-  if (runUp && runsUp) {
+  if (overlap) {
     runUp();
     if (cancel_.load()) status = aborted(ev);
   }

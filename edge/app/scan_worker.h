@@ -145,8 +145,8 @@ class ScanWorker final : public ScanJobs {
   bool quit_ = false;
   std::atomic<bool> cancel_{false};
   std::atomic<uint64_t> cancelEpoch_{0};
-  // Runs `move` on a thread of its own; joinSweep() waits for it.
-  std::unique_ptr<Sweep> startMove(const motion::TrapezoidMove& move, bool forward);
+  // Runs `move` on a thread of its own, from `startNs` on (0: at once); joinSweep() waits for it.
+  std::unique_ptr<Sweep> startMove(const motion::TrapezoidMove& move, bool forward, TimeNs startNs = 0);
   // Waits for the sweep's thread to end (detached from the sleeper meanwhile).
   void joinSweep(Sweep& sweep);
   std::unique_ptr<Sweep> braking_;  // a continuous scan's sweep still braking after its last frame
@@ -157,6 +157,9 @@ class ScanWorker final : public ScanJobs {
   std::atomic<TimeNs> progressNs_{0};
   void markProgress() { progressNs_.store(deps_.clock->now()); }
   std::atomic<TimeNs> frameReadSinceNs_{0};  // the capture in flight began (0: none)
+  // How long the last metering took, first request to last delivery (0: none yet): the
+  // next one's expected length, to fit it into a sweep's run-up (sweepStops()).
+  TimeNs meterNs_ = 0;
   // ALACS_Progress: written by the worker, read by the loop.
   std::atomic<int> stopsDone_{0};
   std::atomic<int> stopsTotal_{0};

@@ -348,12 +348,17 @@ TEST_CASE(
 TEST_CASE("A sweep meters its exposure while the slide runs up to the first stop, or while it is positioned there",
           "[app][worker]") {
   // Long exposures, so that the metering lasts long enough for steps: 20 ms, then the laser-off
-  // frame at 10 ms (red 200 DN at 20 ms, the target 100 DN). Stops at 20, 25 and 30 mm.
+  // frame at 10 ms (red 200 DN at 20 ms, the target 100 DN). Stops at 20, 25 and 30 mm. With
+  // no metering before it, a sweep meters before it starts; later ones expect the metering
+  // to last as long as the last one (30 ms), and from 2 mm the run-up lasts 280 ms.
   struct Case {
     const char* name;
-    double fromMm;  // where the slide waits for the scan
+    double fromMm;       // where the slide waits for the scan
+    bool movesMetering;  // the slide moves under the first scan's metering
+    bool movesNext;      // and under the next one's, from the same place
   };
-  for (const Case c : {Case{"runs up from 2 mm", 2.0}, Case{"positioned from 23 mm, inside the span", 23.0}}) {
+  for (const Case c : {Case{"runs up from 2 mm", 2.0, false, true},
+                       Case{"positioned from 23 mm, inside the span", 23.0, true, true}}) {
     DYNAMIC_SECTION(c.name) {
       Rig rig(2.0);
       rig.deps.capture.exposureUs = 20000;
@@ -362,40 +367,81 @@ TEST_CASE("A sweep meters its exposure while the slide runs up to the first stop
       const motion::SlideLimits lim = Rig::limits();
       const localize::Localizer loc(sim::defaultScene().truth, image::LleParams{}, localize::ScanParams{});
       app::ScanWorker worker(rig.deps, loc, rig.efd);
-      std::optional<app::WorkerEvent> ev = rig.home(worker);
-      worker.submit(jobOf(app::WorkerJob::Kind::kMoveTo, c.fromMm));
-      REQUIRE(rig.next(worker));
+      rig.home(worker);
       rig.camera.setRed(200);
-      struct Seen {
-        bool laser;
-        int64_t positionSteps;
-      };
-      std::vector<Seen> seen;
-      rig.camera.onCapture = [&] { seen.push_back({rig.laserLine.level(), rig.slide.positionSteps()}); };
       const app::WorkerJob scan = threeStopSweep();
-      worker.submit(scan);
-      ev = rig.next(worker);
-      REQUIRE(ev);
-      CHECK(ev->status.isOk());
-      REQUIRE(ev->laserOffFrames == 2);
-      CHECK(ev->exposureUs == 10000);
-      REQUIRE(seen.size() == 2 + ev->exposures.size());
-      // The laser-off frames with the laser off, the slide moving under them (the first
-      // at the move's start, the second 20 ms later).
-      CHECK_FALSE(seen[0].laser);
-      CHECK_FALSE(seen[1].laser);
-      CHECK(seen[1].positionSteps != seen[0].positionSteps);
-      // Each laser frame at the metered exposure, centred on its stop to a step.
-      REQUIRE(ev->exposures.size() == 3);
-      for (size_t i = 0; i < 3; ++i) {
-        const app::ExposureWindow& x = ev->exposures[i];
-        CHECK(seen[2 + i].laser);
-        CHECK(x.endNs - x.startNs == 10000 * kNsPerUs);
-        const TimeNs mid = (x.startNs + x.endNs) / 2;
-        CHECK(std::llabs(rig.step.positionAt(mid, 0) - lim.stepsFor(scan.plan.stopsMm[i])) <= 1);
+      for (const bool moves : {c.movesMetering, c.movesNext}) {
+        worker.submit(jobOf(app::WorkerJob::Kind::kMoveTo, c.fromMm));
+        REQUIRE(rig.next(worker));
+        struct Seen {
+          bool laser;
+          int64_t positionSteps;
+        };
+        std::vector<Seen> seen;
+        rig.camera.onCapture = [&] { seen.push_back({rig.laserLine.level(), rig.slide.positionSteps()}); };
+        worker.submit(scan);
+        std::optional<app::WorkerEvent> ev = rig.next(worker);
+        REQUIRE(ev);
+        CHECK(ev->status.isOk());
+        REQUIRE(ev->laserOffFrames == 2);
+        CHECK(ev->exposureUs == 10000);
+        REQUIRE(seen.size() == 2 + ev->exposures.size());
+        // The laser-off frames with the laser off; the slide moving under them when the
+        // metering overlaps the move (the first frame at the move's start, the second 20 ms
+        // later), else at rest.
+        CHECK_FALSE(seen[0].laser);
+        CHECK_FALSE(seen[1].laser);
+        CHECK((seen[1].positionSteps != seen[0].positionSteps) == moves);
+        // Each laser frame at the metered exposure, centred on its stop to a step.
+        REQUIRE(ev->exposures.size() == 3);
+        for (size_t i = 0; i < 3; ++i) {
+          const app::ExposureWindow& x = ev->exposures[i];
+          CHECK(seen[2 + i].laser);
+          CHECK(x.endNs - x.startNs == 10000 * kNsPerUs);
+          const TimeNs mid = (x.startNs + x.endNs) / 2;
+          CHECK(std::llabs(rig.step.positionAt(mid, 0) - lim.stepsFor(scan.plan.stopsMm[i])) <= 1);
+        }
+        CHECK(rig.laserLine.level() == false);
+        rig.camera.onCapture = nullptr;
+        // The slide brakes after the last frame; the next job waits for it.
       }
-      CHECK(rig.laserLine.level() == false);
     }
+  }
+}
+
+TEST_CASE(
+    "A metering longer than the sweep's run-up starts the slide later: the first laser frame at most half a "
+    "stop late",
+    "[app][worker]") {
+  // 80 ms at red 200 DN, then the laser-off frame at 40 ms: the metering lasts 120 ms, and
+  // from 19.9 mm the run-up to the first stop (20 mm) lasts 20 ms. Overlapped at once, the
+  // first frame would be 191 steps (4.8 mm) past its stop; the worker lets it be late by
+  // half a stop's travel at most (2.5 mm at 100 mm/s, 25 ms) and starts the slide that
+  // much later (2 steps past: the slide still speeds up).
+  Rig rig(2.0);
+  rig.deps.capture.exposureUs = 80000;
+  rig.deps.metering.targetDn = 100;
+  rig.deps.metering.subtractAboveDn = 50;
+  const motion::SlideLimits lim = Rig::limits();
+  const localize::Localizer loc(sim::defaultScene().truth, image::LleParams{}, localize::ScanParams{});
+  app::ScanWorker worker(rig.deps, loc, rig.efd);
+  rig.home(worker);
+  rig.camera.setRed(200);
+  const app::WorkerJob scan = threeStopSweep();
+  for (int n = 0; n < 2; ++n) {  // the first scan meters before its sweep, the second during it
+    worker.submit(jobOf(app::WorkerJob::Kind::kMoveTo, 19.9));
+    REQUIRE(rig.next(worker));
+    worker.submit(scan);
+    std::optional<app::WorkerEvent> ev = rig.next(worker);
+    REQUIRE(ev);
+    REQUIRE(ev->status.isOk());
+    REQUIRE(ev->laserOffFrames == 2);
+    REQUIRE(ev->exposures.size() == 3);
+    const app::ExposureWindow& x = ev->exposures[0];
+    const int64_t pastSteps = rig.step.positionAt((x.startNs + x.endNs) / 2, 0) - lim.stepsFor(scan.plan.stopsMm[0]);
+    INFO("scan " << n << ": the first laser frame " << pastSteps << " steps past its stop");
+    CHECK(pastSteps >= -1);
+    CHECK(pastSteps <= (n == 0 ? 1 : lim.stepsFor(2.5) + 1));
   }
 }
 
@@ -780,6 +826,19 @@ TEST_CASE("STOP while a sweep meters: ABORTED, no laser frame, the laser low; ho
   app::ScanWorker worker(rig.deps, loc, rig.efd);
   REQUIRE(rig.home(worker));
   rig.camera.setRed(200);
+  // With no metering before it, the first sweep meters before its move: a STOP at the second
+  // frame leaves the slide where it was, homed.
+  stopWhileMetering(rig, worker, threeStopSweep(), 2);
+  CHECK(rig.slide.positionSteps() == 0);
+  CHECK(worker.homed());
+  // One whole scan, then back to the start: the next sweep meters during its run-up.
+  worker.submit(threeStopSweep());
+  std::optional<app::WorkerEvent> ev = rig.next(worker);
+  REQUIRE(ev);
+  REQUIRE(ev->status.isOk());
+  worker.submit(jobOf(app::WorkerJob::Kind::kMoveTo, 0.0));
+  REQUIRE(rig.next(worker));
+  REQUIRE(rig.slide.positionSteps() == 0);
   // At the first frame, before the run-up's first step: nothing moved, the slide stays homed.
   stopWhileMetering(rig, worker, threeStopSweep());
   CHECK(rig.slide.positionSteps() == 0);

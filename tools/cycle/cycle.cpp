@@ -69,6 +69,7 @@ struct Options {
   int stops = 0;                          // 0: ScanParams' default
   double spacingMm = 0.0;                 // 0: ScanParams' default
   int metering = 1;                       // the exposure metered from laser-off frames (the daemon's default)
+  int warmUp = 1;                         // one untimed scan of the case first (the worker's steady state)
   std::string lighting = "overcast";
   std::string world = "benchmark";  // benchmark|benchmark-hard|holdout (sim/orchard.h)
   double exposureX = 1.0;  // the exposure: this × the auto exposure (at most 3000 us)
@@ -302,9 +303,11 @@ int simulatedCycle(const Options& o) {
   std::printf(
       "localize cycle: %d orchard cases of the %s world (1.0-1.4 m, occluded, %s, exposure %.1f × auto), motor %.0f "
       "mm/s, "
-      "%.0f mm/s², %.0f steps/mm, slide parked -20/-5/+5/+20 mm from the scan's first stop, metering %s\n",
+      "%.0f mm/s², %.0f steps/mm, slide parked -20/-5/+5/+20 mm from the scan's first stop, metering %s, %s\n",
       o.cases, o.world.c_str(), o.lighting.c_str(), o.exposureX, limits.maxSpeedMmPerS, limits.accelMmPerS2,
-      limits.stepsPerMm, o.metering != 0 ? "on" : "off");
+      limits.stepsPerMm, o.metering != 0 ? "on" : "off",
+      o.warmUp != 0 ? "each after an untimed scan of its case (the worker's steady state)"
+                    : "each the worker's first scan (--warm-up 0)");
   if (o.lineTimeUs > 0.0)
     std::printf("  a rolling shutter: row v exposes v × %.1f us after row 0; the worker is %s\n", o.lineTimeUs,
                 o.workerLineTime != 0 ? "told (camera.line_time_us): each row its own slide position"
@@ -363,6 +366,9 @@ int simulatedCycle(const Options& o) {
       job.plan = *plan;
       const double parkMm = parkFor(c, *plan, limits.strokeMm);
       const Eigen::Vector3d truth = scene.apple(oc->targetId)->centerMm;
+      // A daemon's worker has scanned before: it knows how long its metering takes, and a
+      // sweep overlaps the metering with its run-up (ScanWorker::sweepStops).
+      if (o.warmUp != 0) (void)timeJob(worker, efd, clock, parkMm, job, nullptr);
       const double renderBeforeMs = rendered.renderMs();
       const int framesBefore = rendered.frames();
       const TimeNs laserOnBeforeNs = laser.totalOnNs();
@@ -559,6 +565,10 @@ int main(int argc, char** argv) {
   app.add_option("--follow-up-diameter-sigma-mm", o.followUpDiameterSigmaMm, "0: lines only (default: ScanParams')");
   app.add_option("--stops", o.stops, "stops of the first pass (default: ScanParams')");
   app.add_option("--spacing-mm", o.spacingMm, "spacing of the first pass's stops (default: ScanParams')");
+  app.add_option("--warm-up", o.warmUp,
+                 "1: one untimed scan of each case before the timed one (the worker's steady state: a sweep then "
+                 "meters during its run-up), 0: each timed scan the worker's first")
+      ->capture_default_str();
   app.add_option("--metering", o.metering, "1: meter the exposure from laser-off frames (the daemon's default), 0: off")
       ->capture_default_str();
   app.add_option("--lighting", o.lighting, "lab|overcast|direct|sun")->capture_default_str();
