@@ -120,6 +120,14 @@ struct Rig {
     efd = ::eventfd(0, EFD_CLOEXEC | EFD_NONBLOCK);
   }
   ~Rig() { ::close(efd); }
+  // A metering that halves `exposureUs` in two laser-off frames: red 200 DN at it, the
+  // target 100 DN, and the ambient high enough for the laser-off frame to be subtracted.
+  void meterHalving(int64_t exposureUs) {
+    deps.capture.exposureUs = exposureUs;
+    deps.metering.targetDn = 100;
+    deps.metering.subtractAboveDn = 50;
+    camera.setRed(200);
+  }
   static motion::SlideLimits limits() {
     motion::SlideLimits l;
     l.maxSpeedMmPerS = 100.0;
@@ -361,14 +369,11 @@ TEST_CASE("A sweep meters its exposure while the slide runs up to the first stop
                        Case{"positioned from 23 mm, inside the span", 23.0, true, true}}) {
     DYNAMIC_SECTION(c.name) {
       Rig rig(2.0);
-      rig.deps.capture.exposureUs = 20000;
-      rig.deps.metering.targetDn = 100;
-      rig.deps.metering.subtractAboveDn = 50;
+      rig.meterHalving(20000);
       const motion::SlideLimits lim = Rig::limits();
       const localize::Localizer loc(sim::defaultScene().truth, image::LleParams{}, localize::ScanParams{});
       app::ScanWorker worker(rig.deps, loc, rig.efd);
       rig.home(worker);
-      rig.camera.setRed(200);
       const app::WorkerJob scan = threeStopSweep();
       for (const bool moves : {c.movesMetering, c.movesNext}) {
         worker.submit(jobOf(app::WorkerJob::Kind::kMoveTo, c.fromMm));
@@ -419,14 +424,11 @@ TEST_CASE(
   // half a stop's travel at most (2.5 mm at 100 mm/s, 25 ms) and starts the slide that
   // much later (2 steps past: the slide still speeds up).
   Rig rig(2.0);
-  rig.deps.capture.exposureUs = 80000;
-  rig.deps.metering.targetDn = 100;
-  rig.deps.metering.subtractAboveDn = 50;
+  rig.meterHalving(80000);
   const motion::SlideLimits lim = Rig::limits();
   const localize::Localizer loc(sim::defaultScene().truth, image::LleParams{}, localize::ScanParams{});
   app::ScanWorker worker(rig.deps, loc, rig.efd);
   rig.home(worker);
-  rig.camera.setRed(200);
   const app::WorkerJob scan = threeStopSweep();
   for (int n = 0; n < 2; ++n) {  // the first scan meters before its sweep, the second during it
     worker.submit(jobOf(app::WorkerJob::Kind::kMoveTo, 19.9));
@@ -819,13 +821,10 @@ void stopWhileMetering(Rig& rig, app::ScanWorker& worker, const app::WorkerJob& 
 TEST_CASE("STOP while a sweep meters: ABORTED, no laser frame, the laser low; homed unless the slide had stepped",
           "[app][worker]") {
   Rig rig(2.0);
-  rig.deps.capture.exposureUs = 20000;
-  rig.deps.metering.targetDn = 100;  // two laser-off frames: 20 ms, then 10 ms
-  rig.deps.metering.subtractAboveDn = 50;
+  rig.meterHalving(20000);  // two laser-off frames: 20 ms, then 10 ms
   const localize::Localizer loc(sim::defaultScene().truth, image::LleParams{}, localize::ScanParams{});
   app::ScanWorker worker(rig.deps, loc, rig.efd);
   REQUIRE(rig.home(worker));
-  rig.camera.setRed(200);
   // With no metering before it, the first sweep meters before its move: a STOP at the second
   // frame leaves the slide where it was, homed.
   stopWhileMetering(rig, worker, threeStopSweep(), 2);
