@@ -16,8 +16,8 @@ LINE = re.compile(r"continuous\s+cycle median\s+(\d+) ms, max\s+(\d+) ms .* foun
                   r"centre error median ([\d.]+) mm, max ([\d.]+) mm")
 
 
-def _continuous(*args: str) -> tuple[str, dict[str, float]]:
-    out = subprocess.run([str(CYCLE), "--virtual-time", "--cases", "3", "--mode", "continuous", *args],
+def _continuous(*args: str, cases: int = 3) -> tuple[str, dict[str, float]]:
+    out = subprocess.run([str(CYCLE), "--virtual-time", "--cases", str(cases), "--mode", "continuous", *args],
                          check=True, capture_output=True, text=True, timeout=600).stdout
     m = next(LINE.search(x) for x in out.splitlines() if LINE.search(x))
     keys = ("median_ms", "max_ms", "found", "cases", "err_median_mm", "err_max_mm")
@@ -36,9 +36,14 @@ def test_virtual_time_cycle_is_the_same_on_every_run() -> None:
     assert res["err_median_mm"] < 3.0
 
 
-def test_rolling_shutter_costs_nothing_when_the_worker_knows_the_line_time() -> None:
-    _, told = _continuous("--line-time-us", "21.7")
-    _, untold = _continuous("--line-time-us", "21.7", "--worker-line-time", "0")
-    assert told["found"] == 3 and untold["found"] == 3
-    assert told["err_median_mm"] < 3.0
+def test_rolling_shutter_costs_little_when_the_worker_knows_the_line_time() -> None:
+    # The same five cases with a global shutter, and with a rolling one the worker is told of
+    # or not. A rolling shutter's rows fall at other slide positions, so each case's lines
+    # differ a little (over 90 cases the median centre error is 1.24 mm global, 1.85 mm
+    # rolling and told; docs/daemon.md "Rolling shutter"); untold, they are mm off.
+    _, glob = _continuous(cases=5)
+    _, told = _continuous("--line-time-us", "21.7", cases=5)
+    _, untold = _continuous("--line-time-us", "21.7", "--worker-line-time", "0", cases=5)
+    assert glob["found"] == told["found"] == untold["found"] == 5
+    assert told["err_median_mm"] < glob["err_median_mm"] + 2.0
     assert untold["err_median_mm"] > 10.0  # the target's rows placed 5 mm of travel off

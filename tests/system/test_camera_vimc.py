@@ -183,7 +183,8 @@ def test_a_frame_duration_is_asked_and_the_rate_reported(vimc, probe) -> None:
     r = subprocess.run([str(probe), "--frames", "60", "--frame-duration-us", "33333", "--frame-clock-jitter-us", "3000",
                         *LASER_SIZE],
                        capture_output=True, text=True, timeout=300)
-    assert r.returncode == 0, r.stderr
+    # The probe prints its report (capture_failures: each failed capture's error) either way.
+    assert r.returncode == 0, r.stdout[-3000:] + r.stderr[-2000:]
     rep = json.loads(r.stdout)
     print(f"\nvimc frame duration: control {rep['frame_duration_control']}, reported "
           f"{rep['frame_duration_reported_us']}, interval {rep['frame_interval_median_ms']} ms: "
