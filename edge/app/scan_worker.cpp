@@ -551,8 +551,9 @@ void ScanWorker::meterExposure(const localize::ScanPlan& plan, ports::CaptureReq
   pipeline_.clearLaserOff();
   if (!deps_.metering.enabled) return;
   // The camera is fixed and only the laser moves: the ambient of the ROI is the same at
-  // every stop, so it is metered once, before the first move. The laser is off (every job
-  // ends with it off, and these captures never switch it on).
+  // every stop, so it is metered once, before the first laser frame (a sweep's while the
+  // slide gets to its first stop: sweepStops()). The laser is off (every job ends with it
+  // off, and these captures never switch it on).
   setPhase(protocol::ProgressPhase::kExposing);
   const TimeNs startNs = deps_.clock->now();
   const localize::TakeLaserOffFrame take = [&](int64_t exposureUs,
