@@ -467,7 +467,28 @@ Result<AppleEstimate> Localizer::estimate(const ScanPlan& plan, const std::vecto
     return roughEstimate(plan);
   // What one line says may be another surface just as a fit may be another object.
   if (est) weighDoubt(plan, scan_.gateMm, *est);
-  return targetOrRough(std::move(est));
+  return targetOrRough(likelierOfRival(plan, lines, std::move(est)));
+}
+
+double Localizer::rivalTargetPct(const ScanPlan& plan, const AppleEstimate& est) const {
+  if (!est.sphereFit || !(est.rivalShare > 0.0) || !(scan_.otherObjectPrior > 0.0) || !(scan_.roughSigmaMm > 0.0))
+    return 0.0;
+  const double prior = est.linesUsed >= 3 ? scan_.otherObjectPrior : std::min(0.9, 3.0 * scan_.otherObjectPrior);
+  return 100.0 * targetProbability((est.rivalCenterMm - plan.roughMm).norm(), scan_.roughSigmaMm, scan_.gateMm, prior) *
+         est.rivalShare;
+}
+
+Result<AppleEstimate> Localizer::likelierOfRival(const ScanPlan& plan, const std::vector<LineObservation>& lines,
+                                                 Result<AppleEstimate> est) const {
+  if (!est || !(rivalTargetPct(plan, *est) > est->targetPct)) return est;
+  // The rival's own estimate: the same lines, the rough position's prior on the rival. It
+  // may rest on one line only (the rival object's other lines short): it is weighed alike.
+  ScanPlan around = plan;
+  around.roughMm = est->rivalCenterMm;
+  Result<AppleEstimate> rival = estimateFused(around, lines, scan_.roughSigmaMm);
+  if (!rival || (rival->centerMm - est->rivalCenterMm).norm() > geometry::kRivalSeparationMm) return est;
+  weighDoubt(plan, scan_.gateMm, *rival);
+  return rival->targetPct > est->targetPct ? std::move(rival) : std::move(est);
 }
 
 double Localizer::systematicSigmaMm(const Eigen::Vector3d& approachMm) const {

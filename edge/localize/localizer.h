@@ -232,6 +232,14 @@ class Localizer {
   // the gate around the rough position (empty when it cannot).
   image::Roi stopRoi(const ScanPlan& plan, double slideMm) const;
 
+  // The chance (%) that the fit's rival (AppleEstimate::rivalCenterMm: another object that
+  // explains the same lines about as well) is the target, reckoned as weighDoubt() reckons
+  // the fit's (AppleEstimate::targetPct): its distance from the rough position, its share
+  // of the support. 0 without a rival. When it exceeds the fit's, estimate() reports the
+  // rival's own estimate instead (the fit with the rough position's prior on the rival,
+  // weighed alike), if that holds up.
+  double rivalTargetPct(const ScanPlan& plan, const AppleEstimate& est) const;
+
   // The systematic part of the approach point's σ at `approachMm` (ScanParams::lineBiasPx
   // and the calibration's error), 1σ 3D, mm: added to every fit's σ.
   double systematicSigmaMm(const Eigen::Vector3d& approachMm) const;
@@ -246,6 +254,10 @@ class Localizer {
   Result<AppleEstimate> estimateWidened(const ScanPlan& plan, const std::vector<LineObservation>& lines) const;
   // The estimate from the rough position alone: centre there, a prior radius, σ its error.
   AppleEstimate roughEstimate(const ScanPlan& plan) const;
+  // When rivalTargetPct() exceeds the fit's targetPct: the rival's own estimate, if it is
+  // found there and weighs more; else `est`.
+  Result<AppleEstimate> likelierOfRival(const ScanPlan& plan, const std::vector<LineObservation>& lines,
+                                        Result<AppleEstimate> est) const;
   // Weighs a sphere-fit estimate against the chance that it is another object (see
   // ScanParams::otherObjectPrior): targetPct, doubt, the mixture σ and the confidence.
   void weighDoubt(const ScanPlan& plan, double ballMm, AppleEstimate& est) const;
