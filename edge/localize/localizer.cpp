@@ -473,9 +473,16 @@ Result<AppleEstimate> Localizer::estimate(const ScanPlan& plan, const std::vecto
 double Localizer::rivalTargetPct(const ScanPlan& plan, const AppleEstimate& est) const {
   if (!est.sphereFit || !(est.rivalShare > 0.0) || !(scan_.otherObjectPrior > 0.0) || !(scan_.roughSigmaMm > 0.0))
     return 0.0;
-  const double prior = est.linesUsed >= 3 ? scan_.otherObjectPrior : std::min(0.9, 3.0 * scan_.otherObjectPrior);
-  return 100.0 * targetProbability((est.rivalCenterMm - plan.roughMm).norm(), scan_.roughSigmaMm, scan_.gateMm, prior) *
+  return 100.0 *
+         targetProbability((est.rivalCenterMm - plan.roughMm).norm(), scan_.roughSigmaMm, scan_.gateMm,
+                           otherObjectPrior(est.linesUsed)) *
          est.rivalShare;
+}
+
+double Localizer::otherObjectPrior(int linesUsed) const {
+  // Fewer than three lines leave more room for a sphere through two objects' pieces (or
+  // for one line on a leaf): three times the prior. Chosen on the benchmark's hard cases.
+  return linesUsed >= 3 ? scan_.otherObjectPrior : std::min(0.9, 3.0 * scan_.otherObjectPrior);
 }
 
 Result<AppleEstimate> Localizer::likelierOfRival(const ScanPlan& plan, const std::vector<LineObservation>& lines,
@@ -534,9 +541,7 @@ void Localizer::weighDoubt(const ScanPlan& plan, double ballMm, AppleEstimate& e
   est.fitSigmaMm = est.sigmaMm;
   if (!(scan_.otherObjectPrior > 0.0) || !(scan_.roughSigmaMm > 0.0)) return;
   const double dMm = (est.centerMm - plan.roughMm).norm();
-  // Fewer than three lines leave more room for a sphere through two objects' pieces (or
-  // for one line on a leaf): three times the prior. Chosen on the benchmark's hard cases.
-  const double prior = est.linesUsed >= 3 ? scan_.otherObjectPrior : std::min(0.9, 3.0 * scan_.otherObjectPrior);
+  const double prior = otherObjectPrior(est.linesUsed);
   const double pRough = targetProbability(dMm, scan_.roughSigmaMm, ballMm, prior);
   // A rival object that explains the lines about as well takes its share.
   const double pRival = 1.0 - est.rivalShare;

@@ -258,6 +258,9 @@ class Localizer {
   // found there and weighs more; else `est`.
   Result<AppleEstimate> likelierOfRival(const ScanPlan& plan, const std::vector<LineObservation>& lines,
                                         Result<AppleEstimate> est) const;
+  // The prior share of other objects for a fit on `linesUsed` lines (ScanParams::otherObjectPrior),
+  // for weighDoubt() and rivalTargetPct() alike.
+  double otherObjectPrior(int linesUsed) const;
   // Weighs a sphere-fit estimate against the chance that it is another object (see
   // ScanParams::otherObjectPrior): targetPct, doubt, the mixture σ and the confidence.
   void weighDoubt(const ScanPlan& plan, double ballMm, AppleEstimate& est) const;
