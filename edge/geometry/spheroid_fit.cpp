@@ -31,6 +31,19 @@ double radial(const Shape& sh, const Eigen::Vector3d& p) {
   return len - 1.0 / std::sqrt(inv2);
 }
 
+// The Huber loss of a residual r (quadratic within h, linear beyond).
+double huber(double r, double h) {
+  const double ar = std::abs(r);
+  return ar <= h ? r * r : h * (2.0 * ar - h);
+}
+
+// The points' Huber loss about a shape: the fit's data term without its weight and priors.
+double huberSum(const std::vector<Eigen::Vector3d>& pts, const std::vector<size_t>& idx, const Shape& x, double h) {
+  double total = 0.0;
+  for (size_t i : idx) total += huber(radial(x, pts[i]), h);
+  return total;
+}
+
 void stemBasis(const Eigen::Vector3d& s, Eigen::Vector3d* e1, Eigen::Vector3d* e2) {
   *e1 = s.unitOrthogonal();
   *e2 = s.cross(*e1);
@@ -109,7 +122,7 @@ Result<SpheroidFit> refineSpheroid(const std::vector<Eigen::Vector3d>& pts, cons
       const double r = radial(x, pts[i]);
       const double ar = std::abs(r);
       const double h = pr.huberMm;
-      total += wData * (ar <= h ? r * r : h * (2.0 * ar - h));
+      total += wData * huber(r, h);
       if (jtj == nullptr) continue;
       const double w = wData * (ar <= h ? 1.0 : h / ar);
       Vec7 g;
@@ -185,16 +198,21 @@ Result<SpheroidFit> refineSpheroid(const std::vector<Eigen::Vector3d>& pts, cons
   out.aspect = sh.k;
   out.stemAxis = sh.s;
   double sum = 0.0;
-  for (size_t i : idx) {
-    const double r = radial(sh, pts[i]);
-    sum += r * r;
-  }
+  for (size_t i : idx) sum += std::pow(radial(sh, pts[i]), 2);
   out.rmsMm = std::sqrt(sum / static_cast<double>(idx.size()));
+  out.chiSquare = wData * huberSum(pts, idx, sh, pr.huberMm);
+  out.sphereChiSquare = wData * huberSum(pts, idx, Shape{sphere.centerMm, sphere.radiusMm, 1.0, s0}, pr.huberMm);
   // The Hessian of the negative log posterior (data weighted by their variance, priors
   // by theirs) inverts to the covariance.
   out.covariance = jtj.inverse();
   if (!out.covariance.allFinite()) return Status(Error::kBadInput, "spheroid fit is degenerate");
   return out;
+}
+
+double spheroidWeight(const SpheroidFit& fit) {
+  constexpr double kMoreParameters = 3.0;  // the aspect and the stem's tilt (two angles)
+  const double gain = fit.sphereChiSquare - fit.chiSquare - 2.0 * kMoreParameters;
+  return 1.0 / (1.0 + std::exp(-0.5 * gain));
 }
 
 double spheroidApproachSigma(const SpheroidFit& fit) {

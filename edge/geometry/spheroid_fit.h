@@ -32,9 +32,21 @@ struct SpheroidFit {
   double aspect = 1.0;
   Eigen::Vector3d stemAxis = Eigen::Vector3d::UnitY();  // unit, the sign of the prior's
   double rmsMm = 0.0;
+  // The points' χ² (the Huber loss, each point weighed as the fit weighs it) about this
+  // spheroid, and about the sphere it was refined from: what its three more parameters
+  // (the aspect, the stem's tilt) buy. spheroidWeight() reads them.
+  double chiSquare = 0.0;
+  double sphereChiSquare = 0.0;
   // Covariance of (c x, y, z; a; k; tilt α, β about two axes ⟂ the stem).
   Eigen::Matrix<double, 7, 7> covariance = Eigen::Matrix<double, 7, 7>::Zero();
 };
+
+// The spheroid's Akaike weight against the sphere it was refined from, 0..1: the evidence
+// that the points show a fruit other than round. Each of the spheroid's three more
+// parameters must lower χ² by 2 (AIC) to break even (weight 0.5). A cap that the lines saw
+// only in part cannot tell the aspect: the weight then falls towards the sphere's, which
+// keeps its diameter, where the aspect prior alone would bend it (docs/geometry.md).
+double spheroidWeight(const SpheroidFit& fit);
 
 // Refines `sphere` into a spheroid over the points marked in `use`. Errors: kBadInput
 // when the fit diverges or leaves the fruit's range (the caller keeps the sphere).

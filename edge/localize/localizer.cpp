@@ -42,6 +42,34 @@ constexpr double kToleranceMm = 20.0;  // the vacuum end effector's tolerance (p
 constexpr double kSingleLineSigmaMm = 15.0;  // 3D 1σ of what one line says (see estimateSingleLine)
 constexpr double kPieceBreakMm = 6.0;
 
+// The spheroid refinement and the sphere it came from, weighed by the evidence for the
+// spheroid (geometry::spheroidWeight, Akaike's weights): `est` holds the sphere's estimate
+// and leaves with the weighted mean of the two. σ stays the spheroid's, which reckons with
+// the aspect the lines may not fix (a round fit where they cannot tell is not a round
+// fruit), widened by the two estimates' spread under the weights (docs/geometry.md, "The
+// fruit's shape: round unless the lines say otherwise").
+void blendSpheroid(const geometry::SpheroidFit& sf, const Eigen::Vector3d& approachMm, const Eigen::Vector3d& normal,
+                   AppleEstimate& est) {
+  const double w = geometry::spheroidWeight(sf);
+  const double spreadVar = w * (1.0 - w);
+  const Eigen::Vector3d dApproach = approachMm - est.approachMm;
+  const Eigen::Vector3d dCentre = sf.centerMm - est.centerMm;
+  const double dDiameter = 2.0 * sf.radiusMm - est.diameterMm;
+  est.centerMm += w * dCentre;
+  est.approachMm += w * dApproach;
+  est.approachNormal = (w * normal + (1.0 - w) * est.approachNormal).normalized();
+  est.diameterMm += w * dDiameter;
+  est.aspect = 1.0 + w * (sf.aspect - 1.0);
+  est.rmsMm += w * (sf.rmsMm - est.rmsMm);
+  est.sphereWeight = 1.0 - w;
+  const double approachSigma = geometry::spheroidApproachSigma(sf);
+  const double centreSigma = std::sqrt(std::max(0.0, sf.covariance.topLeftCorner<3, 3>().trace()));
+  const double diameterSigma = 2.0 * std::sqrt(std::max(0.0, sf.covariance(3, 3)));
+  est.sigmaMm = std::sqrt(approachSigma * approachSigma + spreadVar * dApproach.squaredNorm());
+  est.centerSigmaMm = std::sqrt(centreSigma * centreSigma + spreadVar * dCentre.squaredNorm());
+  est.diameterSigmaMm = std::sqrt(diameterSigma * diameterSigma + spreadVar * dDiameter * dDiameter);
+}
+
 }  // namespace
 
 Status ScanParams::validate() const {
@@ -665,15 +693,7 @@ Result<AppleEstimate> Localizer::estimateFused(const ScanPlan& plan, const std::
     if (sf && sf->radiusMm >= scan_.minRadiusMm && sf->radiusMm <= scan_.maxRadiusMm && sf->aspect > 0.6 &&
         sf->aspect < 1.25 &&
         geometry::spheroidApproach(sf->centerMm, sf->radiusMm, sf->aspect, sf->stemAxis, &approach, &normal)) {
-      est.centerMm = sf->centerMm;
-      est.diameterMm = 2.0 * sf->radiusMm;
-      est.aspect = sf->aspect;
-      est.approachMm = approach;
-      est.approachNormal = normal;
-      est.rmsMm = sf->rmsMm;
-      est.sigmaMm = geometry::spheroidApproachSigma(*sf);
-      est.centerSigmaMm = std::sqrt(std::max(0.0, sf->covariance.topLeftCorner<3, 3>().trace()));
-      est.diameterSigmaMm = 2.0 * std::sqrt(std::max(0.0, sf->covariance(3, 3)));
+      blendSpheroid(*sf, approach, normal, est);
     }
   }
   // Occlusion: rows expected from the fitted sphere's chord at each stop vs rows that

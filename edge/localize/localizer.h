@@ -154,6 +154,10 @@ struct AppleEstimate {
   Eigen::Vector3d approachMm = Eigen::Vector3d::Zero();  // surface point nearest the sensor on the line to the centre
   Eigen::Vector3d approachNormal = Eigen::Vector3d::Zero();  // outward unit surface normal there
   double aspect = 1.0;           // height/width of the fitted spheroid (1: a sphere)
+  // The sphere's weight in the estimate against the spheroid's (Akaike's weights: the
+  // spheroid's aspect and tilt must lower the points' χ² by 2 each to break even). Near 1:
+  // the lines cannot tell the fruit from a round one; near 0: they show it oblate or prolate.
+  double sphereWeight = 1.0;
   double diameterMm = 0.0;       // equatorial (across the stem)
   double sigmaMm = 0.0;          // 1σ (3D) of the approach point
   double centerSigmaMm = 0.0;    // 1σ (3D) of the centre

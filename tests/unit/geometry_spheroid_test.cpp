@@ -22,13 +22,15 @@ struct Apple {
 };
 
 // Points of the spheroid's surface on the plane x = xPlane that face the camera (origin).
-std::vector<Eigen::Vector3d> cut(const Apple& ap, double xPlane, double noiseMm, std::mt19937& rng) {
+// `fromMm`..`toMm`: the part of the cut (about the centre's height) that the leaves leave in view.
+std::vector<Eigen::Vector3d> cut(const Apple& ap, double xPlane, double noiseMm, std::mt19937& rng,
+                                 double fromMm = -60.0, double toMm = 60.0) {
   std::normal_distribution<double> noise(0.0, noiseMm);
   std::vector<Eigen::Vector3d> out;
   const Eigen::Vector3d e1 = ap.s.unitOrthogonal();
   const Eigen::Vector3d e2 = ap.s.cross(e1);
   // March rays in the plane from the camera and intersect the spheroid exactly.
-  for (double y = ap.c.y() - 60.0; y <= ap.c.y() + 60.0; y += 0.5) {
+  for (double y = ap.c.y() + fromMm; y <= ap.c.y() + toMm; y += 0.5) {
     const Eigen::Vector3d dir = Eigen::Vector3d(xPlane, y, ap.c.z()).normalized();
     Eigen::Vector3d p;
     Eigen::Vector3d n;
@@ -119,4 +121,76 @@ TEST_CASE("The approach point is where the sight line to the centre enters the s
   REQUIRE(spheroidApproach({0.0, 0.0, 1000.0}, 40.0, 0.8, {0, 0, -1}, &p, &n));
   CHECK(p.z() == Approx(968.0));
   CHECK_FALSE(spheroidApproach({0.0, 0.0, 0.0}, 40.0, 0.8, {0, -1, 0}, &p, &n));
+}
+
+namespace {
+
+// The five-cut scan of `ap` (cuts `dxMm` apart about its centre, each in view over
+// fromMm..toMm), the sphere fit and its spheroid refinement with the localizer's priors.
+struct Refined {
+  SphereFit sphere;
+  SpheroidFit spheroid;
+};
+
+Refined refine(const Apple& ap, std::mt19937& rng, const std::vector<double>& dxMm, double fromMm, double toMm) {
+  std::vector<Eigen::Vector3d> pts;
+  std::vector<int> lines;
+  int id = 0;
+  for (double dx : dxMm) {
+    const auto c = cut(ap, ap.c.x() + dx, 0.3, rng, fromMm, toMm);
+    pts.insert(pts.end(), c.begin(), c.end());
+    lines.insert(lines.end(), c.size(), id++);
+  }
+  SphereFitParams sp;
+  sp.priorRadiusMm = 40.0;
+  sp.priorRadiusSigmaMm = 6.0;
+  sp.pointsPerIndependent = 5.0;
+  sp.ransacBandMm = 3.0;
+  sp.outlierMm = 5.0;
+  auto sphere = fitSphere(pts, lines, {}, sp);
+  REQUIRE(sphere.isOk());
+  SpheroidPriors pr;  // the localizer's: aspect 0.9 ± 0.1, tilt ± 20°
+  pr.aspectSigma = 0.1;
+  pr.pointsPerIndependent = 5.0;
+  auto fit = refineSpheroid(pts, std::vector<bool>(pts.size(), true), *sphere, pr);
+  REQUIRE(fit.isOk());
+  return {*sphere, *fit};
+}
+
+}  // namespace
+
+TEST_CASE("Whether the points show a fruit other than round: the spheroid's weight against the sphere",
+          "[geometry][spheroid]") {
+  SECTION("an oblate fruit in full view is a spheroid beyond doubt") {
+    Apple ap;  // aspect 0.86
+    std::mt19937 rng(41);
+    const Refined r = refine(ap, rng, {-30.0, -15.0, 0.0, 15.0, 30.0}, -60.0, 60.0);
+    INFO("χ² sphere " << r.spheroid.sphereChiSquare << ", spheroid " << r.spheroid.chiSquare);
+    CHECK(r.spheroid.chiSquare < r.spheroid.sphereChiSquare);
+    CHECK(spheroidWeight(r.spheroid) > 0.99);
+  }
+  SECTION("a round fruit seen through a gap: the sphere keeps its diameter, the aspect prior would bend it") {
+    Apple ap;
+    ap.k = 1.0;
+    ap.a = 36.0;
+    // Three cuts, each in view over 30 mm below the centre's height: a small cap.
+    double sphereErr = 0.0;
+    double spheroidErr = 0.0;
+    double blendedErr = 0.0;
+    double weight = 0.0;
+    constexpr int kSeeds = 8;
+    for (int seed = 1; seed <= kSeeds; ++seed) {
+      std::mt19937 rng(static_cast<unsigned>(seed));
+      const Refined r = refine(ap, rng, {-12.0, 0.0, 12.0}, 0.0, 30.0);
+      const double w = spheroidWeight(r.spheroid);
+      weight += w / kSeeds;
+      sphereErr += std::abs(2.0 * r.sphere.radiusMm - 2.0 * ap.a) / kSeeds;
+      spheroidErr += std::abs(2.0 * r.spheroid.radiusMm - 2.0 * ap.a) / kSeeds;
+      blendedErr += std::abs(w * 2.0 * r.spheroid.radiusMm + (1.0 - w) * 2.0 * r.sphere.radiusMm - 2.0 * ap.a) / kSeeds;
+    }
+    INFO("mean weight " << weight << "; diameter error: sphere " << sphereErr << ", spheroid " << spheroidErr
+                        << ", weighed " << blendedErr << " mm");
+    CHECK(weight < 0.5);
+    CHECK(blendedErr < spheroidErr);
+  }
 }
