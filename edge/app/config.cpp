@@ -94,6 +94,7 @@ Status configFromJson(const Json& json, DaemonConfig& c) {
     s->number("follow_up_diameter_sigma_mm", c.scan.followUpDiameterSigmaMm, Need::kOptional, 0, 100);
     s->integer("follow_up_max_stops", c.scan.followUpMaxStops, Need::kOptional, 0, 16);
     s->integer("follow_up_unseen_max_stops", c.scan.followUpUnseenMaxStops, Need::kOptional, 0, 32);
+    s->number("weak_arc_min_z", c.scan.weakArcMinZ, Need::kOptional, 0, 100);
     s->finish();
   }
   if (auto l = root.object("lle")) {
@@ -176,7 +177,8 @@ OrderedJson configToJson(const DaemonConfig& c) {
                {"follow_up_hidden_pct", c.scan.followUpHiddenPct},
                {"follow_up_diameter_sigma_mm", c.scan.followUpDiameterSigmaMm},
                {"follow_up_max_stops", c.scan.followUpMaxStops},
-               {"follow_up_unseen_max_stops", c.scan.followUpUnseenMaxStops}};
+               {"follow_up_unseen_max_stops", c.scan.followUpUnseenMaxStops},
+               {"weak_arc_min_z", c.scan.weakArcMinZ}};
   j["lle"] = {{"brce_step", c.lle.brceStep},
               {"brce_threshold", c.lle.brceThreshold},
               {"noise_theta", c.lle.noiseTheta},

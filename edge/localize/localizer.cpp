@@ -9,6 +9,7 @@
 #include <limits>
 
 #include "geometry/spheroid_fit.h"
+#include "localize/weak_arc.h"
 
 namespace alacs::localize {
 
@@ -95,6 +96,8 @@ Status ScanParams::validate() const {
   if (followUpMaxStops < 0 || followUpMaxStops > 16) return {Error::kInvalidArgument, "scan.follow_up_max_stops must be in 0..16"};
   if (followUpUnseenMaxStops < 0 || followUpUnseenMaxStops > 32)
     return {Error::kInvalidArgument, "scan.follow_up_unseen_max_stops must be in 0..32"};
+  if (!(weakArcMinZ == 0.0 || (weakArcMinZ >= 4.0 && weakArcMinZ <= 100.0)))
+    return {Error::kInvalidArgument, "scan.weak_arc_min_z must be 0 (off) or in 4..100"};
   if (!(followUpHiddenPct >= 0.0 && followUpHiddenPct <= 100.0))
     return {Error::kInvalidArgument, "scan.follow_up_hidden_pct must be in 0..100"};
   if (!(otherObjectPrior >= 0.0 && otherObjectPrior < 1.0))
@@ -344,6 +347,23 @@ Result<LineObservation> Localizer::observe(const image::ImageView& frame, const 
   pixels.reserve(obs.line.rows.size());
   for (const auto& r : obs.line.rows)
     if (r.valid()) pixels.push_back({static_cast<double>(r.column), static_cast<double>(r.row)});
+  triangulateRows(plan, slideMm, slideMmPerRow, pixels, &obs.pointsMm, &obs.pixels, &obs.outsidePointsMm);
+  if (laserOff != nullptr && scan_.weakArcMinZ > 0.0) {
+    WeakArcParams wp;
+    wp.minZ = scan_.weakArcMinZ;
+    const WeakArc arc = findWeakArc(frame, *laserOff, roi, cal_, slideMm, plan.roughMm, obs.line,
+                                    static_cast<int>(obs.line.segments.size()), wp);
+    std::vector<geometry::PixelPoint> arcPixels;
+    for (const auto& r : arc.samples) arcPixels.push_back({static_cast<double>(r.column), static_cast<double>(r.row)});
+    triangulateRows(plan, slideMm, slideMmPerRow, arcPixels, &obs.arcPointsMm, &obs.arcPixels, nullptr);
+  }
+  return obs;
+}
+
+void Localizer::triangulateRows(const ScanPlan& plan, double slideMm, double slideMmPerRow,
+                                const std::vector<geometry::PixelPoint>& pixels, std::vector<Eigen::Vector3d>* gatedMm,
+                                std::vector<geometry::PixelPoint>* gatedPixels,
+                                std::vector<Eigen::Vector3d>* outsideMm) const {
   const std::vector<Eigen::Vector2d> xn = geometry::undistortPixels(cal_.camera, pixels);
   const double middleRow = plan.roi.y + 0.5 * plan.roi.height;
   for (size_t i = 0; i < xn.size(); ++i) {
@@ -352,13 +372,12 @@ Result<LineObservation> Localizer::observe(const image::ImageView& frame, const 
     if (!p.valid) continue;
     const double fromRoughMm = (p.pointMm - plan.roughMm).norm();
     if (fromRoughMm <= scan_.gateMm) {
-      obs.pointsMm.push_back(p.pointMm);
-      obs.pixels.push_back(pixels[i]);
-    } else if (fromRoughMm <= scan_.searchMm) {
-      obs.outsidePointsMm.push_back(p.pointMm);
+      gatedMm->push_back(p.pointMm);
+      gatedPixels->push_back(pixels[i]);
+    } else if (outsideMm != nullptr && fromRoughMm <= scan_.searchMm) {
+      outsideMm->push_back(p.pointMm);
     }
   }
-  return obs;
 }
 
 std::vector<PaperCandidate> Localizer::paperCandidates(const ScanPlan& plan,
@@ -462,6 +481,27 @@ Result<AppleEstimate> Localizer::estimate(const ScanPlan& plan, const std::vecto
     if (std::none_of(lines.begin(), lines.end(),
                      [&](const LineObservation& l) { return std::abs(l.slideMm - o.slideMm) < kSameStopMm; }))
       lines.push_back(o);
+  Result<AppleEstimate> est = estimateLines(plan, lines);
+  // The lines left the target unseen (the rough position stands in, or one line at most):
+  // the sunlit arcs the subtracted frames showed (ScanParams::weakArcMinZ) join them, and
+  // that estimate goes out when it rests on more lines and is more confident.
+  const int linesBefore = est ? est->linesUsed : 0;
+  const bool anyArc =
+      std::any_of(lines.begin(), lines.end(), [](const LineObservation& l) { return !l.arcPointsMm.empty(); });
+  if (!anyArc || linesBefore >= 2) return est;
+  for (LineObservation& l : lines) {
+    l.pointsMm.insert(l.pointsMm.end(), l.arcPointsMm.begin(), l.arcPointsMm.end());
+    l.pixels.insert(l.pixels.end(), l.arcPixels.begin(), l.arcPixels.end());
+  }
+  Result<AppleEstimate> withArcs = estimateLines(plan, lines);
+  if (withArcs && withArcs->linesUsed > linesBefore && withArcs->confidencePct > (est ? est->confidencePct : 0.0)) {
+    withArcs->fromWeakArcs = true;
+    return withArcs;
+  }
+  return est;
+}
+
+Result<AppleEstimate> Localizer::estimateLines(const ScanPlan& plan, const std::vector<LineObservation>& lines) const {
   // More likely another object than the target: where that object is says nothing better
   // about the target than the rough position does.
   const auto targetOrRough = [&](Result<AppleEstimate> e) -> Result<AppleEstimate> {

@@ -111,6 +111,13 @@ struct ScanParams {
   // quality.sigma_3d_total_mm_at_*; 0 when the file has none). Both are added to σ in
   // quadrature (docs/geometry.md "Honest uncertainty"). 0: no line bias.
   double lineBiasPx = 0.1;
+  // The sunlit line along its arc (localize/weak_arc.h, docs/lle.md): where the laser-off
+  // frame was subtracted, the arc of a fruit's cut that the per-row extraction missed is
+  // searched by its summed contrast and followed row by row when it clears this score
+  // (the summed contrast over its noise; the best of some 3000 arcs of noise alone scores
+  // about 4). Its points join the fit only when the lines alone leave the target unseen
+  // (estimate()). 0: off.
+  double weakArcMinZ = 8.0;
   int followUpMinLines = 3;
   double followUpHiddenPct = 60.0;
   double followUpDiameterSigmaMm = 0.0;
@@ -147,6 +154,10 @@ struct LineObservation {
   std::vector<Eigen::Vector3d> pointsMm;       // gated 3D points of this line
   std::vector<geometry::PixelPoint> pixels;    // their pixels (same order)
   std::vector<Eigen::Vector3d> outsidePointsMm;  // beyond the gate, within scan.searchMm (the widened search's)
+  // The sunlit arc the per-row extraction missed (ScanParams::weakArcMinZ), gated; used
+  // only when the lines alone leave the target unseen (estimate()).
+  std::vector<Eigen::Vector3d> arcPointsMm;
+  std::vector<geometry::PixelPoint> arcPixels;
 };
 
 struct AppleEstimate {
@@ -169,6 +180,7 @@ struct AppleEstimate {
   int pointsUsed = 0;
   bool sphereFit = false;        // false: the paper's single-line estimate
   bool outsideGate = false;      // found by the widened search, away from the rough position
+  bool fromWeakArcs = false;     // the lines alone left the target unseen; the sunlit arcs found it
   // Why the estimate may be another object than the target, when the chance that it is
   // the target (targetPct) is below one half: its centre is far from the rough position,
   // or another object explains the lines about as well. The bus reports such a result
@@ -262,6 +274,13 @@ class Localizer {
   // found there and weighs more; else `est`.
   Result<AppleEstimate> likelierOfRival(const ScanPlan& plan, const std::vector<LineObservation>& lines,
                                         Result<AppleEstimate> est) const;
+  // Triangulates `pixels` at the stop: those within the gate round the rough position go
+  // to gatedMm/gatedPixels, those beyond it within searchMm to outsideMm (when given).
+  void triangulateRows(const ScanPlan& plan, double slideMm, double slideMmPerRow,
+                       const std::vector<geometry::PixelPoint>& pixels, std::vector<Eigen::Vector3d>* gatedMm,
+                       std::vector<geometry::PixelPoint>* gatedPixels, std::vector<Eigen::Vector3d>* outsideMm) const;
+  // estimate() on the lines as they are (one per stop).
+  Result<AppleEstimate> estimateLines(const ScanPlan& plan, const std::vector<LineObservation>& lines) const;
   // The prior share of other objects for a fit on `linesUsed` lines (ScanParams::otherObjectPrior),
   // for weighDoubt() and rivalTargetPct() alike.
   double otherObjectPrior(int linesUsed) const;

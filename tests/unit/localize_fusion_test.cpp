@@ -828,3 +828,55 @@ TEST_CASE("A neighbour that outscores a hidden target far from the rough positio
   CHECK(est->targetPct > 50.0);
   CHECK(est->doubt == localize::AppleEstimate::Doubt::kNone);
 }
+
+TEST_CASE("The sunlit arcs join the fit only when the lines alone leave the target unseen", "[localize][weak_arc]") {
+  Case k;
+  localize::Localizer loc(k.cal, image::LleParams{}, k.scan);
+  // The rough position 25 mm off: the target's own points put its centre there.
+  auto plan = loc.plan(k.center + Eigen::Vector3d(15, -12, 16), 200.0);
+  REQUIRE(plan.isOk());
+  std::mt19937 rng(41);
+  const Eigen::Vector3d approachTruth = k.center - k.radius * k.center.normalized();
+  SECTION("the LLE saw nothing of the target; the arcs saw it") {
+    std::vector<localize::LineObservation> lines;
+    for (double s : plan->stopsMm) {
+      localize::LineObservation seen = lineOf(k.cal, k.center, k.radius, s, 0.5, {}, rng);
+      localize::LineObservation l;
+      l.slideMm = s;
+      l.arcPointsMm = seen.pointsMm;
+      l.arcPixels = seen.pixels;
+      lines.push_back(l);
+    }
+    auto est = loc.estimate(*plan, lines);
+    REQUIRE(est.isOk());
+    INFO("approach off " << (est->approachMm - approachTruth).norm() << " mm on " << est->linesUsed << " lines");
+    CHECK(est->fromWeakArcs);
+    CHECK(est->linesUsed >= 3);
+    CHECK((est->approachMm - approachTruth).norm() < 2.0);
+    // Off, the same scan has nothing: no line hit the target.
+    localize::ScanParams off = k.scan;
+    off.weakArcMinZ = 0.0;
+    auto without = localize::Localizer(k.cal, image::LleParams{}, off).estimate(*plan, [&] {
+      std::vector<localize::LineObservation> bare = lines;
+      for (auto& l : bare) l.arcPointsMm.clear(), l.arcPixels.clear();
+      return bare;
+    }());
+    CHECK_FALSE(without.isOk());
+  }
+  SECTION("the lines saw the target: an arc elsewhere changes nothing") {
+    std::vector<localize::LineObservation> lines;
+    for (double s : plan->stopsMm) {
+      localize::LineObservation l = lineOf(k.cal, k.center, k.radius, s, 0.4, {}, rng);
+      // A false arc: a neighbour's skin 70 mm to the side.
+      const localize::LineObservation other =
+          lineOf(k.cal, k.center + Eigen::Vector3d(70, 0, 10), k.radius, s, 0.4, {}, rng);
+      l.arcPointsMm = other.pointsMm;
+      l.arcPixels = other.pixels;
+      lines.push_back(l);
+    }
+    auto est = loc.estimate(*plan, lines);
+    REQUIRE(est.isOk());
+    CHECK_FALSE(est->fromWeakArcs);
+    CHECK((est->approachMm - approachTruth).norm() < 1.0);
+  }
+}

@@ -273,6 +273,7 @@ int main(int argc, char** argv) {
                 "ScanParams::roughWhenFarFromRough off: a fit more likely another object goes out (AMBIGUOUS)"},
                {"follow-up-unseen-max-stops", Kind::kInteger,
                 "ScanParams::followUpUnseenMaxStops (the scans hold the stops their generation asked for)"},
+               {"weak-arc-min-z", Kind::kNumber, "ScanParams::weakArcMinZ: the sunlit arc search's bar (0: off)"},
                {"metering", Kind::kInteger, "1: meter on the scan's laser-off frames and subtract as alacsd (default)"},
                {"meter-target-dn", Kind::kInteger, "metering.target_dn (default: the daemon's)"},
                {"meter-subtract-above-dn", Kind::kInteger, "metering.subtract_above_dn (default: the daemon's)"},

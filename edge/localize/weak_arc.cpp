@@ -1,0 +1,236 @@
+#include "localize/weak_arc.h"
+
+#include <Eigen/Geometry>
+#include <algorithm>
+#include <cmath>
+#include <cstdint>
+
+#include "geometry/triangulation.h"
+
+namespace alacs::localize {
+
+namespace {
+
+// The subtracted red and its contrast over the ROI (row-major, ROI coordinates).
+struct ContrastMap {
+  int width = 0;
+  int height = 0;
+  std::vector<int16_t> diff;    // red(on) − red(off)
+  std::vector<float> contrast;  // diff − mean of diff contrastPx either side, in its local σ
+  std::vector<float> pooled;    // the contrast's maximum within ±2 px, less its mean in noise
+  std::vector<uint8_t> masked;  // 1: near a sample the LLE found
+
+  float at(int x, int y) const { return contrast[static_cast<size_t>(y) * width + x]; }
+  float pooledAt(int x, int y) const { return pooled[static_cast<size_t>(y) * width + x]; }
+  bool isMasked(int x, int y) const { return masked[static_cast<size_t>(y) * width + x] != 0; }
+  int16_t diffAt(int x, int y) const { return diff[static_cast<size_t>(y) * width + x]; }
+};
+
+ContrastMap contrastMap(const image::ImageView& on, const image::ImageView& off, const image::Roi& roi,
+                        const image::LaserLine& line, const WeakArcParams& p) {
+  ContrastMap m;
+  m.width = roi.width;
+  m.height = roi.height;
+  const size_t n = static_cast<size_t>(roi.width) * static_cast<size_t>(roi.height);
+  m.diff.assign(n, 0);
+  m.contrast.assign(n, 0.0F);
+  m.masked.assign(n, 0);
+  const int ro = image::redOffset(on.format);
+  const int rf = image::redOffset(off.format);
+  for (int y = 0; y < roi.height; ++y) {
+    const uint8_t* a = on.row(roi.y + y) + 3 * roi.x + ro;
+    const uint8_t* b = off.row(roi.y + y) + 3 * roi.x + rf;
+    for (int x = 0; x < roi.width; ++x)
+      m.diff[static_cast<size_t>(y) * roi.width + x] = static_cast<int16_t>(a[3 * x] - b[3 * x]);
+  }
+  const int w = p.contrastPx;
+  for (int y = 0; y < roi.height; ++y)
+    for (int x = w; x < roi.width - w; ++x) {
+      const size_t i = static_cast<size_t>(y) * roi.width + x;
+      m.contrast[i] = static_cast<float>(m.diff[i]) - 0.5F * static_cast<float>(m.diff[i - w] + m.diff[i + w]);
+    }
+  // The noise is the shot noise of the pair: bright skin's is several times a leaf's. Each
+  // block's robust σ normalises its contrast, so that a bright region does not pass for an arc.
+  constexpr int kBlock = 16;
+  std::vector<float> sample;
+  for (int by = 0; by < roi.height; by += kBlock)
+    for (int bx = 0; bx < roi.width; bx += kBlock) {
+      sample.clear();
+      const int y1 = std::min(roi.height, by + kBlock);
+      const int x1 = std::min(roi.width, bx + kBlock);
+      for (int y = by; y < y1; ++y)
+        for (int x = bx; x < x1; ++x) sample.push_back(std::abs(m.contrast[static_cast<size_t>(y) * roi.width + x]));
+      std::nth_element(sample.begin(), sample.begin() + static_cast<long>(sample.size() / 2), sample.end());
+      const float sigma = std::max(0.5F, 1.4826F * sample[sample.size() / 2]);
+      for (int y = by; y < y1; ++y)
+        for (int x = bx; x < x1; ++x) m.contrast[static_cast<size_t>(y) * roi.width + x] /= sigma;
+    }
+  // The coarse search's arcs fall up to a few px off the line: it scores each with the
+  // best contrast within ±2 px (the mean of the largest of five normal draws is 1.16).
+  m.pooled.assign(n, 0.0F);
+  for (int y = 0; y < roi.height; ++y)
+    for (int x = 2; x < roi.width - 2; ++x) {
+      const float* c = &m.contrast[static_cast<size_t>(y) * roi.width + x];
+      m.pooled[static_cast<size_t>(y) * roi.width + x] = std::max({c[-2], c[-1], c[0], c[1], c[2]}) - 1.16F;
+    }
+  for (const auto& r : line.rows) {
+    if (!r.valid()) continue;
+    const int y = r.row - roi.y;
+    if (y < 0 || y >= roi.height) continue;
+    const int c = static_cast<int>(std::lround(r.column)) - roi.x;
+    for (int x = std::max(0, c - p.maskPx); x <= std::min(roi.width - 1, c + p.maskPx); ++x)
+      m.masked[static_cast<size_t>(y) * roi.width + x] = 1;
+  }
+  return m;
+}
+
+// OpenCV's pinhole and Brown–Conrady model, as geometry::projectPoint (which goes through
+// cv::projectPoints, too slow for the thousands of arcs a frame's search projects).
+geometry::PixelPoint project(const geometry::CameraIntrinsics& cam, const Eigen::Vector3d& p) {
+  const double x = p.x() / p.z();
+  const double y = p.y() / p.z();
+  const auto& d = cam.distortion;
+  const double r2 = x * x + y * y;
+  const double radial = 1.0 + r2 * (d[0] + r2 * (d[1] + r2 * d[4]));
+  const double xd = x * radial + 2.0 * d[2] * x * y + d[3] * (r2 + 2.0 * x * x);
+  const double yd = y * radial + d[2] * (r2 + 2.0 * y * y) + 2.0 * d[3] * x * y;
+  return {cam.fxPx * xd + cam.cxPx, cam.fyPx * yd + cam.cyPx};
+}
+
+// The camera-facing arc of the circle (centre q, radius ρ, in the plane spanned by e1, e2)
+// as ROI pixels, one per row.
+struct ArcPixel {
+  int x;
+  int y;
+};
+
+void arcPixels(const geometry::CameraIntrinsics& cam, const image::Roi& roi, const Eigen::Vector3d& q, double rho,
+               const Eigen::Vector3d& e1, const Eigen::Vector3d& e2, double rowStride, std::vector<ArcPixel>& out) {
+  out.clear();
+  const double pxPerMm = cam.fyPx / std::max(100.0, q.z());
+  const double dTheta = 0.6 * rowStride / std::max(1.0, rho * pxPerMm);
+  int lastRow = -1 << 30;
+  for (double t = 0.0; t < 2.0 * M_PI; t += dTheta) {
+    const Eigen::Vector3d radial = std::cos(t) * e1 + std::sin(t) * e2;
+    const Eigen::Vector3d pt = q + rho * radial;
+    if (radial.dot(pt) >= 0.0) continue;  // faces away from the camera
+    const geometry::PixelPoint px = project(cam, pt);
+    const int row = static_cast<int>(std::lround(px.rowPx));
+    if (row == lastRow) continue;
+    lastRow = row;
+    const int x = static_cast<int>(std::lround(px.columnPx)) - roi.x;
+    const int y = row - roi.y;
+    if (x < 0 || y < 0 || x >= roi.width || y >= roi.height) continue;
+    out.push_back({x, y});
+  }
+}
+
+// Each row's peak near the arc: sub-pixel centroid of the subtracted red.
+std::vector<image::RowSample> follow(const ContrastMap& m, const image::Roi& roi, const std::vector<ArcPixel>& arc,
+                                     int segment, const WeakArcParams& p) {
+  std::vector<image::RowSample> out;
+  const int w = p.contrastPx;
+  for (const ArcPixel& a : arc) {
+    if (m.isMasked(a.x, a.y)) continue;
+    int best = -1;
+    float bestC = 0.0F;
+    for (int x = std::max(w + 2, a.x - p.followPx); x <= std::min(m.width - w - 3, a.x + p.followPx); ++x)
+      if (m.at(x, a.y) > bestC) {
+        bestC = m.at(x, a.y);
+        best = x;
+      }
+    if (best < 0 || bestC < p.minRowContrastSigmas) continue;
+    const double base = 0.5 * (m.diffAt(best - w, a.y) + m.diffAt(best + w, a.y));
+    double sw = 0.0;
+    double sx = 0.0;
+    for (int x = best - 2; x <= best + 2; ++x) {
+      const double v = std::max(0.0, m.diffAt(x, a.y) - base);
+      sw += v;
+      sx += v * x;
+    }
+    if (!(sw > 0.0)) continue;
+    image::RowSample s;
+    s.row = roi.y + a.y;
+    s.column = static_cast<float>(roi.x + sx / sw);
+    s.columnQ8 = static_cast<int32_t>(std::lround(s.column * 256.0));
+    s.centroidQ8 = s.columnQ8;
+    s.confidence = std::min(1.0F, bestC / 4.0F);
+    s.inlier = false;
+    s.status = image::RowStatus::kSegment;
+    s.segment = segment;
+    out.push_back(s);
+  }
+  return out;
+}
+
+}  // namespace
+
+WeakArc findWeakArc(const image::ImageView& frame, const image::ImageView& laserOff, const image::Roi& roi,
+                    const geometry::Calibration& cal, double slideMm, const Eigen::Vector3d& roughMm,
+                    const image::LaserLine& line, int segment, const WeakArcParams& p) {
+  WeakArc result;
+  if (!(p.minZ > 0.0) || roi.empty() || roi.width <= 2 * p.contrastPx + 8) return result;
+  const ContrastMap m = contrastMap(frame, laserOff, roi, line, p);
+  // The plane's frame: e1 "up" in the plane, e2 across it (towards depth).
+  const Eigen::Vector3d n = cal.laser.planeNormal.normalized();
+  const Eigen::Vector3d e1 = (Eigen::Vector3d::UnitY() - n.dot(Eigen::Vector3d::UnitY()) * n).normalized();
+  const Eigen::Vector3d e2 = n.cross(e1);
+  const Eigen::Vector3d q0 = roughMm - (n.dot(roughMm) - cal.laser.planeOffsetAt(slideMm)) * n;
+  struct Candidate {
+    double z;
+    Eigen::Vector3d q;
+    double rho;
+  };
+  std::vector<ArcPixel> arc;
+  // The arc's score: its contrast summed over the rows the LLE left unexplained, over the
+  // noise of that sum (each pixel's contrast is in its own σ).
+  auto score = [&](const Eigen::Vector3d& q, double rho, bool coarse, int* rows) {
+    arcPixels(cal.camera, roi, q, rho, e1, e2, coarse ? 2.0 : 1.0, arc);
+    double sum = 0.0;
+    int count = 0;
+    for (const ArcPixel& a : arc) {
+      if (a.x < p.contrastPx || a.x >= m.width - p.contrastPx || m.isMasked(a.x, a.y)) continue;
+      sum += coarse ? m.pooledAt(a.x, a.y) : m.at(a.x, a.y);
+      ++count;
+    }
+    *rows = count;
+    return count < (coarse ? p.minRows / 2 : p.minRows) ? 0.0 : sum / std::sqrt(static_cast<double>(count));
+  };
+  // Coarse to fine: centres 1.5 steps apart, radii 2 steps, every third row; then round
+  // the three best, the step's half in the plane and in the radius, every row.
+  std::vector<Candidate> coarse;
+  const double coarseMm = 1.5 * p.stepMm;
+  const int steps = static_cast<int>(std::floor(p.searchMm / coarseMm));
+  int rows = 0;
+  for (int i = -steps; i <= steps; ++i)
+    for (int j = -steps; j <= steps; ++j)
+      for (double rho = p.minRadiusMm; rho <= p.maxRadiusMm + 1e-9; rho += 2.0 * p.radiusStepMm) {
+        const Eigen::Vector3d q = q0 + i * coarseMm * e1 + j * coarseMm * e2;
+        coarse.push_back({score(q, rho, true, &rows), q, rho});
+      }
+  constexpr size_t kKept = 5;
+  std::partial_sort(coarse.begin(), coarse.begin() + static_cast<long>(std::min(kKept, coarse.size())), coarse.end(),
+                    [](const Candidate& a, const Candidate& b) { return a.z > b.z; });
+  coarse.resize(std::min(kKept, coarse.size()));
+  Candidate best{0.0, q0, 0.0};
+  for (const Candidate& c : coarse)
+    for (int i = -1; i <= 1; ++i)
+      for (int j = -1; j <= 1; ++j)
+        for (int k = -2; k <= 2; ++k) {
+          const Eigen::Vector3d q = c.q + 0.5 * p.stepMm * (i * e1 + j * e2);
+          const double rho = c.rho + 0.5 * p.radiusStepMm * k;
+          if (rho < p.minRadiusMm * 0.5) continue;
+          const double z = score(q, rho, false, &rows);
+          if (z > best.z) {
+            best = {z, q, rho};
+            result.z = z;
+            result.rows = rows;
+          }
+        }
+  std::vector<ArcPixel> bestArc;
+  if (result.z > 0.0) arcPixels(cal.camera, roi, best.q, best.rho, e1, e2, 1.0, bestArc);
+  if (result.z >= p.minZ) result.samples = follow(m, roi, bestArc, segment, p);
+  return result;
+}
+
+}  // namespace alacs::localize

@@ -1,0 +1,50 @@
+// The target's line where the per-row extraction cannot see it. On sunlit skin the laser
+// adds a few DN to a red near full scale, and in one row its peak stands hardly above the
+// shot noise of the pair (docs/lle.md, "What remains lost in sun"): bRCE finds a row here
+// and there. Summed along the whole arc that the laser plane draws across a fruit, the
+// same light stands far out of the noise. The search (docs/lle.md, "The sunlit line along
+// its arc"): circles in the laser plane round the rough position, each scored by the
+// summed contrast of the laser-off-subtracted red along its image curve, over the rows
+// the LLE left without a sample there; the best, when its score clears `minZ`, is
+// followed row by row within a few px and gives sub-pixel samples of a segment of its
+// own (RowStatus::kSegment). The 3D gate and the fit then weigh them as any other
+// segment's. Pure: frames in, samples out.
+#pragma once
+
+#include <Eigen/Core>
+#include <vector>
+
+#include "geometry/calibration.h"
+#include "image/image_view.h"
+#include "image/lle.h"
+
+namespace alacs::localize {
+
+struct WeakArcParams {
+  double minZ = 0.0;                  // the arc's summed contrast over its noise; 0: off
+  double searchMm = 45.0;             // the circle's centre within this of the rough position's, in the plane
+  double stepMm = 5.0;                // the grid of centres
+  double minRadiusMm = 10.0;          // the circle's radius (the fruit's cut): from ...
+  double maxRadiusMm = 50.0;          // ... to ...
+  double radiusStepMm = 5.0;          // ... in steps of
+  int contrastPx = 4;                 // the curve's red against the pixels this far either side
+  int minRows = 15;                   // an arc over fewer unexplained rows is not scored
+  int followPx = 3;                   // each row's peak within this of the arc's column
+  int maskPx = 4;                     // pixels this close to a sample the LLE found are its, not the arc's
+  double minRowContrastSigmas = 1.5;  // a followed row's peak contrast, in the contrast's σ
+};
+
+struct WeakArc {
+  double z = 0.0;                         // the best arc's score (0: none scored)
+  int rows = 0;                           // rows it was scored on
+  std::vector<image::RowSample> samples;  // followed rows (empty: not found)
+};
+
+// Searches the ROI of `frame` (laser on) minus `laserOff` (same size and format) for the
+// arc; `line` is the LLE's result on the same ROI (its samples are masked), `slideMm` the
+// plane's position. The samples carry segment index `segment`.
+WeakArc findWeakArc(const image::ImageView& frame, const image::ImageView& laserOff, const image::Roi& roi,
+                    const geometry::Calibration& cal, double slideMm, const Eigen::Vector3d& roughMm,
+                    const image::LaserLine& line, int segment, const WeakArcParams& p);
+
+}  // namespace alacs::localize
