@@ -43,6 +43,18 @@ constexpr double kToleranceMm = 20.0;  // the vacuum end effector's tolerance (p
 constexpr double kSingleLineSigmaMm = 15.0;  // 3D 1σ of what one line says (see estimateSingleLine)
 constexpr double kPieceBreakMm = 6.0;
 
+// One line per stop: a replay may serve the same recorded frame for two planned stops.
+std::vector<LineObservation> uniqueStops(const std::vector<LineObservation>& observed) {
+  constexpr double kSameStopMm = 0.05;
+  std::vector<LineObservation> lines;
+  lines.reserve(observed.size());
+  for (const LineObservation& o : observed)
+    if (std::none_of(lines.begin(), lines.end(),
+                     [&](const LineObservation& l) { return std::abs(l.slideMm - o.slideMm) < kSameStopMm; }))
+      lines.push_back(o);
+  return lines;
+}
+
 // The spheroid refinement and the sphere it came from, weighed by the evidence for the
 // spheroid (geometry::spheroidWeight, Akaike's weights): `est` holds the sphere's estimate
 // and leaves with the weighted mean of the two. σ stays the spheroid's, which reckons with
@@ -204,6 +216,10 @@ std::vector<double> Localizer::followUpStops(const ScanPlan& plan, const std::ve
   // A scan that found nothing, or failed, gets none: no line lit anything near the rough
   // position at the first pass's stops, more in between will not.
   if (!first) return {};
+  // The second pass follows what the lines saw. An estimate the sunlit arcs made (the lines
+  // alone left the target unseen) does not place it: the lines' own estimate does, and the
+  // arcs weigh in again at the end, with every line (estimate()).
+  if (first->fromWeakArcs) return followUpStops(plan, lines, estimateLines(plan, uniqueStops(lines)), strokeMm);
   FollowUpNeed need;
   need.fewLines = first->linesUsed < scan_.followUpMinLines;
   need.unsureSize = scan_.followUpDiameterSigmaMm > 0.0 && first->diameterSigmaMm > scan_.followUpDiameterSigmaMm;
@@ -474,13 +490,7 @@ size_t otherPointsInGate(const std::vector<LineObservation>& lines, const AppleE
 }  // namespace
 
 Result<AppleEstimate> Localizer::estimate(const ScanPlan& plan, const std::vector<LineObservation>& observed) const {
-  constexpr double kSameStopMm = 0.05;
-  std::vector<LineObservation> lines;
-  lines.reserve(observed.size());
-  for (const LineObservation& o : observed)
-    if (std::none_of(lines.begin(), lines.end(),
-                     [&](const LineObservation& l) { return std::abs(l.slideMm - o.slideMm) < kSameStopMm; }))
-      lines.push_back(o);
+  std::vector<LineObservation> lines = uniqueStops(observed);
   Result<AppleEstimate> est = estimateLines(plan, lines);
   // The lines left the target unseen (the rough position stands in, or one line at most):
   // the sunlit arcs the subtracted frames showed (ScanParams::weakArcMinZ) join them, and
