@@ -14,7 +14,6 @@ namespace {
 // The subtracted red and its contrast over the ROI (row-major, ROI coordinates).
 struct ContrastMap {
   int width = 0;
-  int height = 0;
   std::vector<int16_t> diff;    // red(on) − red(off)
   std::vector<float> contrast;  // diff − mean of diff contrastPx either side, in its local σ
   std::vector<float> pooled;    // the contrast's maximum within ±2 px, less its mean in noise
@@ -30,7 +29,6 @@ ContrastMap contrastMap(const image::ImageView& on, const image::ImageView& off,
                         const image::LaserLine& line, const WeakArcParams& p) {
   ContrastMap m;
   m.width = roi.width;
-  m.height = roi.height;
   const size_t n = static_cast<size_t>(roi.width) * static_cast<size_t>(roi.height);
   m.diff.assign(n, 0);
   m.contrast.assign(n, 0.0F);
