@@ -23,6 +23,12 @@ struct ContrastMap {
   float pooledAt(int x, int y) const { return pooled[static_cast<size_t>(y) * width + x]; }
   bool isMasked(int x, int y) const { return masked[static_cast<size_t>(y) * width + x] != 0; }
   int16_t diffAt(int x, int y) const { return diff[static_cast<size_t>(y) * width + x]; }
+  // Marks ±px round (x, y) as explained (clipped to the map).
+  void mask(int x, int y, int px) {
+    if (y < 0 || y >= static_cast<int>(masked.size()) / width) return;
+    for (int i = std::max(0, x - px); i <= std::min(width - 1, x + px); ++i)
+      masked[static_cast<size_t>(y) * width + i] = 1;
+  }
 };
 
 ContrastMap contrastMap(const image::ImageView& on, const image::ImageView& off, const image::Roi& roi,
@@ -71,14 +77,8 @@ ContrastMap contrastMap(const image::ImageView& on, const image::ImageView& off,
       const float* c = &m.contrast[static_cast<size_t>(y) * roi.width + x];
       m.pooled[static_cast<size_t>(y) * roi.width + x] = std::max({c[-2], c[-1], c[0], c[1], c[2]}) - 1.16F;
     }
-  for (const auto& r : line.rows) {
-    if (!r.valid()) continue;
-    const int y = r.row - roi.y;
-    if (y < 0 || y >= roi.height) continue;
-    const int c = static_cast<int>(std::lround(r.column)) - roi.x;
-    for (int x = std::max(0, c - p.maskPx); x <= std::min(roi.width - 1, c + p.maskPx); ++x)
-      m.masked[static_cast<size_t>(y) * roi.width + x] = 1;
-  }
+  for (const auto& r : line.rows)
+    if (r.valid()) m.mask(static_cast<int>(std::lround(r.column)) - roi.x, r.row - roi.y, p.maskPx);
   return m;
 }
 
@@ -161,29 +161,28 @@ std::vector<image::RowSample> follow(const ContrastMap& m, const image::Roi& roi
   return out;
 }
 
-}  // namespace
+struct ArcCandidate {
+  double z = 0.0;
+  int rows = 0;
+  Eigen::Vector3d q = Eigen::Vector3d::Zero();
+  double rho = 0.0;
+};
 
-WeakArc findWeakArc(const image::ImageView& frame, const image::ImageView& laserOff, const image::Roi& roi,
-                    const geometry::Calibration& cal, double slideMm, const Eigen::Vector3d& roughMm,
-                    const image::LaserLine& line, int segment, const WeakArcParams& p) {
-  WeakArc result;
-  if (!(p.minZ > 0.0) || roi.empty() || roi.width <= 2 * p.contrastPx + 8) return result;
-  const ContrastMap m = contrastMap(frame, laserOff, roi, line, p);
-  // The plane's frame: e1 "up" in the plane, e2 across it (towards depth).
-  const Eigen::Vector3d n = cal.laser.planeNormal.normalized();
-  const Eigen::Vector3d e1 = (Eigen::Vector3d::UnitY() - n.dot(Eigen::Vector3d::UnitY()) * n).normalized();
-  const Eigen::Vector3d e2 = n.cross(e1);
-  const Eigen::Vector3d q0 = roughMm - (n.dot(roughMm) - cal.laser.planeOffsetAt(slideMm)) * n;
-  struct Candidate {
-    double z;
-    Eigen::Vector3d q;
-    double rho;
-  };
-  std::vector<ArcPixel> arc;
+// The plane's frame: e1 "up" in the plane, e2 across it (towards depth), and the rough
+// position's foot in it.
+struct PlaneFrame {
+  Eigen::Vector3d e1, e2, q0;
+};
+
+// The best arc over the rows not yet explained (m's mask): coarse to fine, centres 1.5
+// steps apart, radii 2 steps, every other row, each row's best within ±2 px; then round the
+// five best, half a step in the plane and in the radius, every row.
+ArcCandidate bestArc(const ContrastMap& m, const image::Roi& roi, const geometry::CameraIntrinsics& cam,
+                     const PlaneFrame& f, const WeakArcParams& p, std::vector<ArcPixel>& arc) {
   // The arc's score: its contrast summed over the rows the LLE left unexplained, over the
   // noise of that sum (each pixel's contrast is in its own σ).
   auto score = [&](const Eigen::Vector3d& q, double rho, bool coarse, int* rows) {
-    arcPixels(cal.camera, roi, q, rho, e1, e2, coarse ? 2.0 : 1.0, arc);
+    arcPixels(cam, roi, q, rho, f.e1, f.e2, coarse ? 2.0 : 1.0, arc);
     double sum = 0.0;
     int count = 0;
     for (const ArcPixel& a : arc) {
@@ -194,40 +193,118 @@ WeakArc findWeakArc(const image::ImageView& frame, const image::ImageView& laser
     *rows = count;
     return count < (coarse ? p.minRows / 2 : p.minRows) ? 0.0 : sum / std::sqrt(static_cast<double>(count));
   };
-  // Coarse to fine: centres 1.5 steps apart, radii 2 steps, every third row; then round
-  // the three best, the step's half in the plane and in the radius, every row.
-  std::vector<Candidate> coarse;
+  std::vector<ArcCandidate> coarse;
   const double coarseMm = 1.5 * p.stepMm;
   const int steps = static_cast<int>(std::floor(p.searchMm / coarseMm));
   int rows = 0;
   for (int i = -steps; i <= steps; ++i)
     for (int j = -steps; j <= steps; ++j)
       for (double rho = p.minRadiusMm; rho <= p.maxRadiusMm + 1e-9; rho += 2.0 * p.radiusStepMm) {
-        const Eigen::Vector3d q = q0 + i * coarseMm * e1 + j * coarseMm * e2;
-        coarse.push_back({score(q, rho, true, &rows), q, rho});
+        const Eigen::Vector3d q = f.q0 + i * coarseMm * f.e1 + j * coarseMm * f.e2;
+        coarse.push_back({score(q, rho, true, &rows), 0, q, rho});
       }
   constexpr size_t kKept = 5;
   std::partial_sort(coarse.begin(), coarse.begin() + static_cast<long>(std::min(kKept, coarse.size())), coarse.end(),
-                    [](const Candidate& a, const Candidate& b) { return a.z > b.z; });
+                    [](const ArcCandidate& a, const ArcCandidate& b) { return a.z > b.z; });
   coarse.resize(std::min(kKept, coarse.size()));
-  Candidate best{0.0, q0, 0.0};
-  for (const Candidate& c : coarse)
+  ArcCandidate best{0.0, 0, f.q0, 0.0};
+  for (const ArcCandidate& c : coarse)
     for (int i = -1; i <= 1; ++i)
       for (int j = -1; j <= 1; ++j)
         for (int k = -2; k <= 2; ++k) {
-          const Eigen::Vector3d q = c.q + 0.5 * p.stepMm * (i * e1 + j * e2);
+          const Eigen::Vector3d q = c.q + 0.5 * p.stepMm * (i * f.e1 + j * f.e2);
           const double rho = c.rho + 0.5 * p.radiusStepMm * k;
           if (rho < p.minRadiusMm * 0.5) continue;
           const double z = score(q, rho, false, &rows);
-          if (z > best.z) {
-            best = {z, q, rho};
-            result.z = z;
-            result.rows = rows;
-          }
+          if (z > best.z) best = {z, rows, q, rho};
         }
-  std::vector<ArcPixel> bestArc;
-  if (result.z > 0.0) arcPixels(cal.camera, roi, best.q, best.rho, e1, e2, 1.0, bestArc);
-  if (result.z >= p.minZ) result.samples = follow(m, roi, bestArc, segment, p);
+  return best;
+}
+
+// The followed samples' columns, each replaced by the local straight line through the
+// arc's samples within ±halfRows rows (weighted by their contrast), as the LLE smooths its
+// rows: one sample's error is 0.5-1 px (shot noise on sunlit skin), 3-5 mm in depth at
+// 1.6 m, more than the sphere fit's bands. A sample more than outlierPx off that line is
+// another peak the row offered: it is dropped and the line drawn again without it.
+void smoothAlong(std::vector<image::RowSample>& s, int halfRows, double outlierPx) {
+  if (halfRows <= 0 || s.size() < 3) return;
+  std::vector<uint8_t> use(s.size(), 1);
+  std::vector<float> fitted(s.size(), 0.0F);
+  const auto fitAll = [&] {
+    for (size_t i = 0; i < s.size(); ++i) {
+      double sw = 0.0, sr = 0.0, sc = 0.0, srr = 0.0, src = 0.0;
+      const auto add = [&](size_t j) {
+        const double w = std::max(0.05F, s[j].confidence);
+        const double r = s[j].row - s[i].row;
+        sw += w;
+        sr += w * r;
+        sc += w * s[j].column;
+        srr += w * r * r;
+        src += w * r * s[j].column;
+      };
+      // The arc's neighbours in its own order, while within halfRows rows.
+      for (size_t j = i + 1; j-- > 0 && std::abs(s[j].row - s[i].row) <= halfRows;)
+        if (use[j]) add(j);
+      for (size_t j = i + 1; j < s.size() && std::abs(s[j].row - s[i].row) <= halfRows; ++j)
+        if (use[j]) add(j);
+      const double d = sw * srr - sr * sr;
+      fitted[i] =
+          sw <= 0.0 ? s[i].column : static_cast<float>(std::abs(d) < 1e-9 ? sc / sw : (sc * srr - sr * src) / d);
+    }
+  };
+  fitAll();
+  bool dropped = false;
+  for (size_t i = 0; i < s.size(); ++i)
+    if (std::abs(s[i].column - fitted[i]) > outlierPx) {
+      use[i] = 0;
+      dropped = true;
+    }
+  if (dropped) fitAll();
+  std::vector<image::RowSample> out;
+  out.reserve(s.size());
+  for (size_t i = 0; i < s.size(); ++i) {
+    if (!use[i]) continue;
+    image::RowSample r = s[i];
+    r.column = fitted[i];
+    r.columnQ8 = static_cast<int32_t>(std::lround(r.column * 256.0));
+    out.push_back(r);
+  }
+  s = std::move(out);
+}
+
+}  // namespace
+
+WeakArc findWeakArc(const image::ImageView& frame, const image::ImageView& laserOff, const image::Roi& roi,
+                    const geometry::Calibration& cal, double slideMm, const Eigen::Vector3d& roughMm,
+                    const image::LaserLine& line, int segment, const WeakArcParams& p) {
+  WeakArc result;
+  if (!(p.minZ > 0.0) || roi.empty() || roi.width <= 2 * p.contrastPx + 8) return result;
+  ContrastMap m = contrastMap(frame, laserOff, roi, line, p);
+  PlaneFrame f;
+  const Eigen::Vector3d n = cal.laser.planeNormal.normalized();
+  f.e1 = (Eigen::Vector3d::UnitY() - n.dot(Eigen::Vector3d::UnitY()) * n).normalized();
+  f.e2 = n.cross(f.e1);
+  f.q0 = roughMm - (n.dot(roughMm) - cal.laser.planeOffsetAt(slideMm)) * n;
+  std::vector<ArcPixel> arc;
+  // The best arc over the bar, then the best over the rows it leaves, and so on: in sun a
+  // neighbour's or a leaf's arc may outscore the target's, and the fit, not this search,
+  // tells which one is the fruit across the stops.
+  for (int k = 0; k < std::max(1, p.maxArcs); ++k) {
+    const ArcCandidate best = bestArc(m, roi, cal.camera, f, p, arc);
+    if (k == 0) {
+      result.z = best.z;
+      result.rows = best.rows;
+    }
+    if (best.z < p.minZ) break;
+    arcPixels(cal.camera, roi, best.q, best.rho, f.e1, f.e2, 1.0, arc);
+    std::vector<image::RowSample> found = follow(m, roi, arc, segment + k, p);
+    smoothAlong(found, p.smoothRows, p.outlierPx);
+    if (found.empty()) break;
+    result.samples.insert(result.samples.end(), found.begin(), found.end());
+    ++result.arcs;
+    for (const image::RowSample& s : found)
+      m.mask(static_cast<int>(std::lround(s.column)) - roi.x, s.row - roi.y, p.maskPx);
+  }
   return result;
 }
 

@@ -7,8 +7,11 @@
 // summed contrast of the laser-off-subtracted red along its image curve, over the rows
 // the LLE left without a sample there; the best, when its score clears `minZ`, is
 // followed row by row within a few px and gives sub-pixel samples of a segment of its
-// own (RowStatus::kSegment). The 3D gate and the fit then weigh them as any other
-// segment's. Pure: frames in, samples out.
+// own (RowStatus::kSegment), smoothed along the arc as the LLE smooths its rows. Then the
+// best over the rows it leaves, up to `maxArcs`: in sun a neighbour's or a leaf's arc may
+// score above the target's. The 3D gate and the fit then weigh them as any other
+// segment's, and the fit across the stops tells which is the fruit. Pure: frames in,
+// samples out.
 #pragma once
 
 #include <Eigen/Core>
@@ -32,17 +35,22 @@ struct WeakArcParams {
   int followPx = 3;                   // each row's peak within this of the arc's column
   int maskPx = 4;                     // pixels this close to a sample the LLE found are its, not the arc's
   double minRowContrastSigmas = 1.5;  // a followed row's peak contrast, in the contrast's σ
+  int maxArcs = 3;                    // arcs over the bar kept, each on rows the earlier ones leave
+  int smoothRows = 8;                 // a followed sample's column: the local line through ±this many rows (0: none)
+  double outlierPx = 1.5;             // ... and a sample this far off it is dropped
 };
 
 struct WeakArc {
   double z = 0.0;                         // the best arc's score (0: none scored)
   int rows = 0;                           // rows it was scored on
-  std::vector<image::RowSample> samples;  // followed rows (empty: not found)
+  int arcs = 0;                           // arcs over the bar followed
+  std::vector<image::RowSample> samples;  // followed rows, arc after arc (segment, segment + 1, ...; empty: none)
 };
 
 // Searches the ROI of `frame` (laser on) minus `laserOff` (same size and format) for the
 // arc; `line` is the LLE's result on the same ROI (its samples are masked), `slideMm` the
-// plane's position. The samples carry segment index `segment`.
+// plane's position. The samples carry segment index `segment` (the next arcs' segment + 1,
+// segment + 2, ...).
 WeakArc findWeakArc(const image::ImageView& frame, const image::ImageView& laserOff, const image::Roi& roi,
                     const geometry::Calibration& cal, double slideMm, const Eigen::Vector3d& roughMm,
                     const image::LaserLine& line, int segment, const WeakArcParams& p);

@@ -5,7 +5,9 @@
 // and its recorded position, the localizer observes each frame and fuses the lines, and
 // takes the adaptive second pass where it asks for one (twoPassScan). One JSON line per scan on stdout:
 //   {"scan", "kind", "roi", "frames": [{"slide_mm", "valid", "rows"?, "kept"?, "curve"?}],
-//    (--rows: "rows" [row, column, inlier 0|1, image::RowStatus], "kept" [row, column]),
+//    (--rows: "rows" [row, column, inlier 0|1, image::RowStatus], "kept" [row, column],
+//    "arc" [row, column]: the sunlit arcs' gated samples, used only where the lines leave
+//    the target unseen),
 //    "multi": estimate (both passes), "first_pass": estimate, "follow_up_stops",
 //    "follow_up_missing" (second-pass stops the scan holds no frame for),
 //    "single": estimate (the stop nearest the rough position only)}
@@ -236,6 +238,11 @@ int processMain(const Args& args) {
             tools::Json kept = tools::Json::array();
             for (const auto& px : ob->pixels) kept.push_back({tools::jsonNumber(px.rowPx), tools::jsonNumber(px.columnPx)});
             fo["kept"] = std::move(kept);
+            // The sunlit arcs' samples, gated (ScanParams::weakArcMinZ).
+            tools::Json arcs = tools::Json::array();
+            for (const auto& px : ob->arcPixels)
+              arcs.push_back({tools::jsonNumber(px.rowPx), tools::jsonNumber(px.columnPx)});
+            fo["arc"] = std::move(arcs);
             if (line.valid) {
               fo["curve_first_row"] = plan->roi.y;
               tools::Json curve = tools::Json::array();
