@@ -154,7 +154,7 @@ struct LineObservation {
   std::vector<Eigen::Vector3d> pointsMm;       // gated 3D points of this line
   std::vector<geometry::PixelPoint> pixels;    // their pixels (same order)
   std::vector<Eigen::Vector3d> outsidePointsMm;  // beyond the gate, within scan.searchMm (the widened search's)
-  // The sunlit arc the per-row extraction missed (ScanParams::weakArcMinZ), gated; used
+  // The sunlit arcs the per-row extraction missed (ScanParams::weakArcMinZ), gated; used
   // only when the lines alone leave the target unseen (estimate()).
   std::vector<Eigen::Vector3d> arcPointsMm;
   std::vector<geometry::PixelPoint> arcPixels;

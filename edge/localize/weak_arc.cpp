@@ -14,10 +14,11 @@ namespace {
 // The subtracted red and its contrast over the ROI (row-major, ROI coordinates).
 struct ContrastMap {
   int width = 0;
+  int height = 0;
   std::vector<int16_t> diff;    // red(on) − red(off)
   std::vector<float> contrast;  // diff − mean of diff contrastPx either side, in its local σ
   std::vector<float> pooled;    // the contrast's maximum within ±2 px, less its mean in noise
-  std::vector<uint8_t> masked;  // 1: near a sample the LLE found
+  std::vector<uint8_t> masked;  // 1: explained, near a sample the LLE found or an arc already followed
 
   float at(int x, int y) const { return contrast[static_cast<size_t>(y) * width + x]; }
   float pooledAt(int x, int y) const { return pooled[static_cast<size_t>(y) * width + x]; }
@@ -25,7 +26,7 @@ struct ContrastMap {
   int16_t diffAt(int x, int y) const { return diff[static_cast<size_t>(y) * width + x]; }
   // Marks ±px round (x, y) as explained (clipped to the map).
   void mask(int x, int y, int px) {
-    if (y < 0 || y >= static_cast<int>(masked.size()) / width) return;
+    if (y < 0 || y >= height) return;
     for (int i = std::max(0, x - px); i <= std::min(width - 1, x + px); ++i)
       masked[static_cast<size_t>(y) * width + i] = 1;
   }
@@ -35,6 +36,7 @@ ContrastMap contrastMap(const image::ImageView& on, const image::ImageView& off,
                         const image::LaserLine& line, const WeakArcParams& p) {
   ContrastMap m;
   m.width = roi.width;
+  m.height = roi.height;
   const size_t n = static_cast<size_t>(roi.width) * static_cast<size_t>(roi.height);
   m.diff.assign(n, 0);
   m.contrast.assign(n, 0.0F);
@@ -95,22 +97,26 @@ geometry::PixelPoint project(const geometry::CameraIntrinsics& cam, const Eigen:
   return {cam.fxPx * xd + cam.cxPx, cam.fyPx * yd + cam.cyPx};
 }
 
-// The camera-facing arc of the circle (centre q, radius ρ, in the plane spanned by e1, e2)
-// as ROI pixels, one per row.
+// The camera-facing arc of the circle (centre centreMm, radius radiusMm, in the plane
+// spanned by e1, e2) as ROI pixels, one per row, from one end of the arc to the other.
 struct ArcPixel {
   int x;
   int y;
 };
 
-void arcPixels(const geometry::CameraIntrinsics& cam, const image::Roi& roi, const Eigen::Vector3d& q, double rho,
-               const Eigen::Vector3d& e1, const Eigen::Vector3d& e2, double rowStride, std::vector<ArcPixel>& out) {
+void arcPixels(const geometry::CameraIntrinsics& cam, const image::Roi& roi, const Eigen::Vector3d& centreMm,
+               double radiusMm, const Eigen::Vector3d& e1, const Eigen::Vector3d& e2, double rowStride,
+               std::vector<ArcPixel>& out) {
   out.clear();
-  const double pxPerMm = cam.fyPx / std::max(100.0, q.z());
-  const double dTheta = 0.6 * rowStride / std::max(1.0, rho * pxPerMm);
+  const double pxPerMm = cam.fyPx / std::max(100.0, centreMm.z());
+  const double dTheta = 0.6 * rowStride / std::max(1.0, radiusMm * pxPerMm);
+  // The camera-facing half is the one round the direction from the centre to the camera:
+  // stepping round it from the far side keeps the half in one run, in order along the arc.
+  const double towardCamera = std::atan2(-centreMm.dot(e2), -centreMm.dot(e1));
   int lastRow = -1 << 30;
-  for (double t = 0.0; t < 2.0 * M_PI; t += dTheta) {
+  for (double t = towardCamera - M_PI; t < towardCamera + M_PI; t += dTheta) {
     const Eigen::Vector3d radial = std::cos(t) * e1 + std::sin(t) * e2;
-    const Eigen::Vector3d pt = q + rho * radial;
+    const Eigen::Vector3d pt = centreMm + radiusMm * radial;
     if (radial.dot(pt) >= 0.0) continue;  // faces away from the camera
     const geometry::PixelPoint px = project(cam, pt);
     const int row = static_cast<int>(std::lround(px.rowPx));
@@ -133,7 +139,7 @@ std::vector<image::RowSample> follow(const ContrastMap& m, const image::Roi& roi
     int best = -1;
     float bestC = 0.0F;
     for (int x = std::max(w + 2, a.x - p.followPx); x <= std::min(m.width - w - 3, a.x + p.followPx); ++x)
-      if (m.at(x, a.y) > bestC) {
+      if (!m.isMasked(x, a.y) && m.at(x, a.y) > bestC) {
         bestC = m.at(x, a.y);
         best = x;
       }
@@ -149,8 +155,8 @@ std::vector<image::RowSample> follow(const ContrastMap& m, const image::Roi& roi
     if (!(sw > 0.0)) continue;
     image::RowSample s;
     s.row = roi.y + a.y;
-    s.column = static_cast<float>(roi.x + sx / sw);
-    s.columnQ8 = static_cast<int32_t>(std::lround(s.column * 256.0));
+    s.columnQ8 = static_cast<int32_t>(std::lround((roi.x + sx / sw) * 256.0));
+    s.column = static_cast<float>(s.columnQ8) / 256.0F;
     s.centroidQ8 = s.columnQ8;
     s.confidence = std::min(1.0F, bestC / 4.0F);
     s.inlier = false;
@@ -164,25 +170,25 @@ std::vector<image::RowSample> follow(const ContrastMap& m, const image::Roi& roi
 struct ArcCandidate {
   double z = 0.0;
   int rows = 0;
-  Eigen::Vector3d q = Eigen::Vector3d::Zero();
-  double rho = 0.0;
+  Eigen::Vector3d centreMm = Eigen::Vector3d::Zero();  // the circle's, in the laser plane
+  double radiusMm = 0.0;
 };
 
-// The plane's frame: e1 "up" in the plane, e2 across it (towards depth), and the rough
-// position's foot in it.
+// The plane's frame: e1 along the camera's y (down the image) in the plane, e2 across it
+// (towards depth), and the rough position's foot in it.
 struct PlaneFrame {
   Eigen::Vector3d e1, e2, q0;
 };
 
-// The best arc over the rows not yet explained (m's mask): coarse to fine, centres 1.5
+// The best arc over the pixels not yet explained (m's mask): coarse to fine, centres 1.5
 // steps apart, radii 2 steps, every other row, each row's best within ±2 px; then round the
-// five best, half a step in the plane and in the radius, every row.
+// five best, half a step in the plane and in the radius, every row. `arc` is scratch.
 ArcCandidate bestArc(const ContrastMap& m, const image::Roi& roi, const geometry::CameraIntrinsics& cam,
                      const PlaneFrame& f, const WeakArcParams& p, std::vector<ArcPixel>& arc) {
-  // The arc's score: its contrast summed over the rows the LLE left unexplained, over the
-  // noise of that sum (each pixel's contrast is in its own σ).
-  auto score = [&](const Eigen::Vector3d& q, double rho, bool coarse, int* rows) {
-    arcPixels(cam, roi, q, rho, f.e1, f.e2, coarse ? 2.0 : 1.0, arc);
+  // The arc's score: its contrast summed over the rows left unexplained, over the noise of
+  // that sum (each pixel's contrast is in its own σ).
+  auto score = [&](const Eigen::Vector3d& centreMm, double radiusMm, bool coarse, int* rows) {
+    arcPixels(cam, roi, centreMm, radiusMm, f.e1, f.e2, coarse ? 2.0 : 1.0, arc);
     double sum = 0.0;
     int count = 0;
     for (const ArcPixel& a : arc) {
@@ -199,9 +205,9 @@ ArcCandidate bestArc(const ContrastMap& m, const image::Roi& roi, const geometry
   int rows = 0;
   for (int i = -steps; i <= steps; ++i)
     for (int j = -steps; j <= steps; ++j)
-      for (double rho = p.minRadiusMm; rho <= p.maxRadiusMm + 1e-9; rho += 2.0 * p.radiusStepMm) {
-        const Eigen::Vector3d q = f.q0 + i * coarseMm * f.e1 + j * coarseMm * f.e2;
-        coarse.push_back({score(q, rho, true, &rows), 0, q, rho});
+      for (double radiusMm = p.minRadiusMm; radiusMm <= p.maxRadiusMm + 1e-9; radiusMm += 2.0 * p.radiusStepMm) {
+        const Eigen::Vector3d centreMm = f.q0 + i * coarseMm * f.e1 + j * coarseMm * f.e2;
+        coarse.push_back({score(centreMm, radiusMm, true, &rows), 0, centreMm, radiusMm});
       }
   constexpr size_t kKept = 5;
   std::partial_sort(coarse.begin(), coarse.begin() + static_cast<long>(std::min(kKept, coarse.size())), coarse.end(),
@@ -212,61 +218,69 @@ ArcCandidate bestArc(const ContrastMap& m, const image::Roi& roi, const geometry
     for (int i = -1; i <= 1; ++i)
       for (int j = -1; j <= 1; ++j)
         for (int k = -2; k <= 2; ++k) {
-          const Eigen::Vector3d q = c.q + 0.5 * p.stepMm * (i * f.e1 + j * f.e2);
-          const double rho = c.rho + 0.5 * p.radiusStepMm * k;
-          if (rho < p.minRadiusMm * 0.5) continue;
-          const double z = score(q, rho, false, &rows);
-          if (z > best.z) best = {z, rows, q, rho};
+          const Eigen::Vector3d centreMm = c.centreMm + 0.5 * p.stepMm * (i * f.e1 + j * f.e2);
+          const double radiusMm = c.radiusMm + 0.5 * p.radiusStepMm * k;
+          if (radiusMm < p.minRadiusMm * 0.5) continue;
+          const double z = score(centreMm, radiusMm, false, &rows);
+          if (z > best.z) best = {z, rows, centreMm, radiusMm};
         }
   return best;
 }
 
 // The followed samples' columns, each replaced by the local straight line through the
-// arc's samples within ±halfRows rows (weighted by their contrast), as the LLE smooths its
-// rows: one sample's error is 0.5-1 px (shot noise on sunlit skin), 3-5 mm in depth at
-// 1.6 m, more than the sphere fit's bands. A sample more than outlierPx off that line is
-// another peak the row offered: it is dropped and the line drawn again without it.
+// arc's other samples within ±halfRows rows and itself, weighted by their contrast: one
+// sample's error is 0.5-1 px under the shot noise of sunlit skin, 3-5 mm in depth at
+// 1.6 m, more than the sphere fit's bands. A sample more than outlierPx off the line
+// through the others alone is another peak the row offered, and one with fewer than
+// kMinNeighbours others in its window has nothing to be told from: both are dropped and
+// the lines drawn again without them. Samples are in order along the arc (arcPixels).
 void smoothAlong(std::vector<image::RowSample>& s, int halfRows, double outlierPx) {
-  if (halfRows <= 0 || s.size() < 3) return;
+  if (halfRows <= 0) return;
+  constexpr int kMinNeighbours = 3;
   std::vector<uint8_t> use(s.size(), 1);
-  std::vector<float> fitted(s.size(), 0.0F);
-  const auto fitAll = [&] {
-    for (size_t i = 0; i < s.size(); ++i) {
-      double sw = 0.0, sr = 0.0, sc = 0.0, srr = 0.0, src = 0.0;
-      const auto add = [&](size_t j) {
-        const double w = std::max(0.05F, s[j].confidence);
-        const double r = s[j].row - s[i].row;
-        sw += w;
-        sr += w * r;
-        sc += w * s[j].column;
-        srr += w * r * r;
-        src += w * r * s[j].column;
-      };
-      // The arc's neighbours in its own order, while within halfRows rows.
-      for (size_t j = i + 1; j-- > 0 && std::abs(s[j].row - s[i].row) <= halfRows;)
-        if (use[j]) add(j);
-      for (size_t j = i + 1; j < s.size() && std::abs(s[j].row - s[i].row) <= halfRows; ++j)
-        if (use[j]) add(j);
-      const double d = sw * srr - sr * sr;
-      fitted[i] =
-          sw <= 0.0 ? s[i].column : static_cast<float>(std::abs(d) < 1e-9 ? sc / sw : (sc * srr - sr * src) / d);
+  struct Sums {
+    double w = 0.0, r = 0.0, c = 0.0, rr = 0.0, rc = 0.0;
+    int n = 0;
+    void add(double weight, double row, double col, int sign) {
+      w += sign * weight;
+      r += sign * weight * row;
+      c += sign * weight * col;
+      rr += sign * weight * row * row;
+      rc += sign * weight * row * col;
+      n += sign;
+    }
+    // The weighted least-squares line's value at row offset 0 (the weighted mean where
+    // every row is the same).
+    double at0() const {
+      const double d = w * rr - r * r;
+      return std::abs(d) < 1e-9 ? c / w : (c * rr - r * rc) / d;
     }
   };
-  fitAll();
-  bool dropped = false;
-  for (size_t i = 0; i < s.size(); ++i)
-    if (std::abs(s[i].column - fitted[i]) > outlierPx) {
-      use[i] = 0;
-      dropped = true;
+  // Sums over the window round sample i (i included), in offsets from its row.
+  const auto window = [&](size_t i) {
+    Sums sums;
+    const auto near = [&](size_t j) { return std::abs(s[j].row - s[i].row) <= halfRows; };
+    for (size_t j = i; near(j); --j) {  // i itself, then back along the arc
+      if (use[j]) sums.add(s[j].confidence, s[j].row - s[i].row, s[j].column, 1);
+      if (j == 0) break;
     }
-  if (dropped) fitAll();
+    for (size_t j = i + 1; j < s.size() && near(j); ++j)
+      if (use[j]) sums.add(s[j].confidence, s[j].row - s[i].row, s[j].column, 1);
+    return sums;
+  };
+  for (size_t i = 0; i < s.size(); ++i) {
+    Sums others = window(i);
+    others.add(s[i].confidence, 0.0, s[i].column, -1);
+    if (others.n < kMinNeighbours || std::abs(s[i].column - others.at0()) > outlierPx) use[i] = 0;
+  }
   std::vector<image::RowSample> out;
   out.reserve(s.size());
   for (size_t i = 0; i < s.size(); ++i) {
     if (!use[i]) continue;
-    image::RowSample r = s[i];
-    r.column = fitted[i];
-    r.columnQ8 = static_cast<int32_t>(std::lround(r.column * 256.0));
+    const Sums all = window(i);
+    image::RowSample r = s[i];  // centroidQ8 stays the row's own centroid, as the LLE's
+    r.columnQ8 = static_cast<int32_t>(std::lround(all.at0() * 256.0));
+    r.column = static_cast<float>(r.columnQ8) / 256.0F;
     out.push_back(r);
   }
   s = std::move(out);
@@ -286,9 +300,10 @@ WeakArc findWeakArc(const image::ImageView& frame, const image::ImageView& laser
   f.e2 = n.cross(f.e1);
   f.q0 = roughMm - (n.dot(roughMm) - cal.laser.planeOffsetAt(slideMm)) * n;
   std::vector<ArcPixel> arc;
-  // The best arc over the bar, then the best over the rows it leaves, and so on: in sun a
-  // neighbour's or a leaf's arc may outscore the target's, and the fit, not this search,
-  // tells which one is the fruit across the stops.
+  // The best arc over the bar, then the best over what it leaves, and so on: in sun a
+  // neighbour's or a leaf's arc may outscore the target's, and the fit across the stops,
+  // not this search, tells which one is the fruit. Each arc's whole path is masked once
+  // scored, so that no later search scores its unfollowed rows again.
   for (int k = 0; k < std::max(1, p.maxArcs); ++k) {
     const ArcCandidate best = bestArc(m, roi, cal.camera, f, p, arc);
     if (k == 0) {
@@ -296,14 +311,15 @@ WeakArc findWeakArc(const image::ImageView& frame, const image::ImageView& laser
       result.rows = best.rows;
     }
     if (best.z < p.minZ) break;
-    arcPixels(cal.camera, roi, best.q, best.rho, f.e1, f.e2, 1.0, arc);
-    std::vector<image::RowSample> found = follow(m, roi, arc, segment + k, p);
+    arcPixels(cal.camera, roi, best.centreMm, best.radiusMm, f.e1, f.e2, 1.0, arc);
+    std::vector<image::RowSample> found = follow(m, roi, arc, segment + result.arcs, p);
     smoothAlong(found, p.smoothRows, p.outlierPx);
-    if (found.empty()) break;
-    result.samples.insert(result.samples.end(), found.begin(), found.end());
-    ++result.arcs;
+    for (const ArcPixel& a : arc) m.mask(a.x, a.y, p.maskPx);
     for (const image::RowSample& s : found)
       m.mask(static_cast<int>(std::lround(s.column)) - roi.x, s.row - roi.y, p.maskPx);
+    if (static_cast<int>(found.size()) < p.minRows / 2) continue;  // too little of it to follow
+    result.samples.insert(result.samples.end(), found.begin(), found.end());
+    ++result.arcs;
   }
   return result;
 }

@@ -3,15 +3,16 @@
 // shot noise of the pair (docs/lle.md, "What remains lost in sun"): bRCE finds a row here
 // and there. Summed along the whole arc that the laser plane draws across a fruit, the
 // same light stands far out of the noise. The search (docs/lle.md, "The sunlit line along
-// its arc"): circles in the laser plane round the rough position, each scored by the
-// summed contrast of the laser-off-subtracted red along its image curve, over the rows
-// the LLE left without a sample there; the best, when its score clears `minZ`, is
-// followed row by row within a few px and gives sub-pixel samples of a segment of its
-// own (RowStatus::kSegment), smoothed along the arc as the LLE smooths its rows. Then the
-// best over the rows it leaves, up to `maxArcs`: in sun a neighbour's or a leaf's arc may
-// score above the target's. The 3D gate and the fit then weigh them as any other
-// segment's, and the fit across the stops tells which is the fruit. Pure: frames in,
-// samples out.
+// its arc" and "Smoothed along the arc, and more than one arc a frame"): circles in the
+// laser plane round the rough position, each scored by the summed contrast of the
+// laser-off-subtracted red along its image curve, over the pixels not yet explained (the
+// LLE's samples, earlier arcs). The best, when its score clears `minZ`, is followed row by
+// row within a few px, each sample's column smoothed along the arc and samples off it
+// dropped; it is a segment of its own (RowStatus::kSegment). Then the best of what it
+// leaves, up to `maxArcs`: in sun a neighbour's or a leaf's arc may score above the
+// target's. The localizer keeps the samples apart from the lines' and lets them join the
+// fit only where the lines alone leave the target unseen (localize/localizer.h); the fit
+// across the stops then tells which arc is the fruit. Pure: frames in, samples out.
 #pragma once
 
 #include <Eigen/Core>
@@ -33,18 +34,22 @@ struct WeakArcParams {
   int contrastPx = 4;                 // the curve's red against the pixels this far either side
   int minRows = 15;                   // an arc over fewer unexplained rows is not scored
   int followPx = 3;                   // each row's peak within this of the arc's column
-  int maskPx = 4;                     // pixels this close to a sample the LLE found are its, not the arc's
+  int maskPx = 4;                     // pixels this close to an LLE sample or a scored arc are explained
   double minRowContrastSigmas = 1.5;  // a followed row's peak contrast, in the contrast's σ
-  int maxArcs = 3;                    // arcs over the bar kept, each on rows the earlier ones leave
-  int smoothRows = 8;                 // a followed sample's column: the local line through ±this many rows (0: none)
-  double outlierPx = 1.5;             // ... and a sample this far off it is dropped
+  int maxArcs = 3;                    // arcs over the bar followed, each over what the earlier leave (<= 1: one)
+  // A followed sample's column: the local line through the arc's samples within ±this many
+  // rows, weighted by contrast (0: the row's own centroid, and nothing dropped) ...
+  int smoothRows = 8;
+  double outlierPx = 1.5;  // ... and a sample this far off the line through the others is dropped
 };
 
 struct WeakArc {
   double z = 0.0;                         // the best arc's score (0: none scored)
   int rows = 0;                           // rows it was scored on
-  int arcs = 0;                           // arcs over the bar followed
-  std::vector<image::RowSample> samples;  // followed rows, arc after arc (segment, segment + 1, ...; empty: none)
+  int arcs = 0;                           // arcs over the bar followed (with minRows / 2 samples or more)
+  // Followed rows, arc after arc (segment, segment + 1, ...; empty: none): column and
+  // columnQ8 smoothed along the arc, centroidQ8 the row's own centroid.
+  std::vector<image::RowSample> samples;
 };
 
 // Searches the ROI of `frame` (laser on) minus `laserOff` (same size and format) for the

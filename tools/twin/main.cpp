@@ -266,7 +266,7 @@ int main(int argc, char** argv) {
                {"lle-subtracted-rows", Kind::kInteger, "LleParams::subtractedRows: 1 (the row alone) or 3"},
                {"lle-rerun-others-firm", Kind::kInteger,
                 "LleParams::rerunOthersFirm: 1, a rerun's other segments need the first pass's bar"},
-               {"rows", Kind::kFlag, "every frame's rows, kept pixels and curve"},
+               {"rows", Kind::kFlag, "every frame's rows, kept pixels, sunlit arcs' samples and curve"},
                {"other-object-prior", Kind::kNumber,
                 "ScanParams::otherObjectPrior (0: σ and confidence from the fit alone)"},
                {"fit-when-far-from-rough", Kind::kFlag,

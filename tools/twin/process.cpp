@@ -4,7 +4,7 @@
 // when the meter asks for it), a ReplaySource serves the frame recorded nearest each stop
 // and its recorded position, the localizer observes each frame and fuses the lines, and
 // takes the adaptive second pass where it asks for one (twoPassScan). One JSON line per scan on stdout:
-//   {"scan", "kind", "roi", "frames": [{"slide_mm", "valid", "rows"?, "kept"?, "curve"?}],
+//   {"scan", "kind", "roi", "frames": [{"slide_mm", "valid", "rows"?, "kept"?, "arc"?, "curve"?}],
 //    (--rows: "rows" [row, column, inlier 0|1, image::RowStatus], "kept" [row, column],
 //    "arc" [row, column]: the sunlit arcs' gated samples, used only where the lines leave
 //    the target unseen),
@@ -238,7 +238,8 @@ int processMain(const Args& args) {
             tools::Json kept = tools::Json::array();
             for (const auto& px : ob->pixels) kept.push_back({tools::jsonNumber(px.rowPx), tools::jsonNumber(px.columnPx)});
             fo["kept"] = std::move(kept);
-            // The sunlit arcs' samples, gated (ScanParams::weakArcMinZ).
+            // The sunlit arcs' samples within the gate (ScanParams::gateMm; the search's bar is
+            // ScanParams::weakArcMinZ).
             tools::Json arcs = tools::Json::array();
             for (const auto& px : ob->arcPixels)
               arcs.push_back({tools::jsonNumber(px.rowPx), tools::jsonNumber(px.columnPx)});
