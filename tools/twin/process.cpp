@@ -24,6 +24,13 @@ namespace alacs::twin {
 
 namespace {
 
+// Pixels as [[row, column], ...].
+tools::Json pixelsJson(const std::vector<geometry::PixelPoint>& pixels) {
+  tools::Json out = tools::Json::array();
+  for (const auto& px : pixels) out.push_back({tools::jsonNumber(px.rowPx), tools::jsonNumber(px.columnPx)});
+  return out;
+}
+
 tools::Json estimateJson(const Result<localize::AppleEstimate>& e) {
   if (!e) return {{"ok", false}, {"error", errorName(e.status().code())}};
   return {{"ok", true},
@@ -234,16 +241,11 @@ int processMain(const Args& args) {
             for (const auto& r : line.rows)
               rows.push_back({r.row, tools::jsonNumber(r.column), r.inlier ? 1 : 0, static_cast<int>(r.status)});
             fo["rows"] = std::move(rows);
-            // What the localizer keeps of the frame: the samples gated in 3D around the target.
-            tools::Json kept = tools::Json::array();
-            for (const auto& px : ob->pixels) kept.push_back({tools::jsonNumber(px.rowPx), tools::jsonNumber(px.columnPx)});
-            fo["kept"] = std::move(kept);
-            // The sunlit arcs' samples within the gate (ScanParams::gateMm; the search's bar is
-            // ScanParams::weakArcMinZ).
-            tools::Json arcs = tools::Json::array();
-            for (const auto& px : ob->arcPixels)
-              arcs.push_back({tools::jsonNumber(px.rowPx), tools::jsonNumber(px.columnPx)});
-            fo["arc"] = std::move(arcs);
+            // What the localizer keeps of the frame: the samples gated in 3D around the target,
+            // and the sunlit arcs' samples within the gate (ScanParams::gateMm; the search's bar
+            // is ScanParams::weakArcMinZ).
+            fo["kept"] = pixelsJson(ob->pixels);
+            fo["arc"] = pixelsJson(ob->arcPixels);
             if (line.valid) {
               fo["curve_first_row"] = plan->roi.y;
               tools::Json curve = tools::Json::array();
