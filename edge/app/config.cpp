@@ -89,6 +89,7 @@ Status configFromJson(const Json& json, DaemonConfig& c) {
     s->number("other_object_prior", c.scan.otherObjectPrior, Need::kOptional, 0, 0.99);
     s->boolean("rough_when_far_from_rough", c.scan.roughWhenFarFromRough);
     s->number("line_bias_px", c.scan.lineBiasPx, Need::kOptional, 0, 5);
+    s->number("shape_irregularity_pct", c.scan.shapeIrregularityPct, Need::kOptional, 0, 20);
     s->integer("follow_up_min_lines", c.scan.followUpMinLines, Need::kOptional, 1, 15);
     s->number("follow_up_hidden_pct", c.scan.followUpHiddenPct, Need::kOptional, 0, 100);
     s->number("follow_up_diameter_sigma_mm", c.scan.followUpDiameterSigmaMm, Need::kOptional, 0, 100);
@@ -173,6 +174,7 @@ OrderedJson configToJson(const DaemonConfig& c) {
                {"other_object_prior", c.scan.otherObjectPrior},
                {"rough_when_far_from_rough", c.scan.roughWhenFarFromRough},
                {"line_bias_px", c.scan.lineBiasPx},
+               {"shape_irregularity_pct", c.scan.shapeIrregularityPct},
                {"follow_up_min_lines", c.scan.followUpMinLines},
                {"follow_up_hidden_pct", c.scan.followUpHiddenPct},
                {"follow_up_diameter_sigma_mm", c.scan.followUpDiameterSigmaMm},

@@ -111,6 +111,14 @@ struct ScanParams {
   // quality.sigma_3d_total_mm_at_*; 0 when the file has none). Both are added to σ in
   // quadrature (docs/geometry.md "Honest uncertainty"). 0: no line bias.
   double lineBiasPx = 0.1;
+  // Nor does a fruit's departure from the fitted spheroid: ridges, lobes and bumps put the
+  // skin off the smooth shape by a few per cent of the radius, over areas as wide as a
+  // line's cut, so the few lines of a fit do not average them out, and the fit's residual
+  // hides most of them (the spheroid bends to them). This share of the fitted radius goes
+  // into σ (the approach point's and the centre's) in quadrature (docs/geometry.md "Honest
+  // uncertainty"). 2 %, a priori (the lumpy fruit of the twin's worlds have bumps of 2-7 %
+  // of the radius). 0: a spheroid is taken as exact.
+  double shapeIrregularityPct = 2.0;
   // The sunlit line along its arc (localize/weak_arc.h, docs/lle.md): where the laser-off
   // frame was subtracted, the arc of a fruit's cut that the per-row extraction missed is
   // searched by its summed contrast and followed row by row when it clears this score

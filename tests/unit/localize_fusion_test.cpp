@@ -711,6 +711,45 @@ TEST_CASE("What all points share is in σ: the line's bias through the triangula
         Approx(std::hypot(fit->fitSigmaMm, calibrated.systematicSigmaMm(withCal->approachMm))).epsilon(0.05));
 }
 
+TEST_CASE("A fruit is not a spheroid: a share of its radius is in σ, the approach point's and the centre's",
+          "[localize]") {
+  // The same lines (one noise draw) fitted with the share at 0, 2 % (the default) and
+  // 4 %: the fruit stays where it is, and σ grows by that share of the fitted radius, in
+  // quadrature, in the approach point's σ and the centre's alike.
+  Case k;
+  const auto fitWith = [&](double pct) {
+    localize::ScanParams scan = k.scan;
+    scan.shapeIrregularityPct = pct;
+    localize::Localizer loc(k.cal, image::LleParams{}, scan);
+    auto plan = loc.plan(k.center + Eigen::Vector3d(4, -3, 6), 200.0);
+    REQUIRE(plan.isOk());
+    std::mt19937 rng(17);
+    std::vector<localize::LineObservation> lines;
+    for (double s : plan->stopsMm) lines.push_back(lineOf(k.cal, k.center, k.radius, s, 0.4, {}, rng));
+    auto est = loc.estimate(*plan, lines);
+    REQUIRE(est.isOk());
+    REQUIRE(est->sphereFit);
+    return *est;
+  };
+  const localize::AppleEstimate exact = fitWith(0.0);
+  const localize::AppleEstimate two = fitWith(localize::ScanParams{}.shapeIrregularityPct);
+  const localize::AppleEstimate four = fitWith(4.0);
+  CHECK(localize::ScanParams{}.shapeIrregularityPct == 2.0);
+  CHECK((two.centerMm - exact.centerMm).norm() < 1e-9);
+  CHECK(two.diameterMm == exact.diameterMm);
+  const double twoMm = 0.02 * 0.5 * exact.diameterMm;  // 0.76 mm on this 76 mm fruit
+  CHECK(two.fitSigmaMm == Approx(std::hypot(exact.fitSigmaMm, twoMm)).epsilon(1e-6));
+  CHECK(two.centerSigmaMm == Approx(std::hypot(exact.centerSigmaMm, twoMm)).epsilon(1e-6));
+  CHECK(four.fitSigmaMm == Approx(std::hypot(exact.fitSigmaMm, 2.0 * twoMm)).epsilon(1e-6));
+  CHECK(two.sigmaMm > exact.sigmaMm);
+  // Out of range: refused by name.
+  localize::ScanParams bad;
+  bad.shapeIrregularityPct = -1.0;
+  CHECK(bad.validate().reason().find("scan.shape_irregularity_pct") != std::string::npos);
+  bad.shapeIrregularityPct = 25.0;
+  CHECK_FALSE(bad.validate().isOk());
+}
+
 TEST_CASE("One line of the target in the gate, a neighbour's sphere beyond: the neighbour is not taken for it",
           "[localize][doubt][widened]") {
   // Leaves let one stop light the target; a neighbour beside it is in full view on every

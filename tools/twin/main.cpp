@@ -269,6 +269,8 @@ int main(int argc, char** argv) {
                {"rows", Kind::kFlag, "every frame's rows, kept pixels, sunlit arcs' samples and curve"},
                {"other-object-prior", Kind::kNumber,
                 "ScanParams::otherObjectPrior (0: σ and confidence from the fit alone)"},
+               {"shape-irregularity-pct", Kind::kNumber,
+                "ScanParams::shapeIrregularityPct: the fruit's departure from a spheroid in σ (0: none)"},
                {"fit-when-far-from-rough", Kind::kFlag,
                 "ScanParams::roughWhenFarFromRough off: a fit more likely another object goes out (AMBIGUOUS)"},
                {"follow-up-unseen-max-stops", Kind::kInteger,
