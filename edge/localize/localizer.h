@@ -116,7 +116,7 @@ struct ScanParams {
   // line's cut, so the few lines of a fit do not average them out, and the fit's residual
   // hides most of them (the spheroid bends to them). This share of the fitted radius goes
   // into σ (the approach point's and the centre's) in quadrature (docs/geometry.md "Honest
-  // uncertainty"). 2 %, a priori (the lumpy fruit of the twin's worlds have bumps of 2-7 %
+  // uncertainty"). 2 %, a priori (the lumpy fruit of the twin's hard cases have bumps of 2-6 %
   // of the radius). 0: a spheroid is taken as exact.
   double shapeIrregularityPct = 2.0;
   // The sunlit line along its arc (localize/weak_arc.h, docs/lle.md): where the laser-off
@@ -196,7 +196,7 @@ struct AppleEstimate {
   enum class Doubt { kNone, kFarFromRough, kTwoSurfaces };
   Doubt doubt = Doubt::kNone;
   double targetPct = 100.0;  // chance that the fitted object is the target
-  double fitSigmaMm = 0.0;   // σ of the approach point from the fit and the systematic terms (before the mixture)
+  double fitSigmaMm = 0.0;   // σ of the approach point: the fit's, systematic and shape terms (no mixture)
   double rivalShare = 0.0;   // rival score / (own + rival) from the sphere fit (0: no rival)
   Eigen::Vector3d rivalCenterMm = Eigen::Vector3d::Zero();
 };

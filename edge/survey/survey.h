@@ -18,6 +18,8 @@ struct SurveyParams {
   size_t minCellPoints = 4;     // sparser grid cells (silhouette mixed pixels) link nothing
   double maxExtentMm = 130.0;   // larger clusters are foliage walls, not fruit
   double maxCenterSigmaMm = 3.0;  // a cluster whose sphere centre is this uncertain is not a fruit
+                                  // (compared with the approach point's σ, which holds the shape term,
+                                  // scan.shape_irregularity_pct: ~0.8 mm in quadrature on an 80 mm fruit)
   int maxObjects = 15;          // ALACS_ResultObject.ObjIndex is 4 bits
   Status validate() const;
 };

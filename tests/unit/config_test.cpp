@@ -43,6 +43,12 @@ TEST_CASE("Config: defaults, overrides and errors that name the key", "[config]"
   CHECK_FALSE(fitOut->scan.roughWhenFarFromRough);
   auto notBool = app::loadConfig(write(R"({"scan": {"rough_when_far_from_rough": 1}})"));
   CHECK(notBool.status().reason().find("scan.rough_when_far_from_rough") != std::string::npos);
+  auto shape = app::loadConfig(write(R"({"scan": {"shape_irregularity_pct": 0}})"));
+  REQUIRE(shape.isOk());
+  CHECK(shape->scan.shapeIrregularityPct == 0.0);
+  CHECK(ok->scan.shapeIrregularityPct == 2.0);
+  auto lumpy = app::loadConfig(write(R"({"scan": {"shape_irregularity_pct": 25}})"));
+  CHECK(lumpy.status().reason().find("scan.shape_irregularity_pct") != std::string::npos);
   auto tooMany = app::loadConfig(write(R"({"scan": {"follow_up_max_stops": 40}})"));
   CHECK(tooMany.status().reason().find("scan.follow_up_max_stops") != std::string::npos);
   // A component's cross-field rule broken in a file is bad input naming the keys (the

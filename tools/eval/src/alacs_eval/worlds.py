@@ -448,9 +448,9 @@ RULES = [
     "The second world's aggregates were read once, in a run after it was fixed; a review then found four "
     "faults in it (docs/lle.md), mended with nothing chosen, and the second world's aggregates were read "
     "once more, in a run after the mends. Then σ takes the fruit's departure from a spheroid "
-    "(`scan.shape_irregularity_pct`, 2 % of the fitted radius, set a priori from the twin's bumps of 2–7 %; "
+    "(`scan.shape_irregularity_pct`, 2 % of the fitted radius, set a priori from the hard cases' bumps of 2–6 %; "
     "docs/geometry.md, \"The fruit is not a spheroid\"): found on the hard cases' seeds 3, 6 and 7 and the "
-    "benchmark's seed 3, whose lumpy fruit had an RMS of error/σ of 1.03 against 0.61 on smooth fruit; it "
+    "benchmark's seed 3; there the lumpy fruit had an RMS of error/σ of 1.03 against 0.61 on smooth fruit; it "
     "moves no position. The second world's aggregates were read once, in a run after it was fixed: the "
     "tables below.",
     "",
