@@ -97,6 +97,13 @@ geometry::PixelPoint project(const geometry::CameraIntrinsics& cam, const Eigen:
   return {cam.fxPx * xd + cam.cxPx, cam.fyPx * yd + cam.cyPx};
 }
 
+// A sample's reported column: columnQ8 rounded from `columnPx`, and column exactly that
+// Q24.8 value, as the LLE reports its rows.
+void setColumn(image::RowSample& s, double columnPx) {
+  s.columnQ8 = static_cast<int32_t>(std::lround(columnPx * 256.0));
+  s.column = static_cast<float>(s.columnQ8) / 256.0F;
+}
+
 // The camera-facing arc of the circle (centre centreMm, radius radiusMm, in the plane
 // spanned by e1, e2) as ROI pixels, one per row, from one end of the arc to the other.
 struct ArcPixel {
@@ -155,8 +162,7 @@ std::vector<image::RowSample> follow(const ContrastMap& m, const image::Roi& roi
     if (!(sw > 0.0)) continue;
     image::RowSample s;
     s.row = roi.y + a.y;
-    s.columnQ8 = static_cast<int32_t>(std::lround((roi.x + sx / sw) * 256.0));
-    s.column = static_cast<float>(s.columnQ8) / 256.0F;
+    setColumn(s, roi.x + sx / sw);
     s.centroidQ8 = s.columnQ8;
     s.confidence = std::min(1.0F, bestC / 4.0F);
     s.inlier = false;
@@ -279,8 +285,7 @@ void smoothAlong(std::vector<image::RowSample>& s, int halfRows, double outlierP
     if (!use[i]) continue;
     const Sums all = window(i);
     image::RowSample r = s[i];  // centroidQ8 stays the row's own centroid, as the LLE's
-    r.columnQ8 = static_cast<int32_t>(std::lround(all.at0() * 256.0));
-    r.column = static_cast<float>(r.columnQ8) / 256.0F;
+    setColumn(r, all.at0());
     out.push_back(r);
   }
   s = std::move(out);
