@@ -5,10 +5,13 @@ from __future__ import annotations
 
 import dataclasses
 import os
+import subprocess
+from pathlib import Path
 
 import pytest
 
-from alacs_eval import cli, diagnose, twin
+from alacs_eval import cli, diagnose, twin, worlds
+from alacs_eval.scans import Scan
 
 
 @pytest.mark.parametrize("look", [["--count", "2"], ["--loc", "--per-cell", "1"]], ids=["lle", "localization"])
@@ -72,6 +75,32 @@ def test_a_few_hard_scans_are_diagnosed(tmp_path):
     # they lack some (rendered before a change to the LLE or the plan), the text says so.
     assert res["stops_missing"] == 0 and "lack" not in text
     assert "second-pass stops the scans lack: 3" in diagnose.text_loc(dict(res, stops_missing=3))
+    assert sum(res["misses_by_cause"].values()) == len(res["misses"])
+    # Why a scan misses, from the truth at its stops. A clear scan: its stops light the
+    # target, the LLE finds most of those rows and the 3D gate keeps them; with the rows
+    # taken away, it reads as lit but not found; with no frame, as not lit.
+    clear = str(sorted((tmp_path / "benchmark-hard-3" / "loc").glob("d1000_occ0_*"))[0])
+    detail = twin.process(cfg.twin, [clear], 1, "rows", rows=True, quiet=True)[clear]
+    scan = Scan.load(clear)
+    why = worlds.miss_cause(scan, detail)
+    assert why["stops_lit"] >= 3 and why["lit_rows"] >= 3 * worlds.MEASURABLE_ROWS
+    assert 0.8 * why["lit_rows"] <= why["found_rows"] <= why["lit_rows"]
+    assert why["kept_on"] >= 0.8 * why["lit_rows"]
+    assert why["cause"] == "found, not taken"
+    blind = dict(detail, frames=[dict(f, rows=[], arc=[], kept=[]) for f in detail["frames"]])
+    unseen = worlds.miss_cause(scan, blind)
+    assert unseen["cause"] == "lit, not found" and unseen["found_rows"] == 0
+    assert worlds.miss_cause(scan, dict(detail, frames=[]))["cause"] == "not lit"
+    # `alacs-twin render --truth` gives the truth at any slide position (which stops would
+    # have lit a hidden fruit): at a recorded stop, the scan's own truth file.
+    stop = next(f for f in scan.frames if f.laser_on and f.truth)
+    out = tmp_path / "render"
+    subprocess.run([str(cfg.twin), "render", "--scene", str(scan.dir / scan.truth_file), "--slide",
+                    repr(stop.slide_mm), "--roi", "0,0,8,8", "--out", str(out) + ".png", "--truth",
+                    str(out) + ".csv"], check=True)
+    assert (scan.dir / stop.truth).read_text() == Path(str(out) + ".csv").read_text()
+    assert subprocess.run([str(cfg.twin), "render", "--out", str(out) + ".png", "--truth",
+                           str(tmp_path / "no" / "such.csv")], capture_output=True).returncode == 1
 
 
 def test_a_generator_option_reaches_the_render_and_the_processing(tmp_path, monkeypatch, capsys):

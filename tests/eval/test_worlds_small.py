@@ -78,3 +78,17 @@ def test_the_scans_hold_the_second_pass_the_localizer_asks_for(run):
     tags = [f.get("tag") for f in manifest["frames"]]
     assert tags.count("follow_up") == taken[0]["follow_up_frames"]
     assert "second pass taken" in (run / "evaluation.md").read_text()
+
+
+def test_every_miss_says_why(run):
+    """Each scan beyond 20 mm or without a result is put down to one cause, from the truth at
+    its stops: the causes add up to the misses, and the misses to the scans not within 20 mm."""
+    res = json.loads((run / "results.json").read_text())
+    for world in worlds.WORLDS:
+        loc = res[world]["loc"]
+        scans = loc["coverage"]["results"] + loc["coverage"]["no_result"]
+        within = round(loc["coverage"]["within_20mm"] * scans)
+        assert loc["misses"]["n"] == scans - within, world
+        assert sum(loc["misses"][c] for c in worlds.MISS_CAUSES) == loc["misses"]["n"], world
+    text = (run / "evaluation.md").read_text()
+    assert "| world | beyond 20 mm or none | not lit | lit, not found | found, not taken |" in text

@@ -269,6 +269,13 @@ def run_loc(cfg: Config, per_cell: int = 40) -> dict[str, Any]:
         rows.append(row)
     res = [x for x in rows if x["ok"]]
     misses = sorted((x for x in res if x["approach"] > LOC_MISS_MM), key=lambda x: -x["approach"])
+    # The misses again, with every row the LLE gave and the 3D gate kept, against the truth.
+    by_case = {c["case"]: c["dir"] for c in cases}
+    detail = twin.process(cfg.twin, [by_case[x["case"]] for x in misses], cfg.jobs, f"{cfg.world}: the misses' rows",
+                          rows=True, quiet=cfg.quiet, extra=both + cfg.process_args) if misses else {}
+    for x in misses:
+        d = by_case[x["case"]]
+        x.update(worlds.miss_cause(Scan.load(d), detail.get(d, {})))
     cells = {}
     for occ in (False, True):
         for dist in evaluate.DISTANCES:
@@ -284,6 +291,7 @@ def run_loc(cfg: Config, per_cell: int = 40) -> dict[str, Any]:
         "confident_misses": sum(1 for x in misses if x["confidence"] >= 80.0),
         "misses_by_fitted": dict(Counter(x["fitted"] for x in misses).most_common()),
         "misses_by_lines": dict(sorted(Counter(x["lines"] for x in misses).items())),
+        "misses_by_cause": dict(Counter(x["cause"] for x in misses).most_common()),
         "misses": misses[:cfg.worst] if cfg.worst else misses,
     }
 
@@ -296,7 +304,9 @@ def text_loc(res: dict[str, Any]) -> str:
          f"beyond 20 mm at confidence >= 80 %: {res['confident_misses']}",
          "beyond 20 mm, what the fit took for the target: "
          + ", ".join(f"{k} {n}" for k, n in res["misses_by_fitted"].items()),
-         "beyond 20 mm, by lines in the fit: " + ", ".join(f"{k}: {n}" for k, n in res["misses_by_lines"].items())]
+         "beyond 20 mm, by lines in the fit: " + ", ".join(f"{k}: {n}" for k, n in res["misses_by_lines"].items()),
+         f"beyond 20 mm, why ({worlds.MISS_CAUSES_TEXT}): "
+         + ", ".join(f"{k} {n}" for k, n in res["misses_by_cause"].items())]
     if res["stops_missing"]:
         # The scans were rendered with the second-pass stops that the localizer of their
         # generation asked for; a change to the LLE or the plan asks for others.
@@ -305,6 +315,7 @@ def text_loc(res: dict[str, Any]) -> str:
     L += ["", "worst cases:"]
     L += [f"  {x['case']} {x['approach']:.1f} mm (first pass {x['first']:.1f}, +{x['stops']} stops), σ {x['sigma']:.1f}, "
           f"confidence {x['confidence']:.0f} %, {x['lines']} lines, {x['doubt']}, fitted {x['fitted']}, "
-          f"rival {x['rival']}: {x['note']}"
+          f"rival {x['rival']}; the target's rows lit {x['lit_rows']} (stops lit {x['stops_lit']}), found "
+          f"{x['found_rows']}, kept {x['kept_on']} (other rows kept {x['kept_off']}): {x['note']}"
           for x in res["misses"]]
     return "\n".join(L)

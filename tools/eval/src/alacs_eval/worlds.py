@@ -185,6 +185,45 @@ def _lit_lines(scan: Scan) -> int:
     return n
 
 
+# Why a scan missed (beyond 20 mm, or no result), from the truth at the stops it took.
+ON_TARGET_PX = 2.0
+MISS_CAUSES = ("not lit", "lit, not found", "found, not taken")
+MISS_CAUSES_TEXT = (f"the truth at the stops taken: not lit, no stop lit {MEASURABLE_ROWS} or more visible rows of "
+                    "the target; lit, not found, the LLE's samples (any segment's, or the sunlit arcs') lay within "
+                    f"{ON_TARGET_PX:g} px of under a third of its lit rows; found, not taken, another object's fit "
+                    "or the rough position went out")
+
+
+def miss_cause(scan: Scan, processed: dict) -> dict[str, Any]:
+    """What the truth says about a scan's target at the stops it took (`processed`: its
+    `alacs-twin process --rows` line): rows lit (visible and laser-lit), rows the LLE found
+    (a sample of any segment, or of the sunlit arc search, within ON_TARGET_PX), samples the
+    3D gate kept on it and off it; and the cause of a miss that follows (MISS_CAUSES)."""
+    lit = found = kept = kept_off = stops_lit = 0
+    for fr in processed.get("frames", []):
+        f = scan.frames[int(fr["frame"])] if "frame" in fr else None
+        if f is None or not f.truth or not f.laser_on:
+            continue
+        vis = metrics.visible_rows(scan.truth_rows(f, scan.target_id))
+        truth = {int(v["row"]): float(v["column"]) for v in vis}
+        lit += len(truth)
+        stops_lit += len(truth) >= MEASURABLE_ROWS
+
+        def on(row: float, col: float | None) -> bool:
+            r = int(round(row))
+            return col is not None and r in truth and abs(truth[r] - col) <= ON_TARGET_PX
+
+        rows = {int(x[0]) for x in fr.get("rows", []) if on(x[0], x[1])}
+        rows |= {int(round(x[0])) for x in fr.get("arc", []) if on(x[0], x[1])}
+        found += len(rows)
+        for x in fr.get("kept", []):
+            kept += on(x[0], x[1])
+            kept_off += not on(x[0], x[1])
+    cause = MISS_CAUSES[0] if stops_lit == 0 else MISS_CAUSES[1] if 3 * found < lit else MISS_CAUSES[2]
+    return {"cause": cause, "lit_rows": lit, "stops_lit": stops_lit, "found_rows": found, "kept_on": kept,
+            "kept_off": kept_off}
+
+
 def _loc(cfg: Config, world: str, cases: list[dict]) -> tuple[dict[str, Any], list[dict]]:
     dirs = [c["dir"] for c in cases]
     ours = twin.process(cfg.twin, dirs, cfg.jobs, f"{world}: our localization", quiet=cfg.quiet,
@@ -221,6 +260,14 @@ def _loc(cfg: Config, world: str, cases: list[dict]) -> tuple[dict[str, Any], li
             row.update({"approach": math.nan, "centre": math.nan, "diameter": math.nan, "sigma": math.nan,
                         "confidence": 0.0, "lines": 0, "sphere": False, "doubt": e.get("error", "none")})
         rows.append(row)
+    # The misses again, with every row the LLE gave and the 3D gate kept, against the truth.
+    missed = [r for r, c in zip(rows, cases) if not r["approach"] <= metrics.TOLERANCE_MM]
+    by_case = {c["case"]: c["dir"] for c in cases}
+    detail = twin.process(cfg.twin, [by_case[r["case"]] for r in missed], cfg.jobs, f"{world}: the misses' rows",
+                          rows=True, quiet=cfg.quiet, other_object_prior=cfg.other_object_prior) if missed else {}
+    for r in missed:
+        d = by_case[r["case"]]
+        r["miss"] = miss_cause(Scan.load(d), detail.get(d, {}))["cause"]
     return _loc_summary(rows), rows
 
 
@@ -245,6 +292,7 @@ def _loc_summary(rows: list[dict]) -> dict[str, Any]:
                        ("unmeasurable", [r for r in rows if not r.get("measurable", True)])):
         out[label] = {"n": len(sel), "within20": float(np.mean([r["approach"] <= metrics.TOLERANCE_MM for r in sel])) if sel else math.nan,
                       "occluded": sum(r["occluded"] for r in sel)}
+    out["misses"] = {"n": sum("miss" in r for r in rows), **{c: sum(r.get("miss") == c for r in rows) for c in MISS_CAUSES}}
     out["second_pass"] = {"share": float(np.mean([r["follow_up_stops"] > 0 for r in rows])),
                           "stops_per_scan": float(np.mean([r["follow_up_stops"] for r in rows])),
                           "missing_frames": int(sum(r["follow_up_missing"] for r in rows))}
@@ -463,7 +511,11 @@ RULES = [
     "each scan beyond 20 mm with its scene, what the fit took for the target (the target, a neighbour, no "
     "apple: leaves or pieces of two objects; or nothing, where no line was used and the rough position stands "
     "in) and its rival (`-- --fit-when-far-from-rough` compares the rule "
-    "above). Both refuse `--world holdout`.",
+    "above), and why it missed, from the truth at the stops the scan took: not lit (no stop lit 8 or more of "
+    "the target's visible rows), lit but not found (the LLE's rows and the sunlit arcs found under a third of "
+    "the lit rows), or found but not taken (another object's fit, or the rough position, went out); "
+    "`alacs-twin render --truth FILE` writes the truth at any other slide position. "
+    "Both refuse `--world holdout`.",
 ]
 
 
@@ -563,6 +615,12 @@ def markdown(res: dict[str, Any], figure: str | None, command: str) -> str:
         if m and u:
             L.append(f"| {name} | {m['n'] + u['n']} | {u['n']} ({u['occluded']}) | {_pct(m['within20'])} | "
                      f"{_pct(u['within20'])} |")
+    L += ["", f"Scans beyond 20 mm or without a result, by why ({MISS_CAUSES_TEXT}):", "",
+          "| world | beyond 20 mm or none | " + " | ".join(MISS_CAUSES) + " |", "| --- | --- |" + " --- |" * len(MISS_CAUSES)]
+    for name, w in ws:
+        ms = w["loc"].get("misses")
+        if ms:
+            L.append(f"| {name} | {ms['n']} | " + " | ".join(str(ms[c]) for c in MISS_CAUSES) + " |")
     L += ["", "Ours, centre / diameter error, mean (mm):", "",
           "| world | occlusion | 1.0 m | 1.2 m | 1.4 m | 1.6 m |", "| --- | --- | --- | --- | --- | --- |"]
     for name, w in ws:
