@@ -77,8 +77,7 @@ def test_a_few_hard_scans_are_diagnosed(tmp_path):
     assert "second-pass stops the scans lack: 3" in diagnose.text_loc(dict(res, stops_missing=3))
     assert sum(res["misses_by_cause"].values()) == len(res["misses"])
     # Why a scan misses, from the truth at its stops. A clear scan: its stops light the
-    # target, the LLE finds most of those rows and the 3D gate keeps them; with the rows
-    # taken away, it reads as lit but not found; with no frame, as not lit.
+    # target, the LLE finds most of those rows and the 3D gate keeps them.
     clear = str(sorted((tmp_path / "benchmark-hard-3" / "loc").glob("d1000_occ0_*"))[0])
     detail = twin.process(cfg.twin, [clear], 1, "rows", rows=True, quiet=True)[clear]
     scan = Scan.load(clear)
@@ -87,10 +86,37 @@ def test_a_few_hard_scans_are_diagnosed(tmp_path):
     assert 0.8 * why["lit_rows"] <= why["found_rows"] <= why["lit_rows"]
     assert why["kept_on"] >= 0.8 * why["lit_rows"]
     assert why["cause"] == "found, not taken"
+    # The aimed frame is no stop, and a frame served twice counts once.
+    aimed = next(i for i, f in enumerate(scan.frames) if f.tag == "aimed")
+    stops = [f for f in detail["frames"] if f["frame"] != aimed]
+    assert worlds.miss_cause(scan, dict(detail, frames=stops + stops)) == why
+    # Only valid samples count: rejected by the line's fit (kOutlier) or at an edge (kEdge), not.
+    invalid = [dict(f, rows=[[r[0], r[1], 0, 1 + 2 * (i % 2)] for i, r in enumerate(f.get("rows", []))], arc=[])
+               for f in detail["frames"]]
+    assert worlds.miss_cause(scan, dict(detail, frames=invalid))["found_rows"] == 0
+    # With the samples taken away, it reads as lit but not found; with the target never lit,
+    # as not lit; with no frame taken at all (a refused plan), as not processed.
     blind = dict(detail, frames=[dict(f, rows=[], arc=[], kept=[]) for f in detail["frames"]])
     unseen = worlds.miss_cause(scan, blind)
     assert unseen["cause"] == "lit, not found" and unseen["found_rows"] == 0
-    assert worlds.miss_cause(scan, dict(detail, frames=[]))["cause"] == "not lit"
+    assert unseen["lit_rows"] == why["lit_rows"] and unseen["stops_lit"] == why["stops_lit"]
+
+    class Dark:  # the same scan with the target hidden at every stop
+        frames, target_id = scan.frames, scan.target_id
+
+        def truth_rows(self, frame, apple_id):
+            return scan.truth_rows(frame, apple_id)[:0]
+
+    assert worlds.miss_cause(Dark(), detail)["cause"] == "not lit"
+    assert worlds.miss_cause(scan, dict(detail, frames=[]))["cause"] == "not processed"
+    # The listing says it for each miss.
+    miss = dict(res["misses"][0]) if res["misses"] else {
+        "case": "d1000_occ1_0000", "approach": 31.0, "first": 31.0, "stops": 6, "sigma": 20.0, "confidence": 18.0,
+        "lines": 0, "doubt": "FAR_FROM_ROUGH", "fitted": "nothing", "rival": "none", "note": "sun"}
+    miss.update(unseen)
+    listed = diagnose.text_loc(dict(res, misses=[miss], misses_by_cause={unseen["cause"]: 1}))
+    assert f"the target's rows lit {why['lit_rows']} (stops lit {why['stops_lit']}), found 0" in listed
+    assert "why (" in listed and "lit, not found 1" in listed
     # `alacs-twin render --truth` gives the truth at any slide position (which stops would
     # have lit a hidden fruit): at a recorded stop, the scan's own truth file.
     stop = next(f for f in scan.frames if f.laser_on and f.truth)

@@ -212,12 +212,12 @@ int renderMain(const Args& args) {
     std::fprintf(stderr, "alacs-twin: cannot write '%s'\n", out.c_str());
     return 1;
   }
-  // The exact laser line at the exposure's start (docs/scan-format.md "Truth"): which slide
-  // positions would light a hidden fruit, for diagnosis.
+  // The exact laser line at the exposure's middle, as a scan's truth file (sim::exportScan):
+  // which slide positions would light a hidden fruit, for diagnosis.
   const std::string truthPath = args.str("truth");
   if (!truthPath.empty()) {
     std::FILE* f = std::fopen(truthPath.c_str(), "w");
-    const std::string csv = sim::truthCsv(scene, req.slideStartMm);
+    const std::string csv = sim::truthCsv(scene, 0.5 * (req.slideStartMm + req.slideEndMm));
     const bool written = f && std::fwrite(csv.data(), 1, csv.size(), f) == csv.size();
     if (f) std::fclose(f);
     if (!written) {
@@ -306,7 +306,8 @@ int main(int argc, char** argv) {
                {"roi", Kind::kList, "x,y,w,h: render this region only"},
                {"frame", Kind::kInteger, "frame index (noise seed; default 0)"},
                {"out", Kind::kText, "PNG (required)"},
-               {"truth", Kind::kText, "CSV: also the truth rows at --slide, as a scan's truth/frame_NNNN.csv"}}),
+               {"truth", Kind::kText,
+                "CSV: also the truth rows (at the exposure's middle), as a scan's truth/frame_NNNN.csv"}}),
   };
   subs[0].app->get_option("--set")->required()->check(CLI::IsMember({"lle", "loc"}));
   subs[0].app->get_option("--out")->required();

@@ -187,39 +187,55 @@ def _lit_lines(scan: Scan) -> int:
 
 # Why a scan missed (beyond 20 mm, or no result), from the truth at the stops it took.
 ON_TARGET_PX = 2.0
-MISS_CAUSES = ("not lit", "lit, not found", "found, not taken")
-MISS_CAUSES_TEXT = (f"the truth at the stops taken: not lit, no stop lit {MEASURABLE_ROWS} or more visible rows of "
-                    "the target; lit, not found, the LLE's samples (any segment's, or the sunlit arcs') lay within "
-                    f"{ON_TARGET_PX:g} px of under a third of its lit rows; found, not taken, another object's fit "
-                    "or the rough position went out")
+# LaserLine RowStatus (image/lle.h) of the samples that count as found: kLine and kSegment
+# (kOutlier and kEdge are invalid).
+FOUND_STATUS = (0, 2)
+MISS_CAUSES = ("not lit", "lit, not found", "found, not taken", "not processed")
+MISS_CAUSES_TEXT = (f"the truth at the stops taken, both passes: not lit, no stop lit {MEASURABLE_ROWS} or more "
+                    "visible rows of the target; lit, not found, the LLE's valid samples (any segment's, or the "
+                    f"sunlit arcs' within the gate) lay within {ON_TARGET_PX:g} px of under a third of its lit rows; "
+                    "found, not taken, they lay on a third or more, and what went out is still beyond 20 mm (another "
+                    "object's fit, the rough position, or a poor fit of the target); not processed, the pipeline "
+                    "took no frame (a refused plan)")
 
 
 def miss_cause(scan: Scan, processed: dict) -> dict[str, Any]:
-    """What the truth says about a scan's target at the stops it took (`processed`: its
-    `alacs-twin process --rows` line): rows lit (visible and laser-lit), rows the LLE found
-    (a sample of any segment, or of the sunlit arc search, within ON_TARGET_PX), samples the
-    3D gate kept on it and off it; and the cause of a miss that follows (MISS_CAUSES)."""
-    lit = found = kept = kept_off = stops_lit = 0
+    """What the truth says about a scan's target at the stops it took: rows lit (visible and
+    laser-lit) at its stops of both passes (as `_lit_lines` counts them, not the aimed frame),
+    rows the LLE found there (`processed`, the scan's `alacs-twin process --rows` line: a valid
+    sample of any segment, or of the sunlit arc search, within ON_TARGET_PX), samples the 3D
+    gate kept on it and off it; and the cause of a miss that follows (MISS_CAUSES)."""
+    truth_at: dict[int, dict[int, float]] = {}
+    stops_lit = 0
+    for i, f in enumerate(scan.frames):
+        if f.laser_on and f.truth and f.tag != "aimed":
+            vis = metrics.visible_rows(scan.truth_rows(f, scan.target_id))
+            truth_at[i] = {int(v["row"]): float(v["column"]) for v in vis}
+            stops_lit += len(vis) >= MEASURABLE_ROWS
+    lit = sum(len(t) for t in truth_at.values())
+    found = kept = kept_off = 0
+    seen: set[int] = set()
     for fr in processed.get("frames", []):
-        f = scan.frames[int(fr["frame"])] if "frame" in fr else None
-        if f is None or not f.truth or not f.laser_on:
+        i = int(fr.get("frame", -1))
+        if i not in truth_at or i in seen:  # laser off, the aimed frame, or one served twice
             continue
-        vis = metrics.visible_rows(scan.truth_rows(f, scan.target_id))
-        truth = {int(v["row"]): float(v["column"]) for v in vis}
-        lit += len(truth)
-        stops_lit += len(truth) >= MEASURABLE_ROWS
+        seen.add(i)
+        truth = truth_at[i]
 
         def on(row: float, col: float | None) -> bool:
             r = int(round(row))
             return col is not None and r in truth and abs(truth[r] - col) <= ON_TARGET_PX
 
-        rows = {int(x[0]) for x in fr.get("rows", []) if on(x[0], x[1])}
+        rows = {int(x[0]) for x in fr.get("rows", []) if x[3] in FOUND_STATUS and on(x[0], x[1])}
         rows |= {int(round(x[0])) for x in fr.get("arc", []) if on(x[0], x[1])}
         found += len(rows)
         for x in fr.get("kept", []):
             kept += on(x[0], x[1])
             kept_off += not on(x[0], x[1])
-    cause = MISS_CAUSES[0] if stops_lit == 0 else MISS_CAUSES[1] if 3 * found < lit else MISS_CAUSES[2]
+    if not processed.get("frames"):
+        cause = MISS_CAUSES[3]
+    else:
+        cause = MISS_CAUSES[0] if stops_lit == 0 else MISS_CAUSES[1] if 3 * found < lit else MISS_CAUSES[2]
     return {"cause": cause, "lit_rows": lit, "stops_lit": stops_lit, "found_rows": found, "kept_on": kept,
             "kept_off": kept_off}
 
@@ -511,9 +527,10 @@ RULES = [
     "each scan beyond 20 mm with its scene, what the fit took for the target (the target, a neighbour, no "
     "apple: leaves or pieces of two objects; or nothing, where no line was used and the rough position stands "
     "in) and its rival (`-- --fit-when-far-from-rough` compares the rule "
-    "above), and why it missed, from the truth at the stops the scan took: not lit (no stop lit 8 or more of "
-    "the target's visible rows), lit but not found (the LLE's rows and the sunlit arcs found under a third of "
-    "the lit rows), or found but not taken (another object's fit, or the rough position, went out); "
+    f"above), and why it missed, from the truth at the stops the scan took: not lit (no stop lit {MEASURABLE_ROWS} "
+    "or more of the target's visible rows), lit but not found (the LLE's valid samples and the sunlit arcs lay "
+    "on under a third of the lit rows), or found but not taken (on a third or more, and what went out is still "
+    "beyond 20 mm: another object's fit, the rough position, or a poor fit of the target); "
     "`alacs-twin render --truth FILE` writes the truth at any other slide position. "
     "Both refuse `--world holdout`.",
 ]
