@@ -33,6 +33,10 @@ Status writeText(const std::string& path, const std::string& text) {
 }
 }  // namespace
 
+Status writeTruthCsv(const SimScene& scene, double slideMm, const std::string& path) {
+  return writeText(path, truthCsv(scene, slideMm));
+}
+
 Status exportScan(const SimScene& scene, const std::shared_ptr<const RayTable>& rays, const std::string& dir,
                   replay::ScanInfo info, const std::vector<ExportFrame>& frames, const ExportOptions& options) {
   info.widthPx = scene.truth.camera.widthPx;
@@ -94,7 +98,7 @@ Status exportScan(const SimScene& scene, const std::shared_ptr<const RayTable>& 
       char name[64];
       std::snprintf(name, sizeof name, "truth/frame_%04d.csv", w->frameCount());
       rec.truthFile = name;
-      if (Status s = writeText(dir + "/" + rec.truthFile, truthCsv(scene, rec.slideMm)); !s) return s;
+      if (Status s = writeTruthCsv(scene, rec.slideMm, dir + "/" + rec.truthFile); !s) return s;
     }
     if (Status s = w->addCrop(crop, image::Roi{region.x, region.y, region.width, region.height}, rec); !s) return s;
   }

@@ -45,5 +45,7 @@ Status exportScan(const SimScene& scene, const std::shared_ptr<const RayTable>& 
 
 // Truth rows of one frame as CSV: apple_id,row,column_px,x_mm,y_mm,z_mm,flags (board: -1).
 std::string truthCsv(const SimScene& scene, double slideMm);
+// truthCsv written to `path`. Errors: kIo.
+Status writeTruthCsv(const SimScene& scene, double slideMm, const std::string& path);
 
 }  // namespace alacs::sim

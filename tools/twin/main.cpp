@@ -216,12 +216,8 @@ int renderMain(const Args& args) {
   // which slide positions would light a hidden fruit, for diagnosis.
   const std::string truthPath = args.str("truth");
   if (!truthPath.empty()) {
-    std::FILE* f = std::fopen(truthPath.c_str(), "w");
-    const std::string csv = sim::truthCsv(scene, 0.5 * (req.slideStartMm + req.slideEndMm));
-    const bool written = f && std::fwrite(csv.data(), 1, csv.size(), f) == csv.size();
-    if (f) std::fclose(f);
-    if (!written) {
-      std::fprintf(stderr, "alacs-twin: cannot write '%s'\n", truthPath.c_str());
+    if (Status s = sim::writeTruthCsv(scene, 0.5 * (req.slideStartMm + req.slideEndMm), truthPath); !s) {
+      std::fprintf(stderr, "alacs-twin: %s\n", s.toString().c_str());
       return 1;
     }
   }

@@ -271,11 +271,10 @@ def run_loc(cfg: Config, per_cell: int = 40) -> dict[str, Any]:
     misses = sorted((x for x in res if x["approach"] > LOC_MISS_MM), key=lambda x: -x["approach"])
     # The misses again, with every row the LLE gave and the 3D gate kept, against the truth.
     by_case = {c["case"]: c["dir"] for c in cases}
-    detail = twin.process(cfg.twin, [by_case[x["case"]] for x in misses], cfg.jobs, f"{cfg.world}: the misses' rows",
-                          rows=True, quiet=cfg.quiet, extra=both + cfg.process_args) if misses else {}
+    why = worlds.explain_misses(cfg.twin, [by_case[x["case"]] for x in misses], cfg.jobs,
+                                f"{cfg.world}: the misses' rows", cfg.quiet, extra=both + cfg.process_args)
     for x in misses:
-        d = by_case[x["case"]]
-        x.update(worlds.miss_cause(Scan.load(d), detail.get(d, {})))
+        x.update(why[by_case[x["case"]]])
     cells = {}
     for occ in (False, True):
         for dist in evaluate.DISTANCES:

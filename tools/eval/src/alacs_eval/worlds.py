@@ -175,14 +175,21 @@ MEASURABLE_LINES = 2
 MEASURABLE_ROWS = 8
 
 
+def _stop_truths(scan: Scan) -> dict[int, dict[int, float]]:
+    """The target's visible, laser-lit truth rows (row: column) at each of the scan's stops
+    (both passes, not the aimed frame), by frame index."""
+    out = {}
+    for i, f in enumerate(scan.frames):
+        if f.laser_on and f.truth and f.tag != "aimed":
+            vis = metrics.visible_rows(scan.truth_rows(f, scan.target_id))
+            out[i] = {int(v["row"]): float(v["column"]) for v in vis}
+    return out
+
+
 def _lit_lines(scan: Scan) -> int:
     """The scan's stops (both passes, not the aimed frame) that light MEASURABLE_ROWS or more
     visible rows of the target."""
-    n = 0
-    for f in scan.frames:
-        if f.laser_on and f.truth and f.tag != "aimed":
-            n += int(len(metrics.visible_rows(scan.truth_rows(f, scan.target_id))) >= MEASURABLE_ROWS)
-    return n
+    return sum(len(t) >= MEASURABLE_ROWS for t in _stop_truths(scan).values())
 
 
 # Why a scan missed (beyond 20 mm, or no result), from the truth at the stops it took.
@@ -205,13 +212,8 @@ def miss_cause(scan: Scan, processed: dict) -> dict[str, Any]:
     rows the LLE found there (`processed`, the scan's `alacs-twin process --rows` line: a valid
     sample of any segment, or of the sunlit arc search, within ON_TARGET_PX), samples the 3D
     gate kept on it and off it; and the cause of a miss that follows (MISS_CAUSES)."""
-    truth_at: dict[int, dict[int, float]] = {}
-    stops_lit = 0
-    for i, f in enumerate(scan.frames):
-        if f.laser_on and f.truth and f.tag != "aimed":
-            vis = metrics.visible_rows(scan.truth_rows(f, scan.target_id))
-            truth_at[i] = {int(v["row"]): float(v["column"]) for v in vis}
-            stops_lit += len(vis) >= MEASURABLE_ROWS
+    truth_at = _stop_truths(scan)
+    stops_lit = sum(len(t) >= MEASURABLE_ROWS for t in truth_at.values())
     lit = sum(len(t) for t in truth_at.values())
     found = kept = kept_off = 0
     seen: set[int] = set()
@@ -238,6 +240,14 @@ def miss_cause(scan: Scan, processed: dict) -> dict[str, Any]:
         cause = MISS_CAUSES[0] if stops_lit == 0 else MISS_CAUSES[1] if 3 * found < lit else MISS_CAUSES[2]
     return {"cause": cause, "lit_rows": lit, "stops_lit": stops_lit, "found_rows": found, "kept_on": kept,
             "kept_off": kept_off}
+
+
+def explain_misses(twin_path: Path, dirs: list[str], jobs: int, desc: str, quiet: bool,
+                   **process: Any) -> dict[str, dict[str, Any]]:
+    """miss_cause of each scan directory, from its `alacs-twin process --rows` line (`process`:
+    further options of twin.process, as the scans were processed)."""
+    detail = twin.process(twin_path, dirs, jobs, desc, rows=True, quiet=quiet, **process) if dirs else {}
+    return {d: miss_cause(Scan.load(d), detail.get(d, {})) for d in dirs}
 
 
 def _loc(cfg: Config, world: str, cases: list[dict]) -> tuple[dict[str, Any], list[dict]]:
@@ -279,11 +289,10 @@ def _loc(cfg: Config, world: str, cases: list[dict]) -> tuple[dict[str, Any], li
     # The misses again, with every row the LLE gave and the 3D gate kept, against the truth.
     missed = [r for r, c in zip(rows, cases) if not r["approach"] <= metrics.TOLERANCE_MM]
     by_case = {c["case"]: c["dir"] for c in cases}
-    detail = twin.process(cfg.twin, [by_case[r["case"]] for r in missed], cfg.jobs, f"{world}: the misses' rows",
-                          rows=True, quiet=cfg.quiet, other_object_prior=cfg.other_object_prior) if missed else {}
+    why = explain_misses(cfg.twin, [by_case[r["case"]] for r in missed], cfg.jobs, f"{world}: the misses' rows",
+                         cfg.quiet, other_object_prior=cfg.other_object_prior)
     for r in missed:
-        d = by_case[r["case"]]
-        r["miss"] = miss_cause(Scan.load(d), detail.get(d, {}))["cause"]
+        r["miss"] = why[by_case[r["case"]]]["cause"]
     return _loc_summary(rows), rows
 
 
