@@ -84,7 +84,8 @@ struct SphereFit {
 constexpr double kRivalSeparationMm = 20.0;
 
 // Fits without knowing lines or pieces (all points one piece, random samples only).
-// Errors: kBadInput (too few points or inliers), kOutOfRange (the radius is not a fruit's).
+// Errors: kBadInput (too few points or inliers), kOutOfRange (the radius is larger than any
+// fruit's; a smaller one is held at minRadiusMm, see finish() in sphere_fit.cpp).
 Result<SphereFit> fitSphere(const std::vector<Eigen::Vector3d>& pointsMm, const SphereFitParams& p = {});
 
 // `lineIds[i]` names the laser line of point i; `groupIds[i]` its piece (unique across

@@ -91,9 +91,9 @@ TEST_CASE("An object whose refinement fails does not end the search for the targ
 TEST_CASE("A cap that curves tighter than any fruit is held at the smallest fruit's radius", "[geometry][sphere]") {
   // An oblate fruit (66 mm across, 0.7 as tall, its stem upright), 1 m away. The laser
   // planes cut its face near the equator, where it curves up and down with a radius of
-  // c²/a = 16 mm. Its face on five planes, ±60° of each cut, noiseless. The sphere that
-  // fits these cuts best is smaller than any fruit (27.5 mm); it was dropped, and one
-  // line and the priors spoke for the target.
+  // c²/a = 16 mm. Its face on five planes, each cut's ellipse from −60° to +60° of its
+  // parameter, noiseless. The sphere that fits these cuts best is smaller than any fruit
+  // (27.5 mm); it was dropped, and one line and the priors spoke for the target.
   const Eigen::Vector3d target(0.0, 0.0, 1000.0);
   const double a = 33.0;
   const double c = 0.7 * a;
@@ -113,12 +113,11 @@ TEST_CASE("A cap that curves tighter than any fruit is held at the smallest frui
   REQUIRE(fit.isOk());
   INFO("centre (" << fit->centerMm.transpose() << "), r " << fit->radiusMm << ", lines " << fit->linesUsed << ", rms "
                   << fit->rmsMm);
-  // Lines together in one sphere of the smallest fruit's radius, its face on the fruit's
-  // (the one line and the priors: 5.6 mm off).
+  // Two lines or more in one sphere of the smallest fruit's radius (the outer two: the
+  // middle ones lie up to 5 mm inside it), its face on the fruit's. Without the hold, one
+  // line and the priors spoke for it, its face 5.6 mm off.
   CHECK(fit->linesUsed >= 2);
   CHECK(fit->radiusMm == Approx(27.5).margin(1e-6));
   const Eigen::Vector3d face = fit->centerMm - fit->radiusMm * fit->centerMm.normalized();
   CHECK((face - Eigen::Vector3d(0.0, 0.0, target.z() - a)).norm() < 3.0);
-  // What the held radius costs in fit shows in σ: the residuals widen it.
-  CHECK(fit->rmsMm > 0.2);
 }
