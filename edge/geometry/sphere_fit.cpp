@@ -398,11 +398,11 @@ Result<SphereFit> finish(const std::vector<Eigen::Vector3d>& pts, const std::vec
   if (!gn.ok || gn.radius < p.minRadiusMm || gn.radius > p.maxRadiusMm) run(p.ransacBandMm, h.c, h.r, false);
   // A cap that curves tighter than any fruit of the kind is still a fruit's: an oblate
   // fruit seen at its equator, or a prolate one at its pole, curves tighter there than
-  // its radius (three of the hard cases' occluded targets were lost this way, refined 5–8 mm below
-  // the truth). The smallest fruit's radius is held and the centre refined to it; the fit's
-  // σ takes the residuals that costs. It starts from the tight sphere grown about its
-  // face (the centre moved back along the sight line), so the cap's pieces still join. A
-  // cap flatter than any fruit (a leaf) stays out.
+  // its radius (three of the hard cases' occluded targets were lost this way, refined
+  // 5–8 mm below the truth). The smallest fruit's radius is held and the centre refined
+  // to it; the residuals of the pieces that still join widen σ. It starts from the tight
+  // sphere grown about its face (the centre moved back along the sight line), so the
+  // cap's pieces still join. A cap flatter than any fruit (a leaf) stays out.
   if (gn.ok && gn.radius < p.minRadiusMm && gn.c.norm() > 0.0)
     run(wideBandMm, gn.c + (p.minRadiusMm - gn.radius) * gn.c.normalized(), p.minRadiusMm, true);
   if (!gn.ok) return Status(Error::kBadInput, "sphere fit lost its points");

@@ -287,7 +287,7 @@ def _loc(cfg: Config, world: str, cases: list[dict]) -> tuple[dict[str, Any], li
                         "confidence": 0.0, "lines": 0, "sphere": False, "doubt": e.get("error", "none")})
         rows.append(row)
     # The misses again, with every row the LLE gave and the 3D gate kept, against the truth.
-    missed = [r for r, c in zip(rows, cases) if not r["approach"] <= metrics.TOLERANCE_MM]
+    missed = [r for r in rows if not r["approach"] <= metrics.TOLERANCE_MM]
     by_case = {c["case"]: c["dir"] for c in cases}
     why = explain_misses(cfg.twin, [by_case[r["case"]] for r in missed], cfg.jobs, f"{world}: the misses' rows",
                          cfg.quiet, other_object_prior=cfg.other_object_prior)
