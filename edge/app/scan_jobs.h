@@ -58,6 +58,7 @@ struct WorkerEvent {
   int64_t exposureUs = 0;
   int laserOffFrames = 0;
   bool laserOffSubtracted = false;
+  bool brightAmbient = false;  // the metering found the ambient bright (MeteringDecision::bright)
   // A continuous scan's result is posted as soon as it is known, while the slide still
   // brakes past the last stop; if that braking then ends badly (limit switch, I/O error,
   // STOP), a second event of the same job follows with this set: the result stands, only

@@ -532,7 +532,14 @@ WorkerEvent ScanWorker::doLocalize(const WorkerJob& job) {
   if (!est) {
     ev.status = Status::ok();  // the scan worked; there was no apple where we were told
     ev.resultStatus = protocol::ResultStatus::kNotFound;
-    ev.resultReason = lines.empty() ? protocol::ResultReason::kNoLinesInGate : protocol::ResultReason::kFitFailed;
+    // No stop put a point in the gate (a stop's line may be there without one: on nothing,
+    // or outside the gate); under direct sun that is most likely the sun's doing.
+    const bool anyPoint = std::any_of(lines.begin(), lines.end(), [](const localize::LineObservation& l) {
+      return !l.pointsMm.empty() || !l.arcPointsMm.empty();
+    });
+    ev.resultReason = anyPoint           ? protocol::ResultReason::kFitFailed
+                      : ev.brightAmbient ? protocol::ResultReason::kBrightAmbient
+                                         : protocol::ResultReason::kNoLinesInGate;
     return ev;
   }
   ev.estimates.push_back(*est);
@@ -540,7 +547,7 @@ WorkerEvent ScanWorker::doLocalize(const WorkerJob& job) {
   // a measurement (docs/can-protocol.md, ROUGH_ONLY).
   // A fit that is more likely another object than the target goes out as AMBIGUOUS with its
   // reason: the best guess, its σ and a low confidence (app/result_status.h).
-  const ResultClass rc = classifyEstimate(*est);
+  const ResultClass rc = classifyEstimate(*est, ev.brightAmbient);
   ev.resultStatus = rc.status;
   ev.resultReason = rc.reason;
   ev.status = Status::ok();
@@ -580,6 +587,7 @@ void ScanWorker::meterExposure(const localize::ScanPlan& plan, ports::CaptureReq
   const localize::MeteringDecision& d = run.decision;
   capture.exposureUs = d.exposureUs;
   ev.exposureUs = d.exposureUs;
+  ev.brightAmbient = d.bright;
   if (run.hasLaserOff) {
     pipeline_.setLaserOff(run.laserOff.view, plan.roi);
     ev.laserOffSubtracted = true;

@@ -76,6 +76,7 @@ Status ExposureMeter::add(const image::ImageView& frame, const image::Roi& roi, 
     // the shortest exposure allow; else guess it one step further down and say so.
     const int64_t shorter = std::max(p_.minExposureUs, roundUs(us / p_.stepDown));
     d.saturated = true;
+    d.bright = *level * 1000.0 / us >= p_.brightDnPerMs;
     d.exposureUs = std::clamp(roundUs(us * p_.targetDn / (*level * p_.stepDown)), p_.minExposureUs, maxUs_);
     d.ambientDn = p_.targetDn;
     d.subtract = d.ambientDn > p_.subtractAboveDn;
@@ -83,7 +84,8 @@ Status ExposureMeter::add(const image::ImageView& frame, const image::Roi& roi, 
     return Status::ok();
   }
   d.saturated = false;
-  const bool bright = *level * 1000.0 / us >= p_.brightDnPerMs;
+  d.bright = *level * 1000.0 / us >= p_.brightDnPerMs;
+  const bool bright = d.bright;
   // Not bright: never longer than the first metering frame as taken (the start; a replayed
   // camera reports the exposure it recorded, so a replay decides as the scan did).
   const int64_t longest = bright ? maxUs_ : std::min(maxUs_, firstUs_);

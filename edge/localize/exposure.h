@@ -61,6 +61,9 @@ struct MeteringDecision {
   int64_t meteredUs = 0;   // that frame's exposure
   int frames = 0;          // metering frames used
   bool saturated = false;  // every metering frame was saturated (the level is a bound)
+  // The ambient's red grows by MeteringParams::brightDnPerMs or more (direct sun on the
+  // twin): the laser line is weak against it. Clipped, the rate is a lower bound.
+  bool bright = false;
 };
 
 // The `percentile` (%) of the red values of `roi` in `frame` (its pixel format says which

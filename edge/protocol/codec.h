@@ -112,9 +112,20 @@ enum class ResultStatus : uint8_t {
 // ALACS_ResultHeader.ResultReason: why a result is not kMeasured (kNone when it is;
 // kOutsideGate with kMeasured: found by the widened search, away from the rough position).
 enum class ResultReason : uint8_t {
-  kNone = 0, kNoLinesInGate = 1, kTooFewLines = 2, kFitFailed = 3, kTwoSurfaces = 4, kFarFromRough = 5,
-  kCameraFault = 6, kMotionFault = 7, kLaserFault = 8, kStopped = 9, kShutdown = 10, kInternal = 11,
+  kNone = 0,
+  kNoLinesInGate = 1,
+  kTooFewLines = 2,
+  kFitFailed = 3,
+  kTwoSurfaces = 4,
+  kFarFromRough = 5,
+  kCameraFault = 6,
+  kMotionFault = 7,
+  kLaserFault = 8,
+  kStopped = 9,
+  kShutdown = 10,
+  kInternal = 11,
   kOutsideGate = 12,
+  kBrightAmbient = 13,
 };
 
 struct ResultHeader {

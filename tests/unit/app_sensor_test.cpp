@@ -854,7 +854,8 @@ TEST_CASE("Sensor: every result that is not a measurement says why", "[app][sens
   };
   SECTION("the worker's reasons pass through") {
     for (const Case& c : {Case{"rough only", ResultStatus::kRoughOnly, ResultReason::kTooFewLines},
-                          Case{"nothing in the gate", ResultStatus::kNotFound, ResultReason::kNoLinesInGate}}) {
+                          Case{"nothing in the gate", ResultStatus::kNotFound, ResultReason::kNoLinesInGate},
+                          Case{"no line in sun", ResultStatus::kNotFound, ResultReason::kBrightAmbient}}) {
       INFO(c.name);
       Rig r;
       r.bootIdle();

@@ -353,6 +353,35 @@ TEST_CASE(
   for (const Seen& s : seen) CHECK(s.laser);
 }
 
+TEST_CASE("No stop finds a line: NOT_FOUND, named BRIGHT_AMBIENT when the metering found the ambient bright",
+          "[app][worker]") {
+  Rig rig(2.0);
+  rig.meterHalving(1000);  // red 200 DN at 1000 us, no laser line anywhere: 200 DN/ms
+  // The calibration's frame size: each stop's frame is searched and holds nothing (an
+  // empty observation, as a real scan's); the rig's small frames are refused (none).
+  DarkCamera full(rig.time, rig.time, 2048, 1536);
+  full.setRed(200);
+  const localize::Localizer loc(sim::defaultScene().truth, image::LleParams{}, localize::ScanParams{});
+  for (const auto& [camera, barDnPerMs] : {std::pair{&rig.camera, 250.0}, std::pair{&rig.camera, 150.0},
+                                           std::pair{&full, 250.0}, std::pair{&full, 150.0}}) {
+    const bool bright = barDnPerMs < 200.0;
+    INFO((camera == &full ? "full frames" : "refused frames") << ", bright above " << barDnPerMs << " DN/ms");
+    rig.deps.camera = camera;
+    rig.deps.metering.brightDnPerMs = barDnPerMs;
+    app::ScanWorker worker(rig.deps, loc, rig.efd);
+    rig.home(worker);
+    worker.submit(twoStopScan());
+    std::optional<app::WorkerEvent> ev = rig.next(worker);
+    REQUIRE(ev);
+    CHECK(ev->status.isOk());  // the scan worked; it found nothing
+    CHECK(ev->exposures.size() == 2);
+    CHECK(ev->resultStatus == protocol::ResultStatus::kNotFound);
+    CHECK(ev->brightAmbient == bright);
+    CHECK(ev->resultReason ==
+          (bright ? protocol::ResultReason::kBrightAmbient : protocol::ResultReason::kNoLinesInGate));
+  }
+}
+
 TEST_CASE("A sweep meters its exposure while the slide runs up to the first stop, or while it is positioned there",
           "[app][worker]") {
   // Long exposures, so that the metering lasts long enough for steps: 20 ms, then the laser-off

@@ -104,6 +104,7 @@ TEST_CASE("A saturated metering frame steps down and meters again, a bounded num
   CHECK(meter.decision().exposureUs == 960);  // 750 · 128 / 100
   CHECK(meter.decision().frames == 2);
   CHECK_FALSE(meter.decision().saturated);
+  CHECK_FALSE(meter.decision().bright);  // 100 DN in 750 us: 133 DN/ms
 
   // Clipped every time: three frames, then a guess one step below the last, flagged.
   localize::ExposureMeter always(p, 3000);
@@ -114,6 +115,7 @@ TEST_CASE("A saturated metering frame steps down and meters again, a bounded num
   }
   CHECK(frames == 3);
   CHECK(always.decision().saturated);
+  CHECK(always.decision().bright);            // at least 255 DN in 188 us: over 1300 DN/ms
   CHECK(always.decision().meteredUs == 188);  // 3000 / 4 / 4, rounded
   CHECK(always.decision().exposureUs == 24);  // 188 · 128 / (255 · 4)
   // ... and never below the shortest exposure.
@@ -146,6 +148,7 @@ TEST_CASE("Bright ambient lengthens the exposure up to the target, dim ambient n
   REQUIRE(sun.add(f.view, kRoi, 100));
   CHECK(sun.decision().exposureUs == 220);
   CHECK(sun.decision().ambientDn == 220);
+  CHECK(sun.decision().bright);  // what a scan that finds no line then names (BRIGHT_AMBIENT)
   localize::ExposureMeter capped(p, 100, 150);
   REQUIRE(capped.add(f.view, kRoi, 100));
   CHECK(capped.decision().exposureUs == 150);
@@ -155,6 +158,7 @@ TEST_CASE("Bright ambient lengthens the exposure up to the target, dim ambient n
   REQUIRE(lab.add(f.view, kRoi, 1000));
   CHECK(lab.decision().exposureUs == 1000);
   CHECK(lab.lastFrameAtDecision());
+  CHECK_FALSE(lab.decision().bright);
 }
 
 TEST_CASE("Metering off asks for no frame and keeps the configured exposure", "[exposure]") {

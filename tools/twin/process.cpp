@@ -203,6 +203,7 @@ int processMain(const Args& args) {
         o["exposure_us"] = metered.decision.exposureUs;
         o["laser_off_frames"] = metered.laserOffFrames;
         o["laser_off_subtracted"] = !metered.laserOff.empty();
+        o["bright_ambient"] = metered.decision.bright;  // what names a scan with no line BRIGHT_AMBIENT
         if (!metered.note.empty()) o["metering"] = metered.note;
         const image::ImageView laserOffView{metered.laserOff.data, metered.laserOff.cols, metered.laserOff.rows,
                                             metered.laserOff.step[0], image::PixelFormat::kBgr888};

@@ -100,7 +100,8 @@ CONTRACT_CHOICES: dict[tuple[str, str], dict[int, str]] = {
     ("ALACS_ResultHeader", "ResultReason"): {
         0: "NONE", 1: "NO_LINES_IN_GATE", 2: "TOO_FEW_LINES", 3: "FIT_FAILED",
         4: "TWO_SURFACES", 5: "FAR_FROM_ROUGH", 6: "CAMERA_FAULT", 7: "MOTION_FAULT",
-        8: "LASER_FAULT", 9: "STOPPED", 10: "SHUTDOWN", 11: "INTERNAL", 12: "OUTSIDE_GATE"},
+        8: "LASER_FAULT", 9: "STOPPED", 10: "SHUTDOWN", 11: "INTERNAL", 12: "OUTSIDE_GATE",
+        13: "BRIGHT_AMBIENT"},
     ("ALACS_Ack", "NackDetail"): {
         0: "NONE", 1: "STROKE", 2: "DEPTH", 3: "LATERAL", 4: "FRAME", 5: "CROSS_FIELD",
         6: "SPACING_X_STOPS", 7: "MODE", 8: "EXPOSURE", 9: "BRCE_STEP", 10: "SCAN_STOPS",

@@ -17,6 +17,7 @@ import pytest
 from test_cli import FakeSensor, run_cli
 
 import alacs_can
+from alacs_can.doctables import MEANINGS
 from alacs_cli import envelope, main as cli_main
 from alacs_cli.main import (EXIT_BROKEN_PIPE, EXIT_INTERRUPTED, EXIT_OK, EXIT_REJECTED,
                             EXIT_TIMEOUT, EXIT_USAGE, expected_scan_s, main)
@@ -28,7 +29,8 @@ LOCALIZE = ("localize", "--x", "0", "--y", "0", "--z", "1200")
 
 @pytest.mark.parametrize(("status", "reason"), [
     ("ROUGH_ONLY", "TOO_FEW_LINES"), ("AMBIGUOUS", "TWO_SURFACES"),
-    ("NOT_FOUND", "NO_LINES_IN_GATE"), ("FAILED", "CAMERA_FAULT"), ("ABORTED", "STOPPED")])
+    ("NOT_FOUND", "NO_LINES_IN_GATE"), ("NOT_FOUND", "BRIGHT_AMBIENT"), ("FAILED", "CAMERA_FAULT"),
+    ("ABORTED", "STOPPED")])
 def test_every_status_but_measured_fails_and_says_why(
         sensor: FakeSensor, channel: str, capsys: pytest.CaptureFixture[str],
         status: str, reason: str) -> None:
@@ -36,7 +38,10 @@ def test_every_status_but_measured_fails_and_says_why(
     rc, out = run_cli(channel, *LOCALIZE, "--timeout", "3")
     assert rc == EXIT_REJECTED, out
     assert f"{status} ({reason})" in out
-    assert f"result {status}, reason {reason}" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert f"result {status}, reason {reason}" in err
+    # ... and what the reason means, as the DBC's value table says it.
+    assert MEANINGS[alacs_can.ResultReason][reason] in err
 
 
 def test_rough_only_in_json_is_not_measured(sensor: FakeSensor, channel: str) -> None:

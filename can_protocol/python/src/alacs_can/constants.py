@@ -192,6 +192,7 @@ class ResultReason(IntEnum):
     SHUTDOWN = 10
     INTERNAL = 11
     OUTSIDE_GATE = 12
+    BRIGHT_AMBIENT = 13
 
 
 class NackDetail(IntEnum):

@@ -29,6 +29,7 @@ from cantools.database.errors import DecodeError, EncodeError
 
 import alacs_can
 from alacs_can import LocalizationResult, Opcode
+from alacs_can.doctables import MEANINGS
 
 from . import envelope
 from .link import Deadline, Decoded, Exchange, Rejected, SensorLink, Timeout
@@ -273,8 +274,11 @@ class Cli:
             return EXIT_OK
         status, reason = _name(result.status), _name(result.reason)
         meaning = RESULT_MEANING.get(str(status), "not a measurement")
-        print(f"alacs {self.args.cmd}: result {status}, reason {reason}: {meaning}",
-              file=sys.stderr)
+        # What the reason means and what to do about it: the DBC's value table's own text
+        # (docs/can-protocol.md).
+        why = MEANINGS[alacs_can.ResultReason].get(str(reason), "")
+        print(f"alacs {self.args.cmd}: result {status}, reason {reason}: {meaning}"
+              + (f" ({why})" if why and reason != "NONE" else ""), file=sys.stderr)
         return EXIT_REJECTED
 
     def stop_and_report(self, link: SensorLink, why: str) -> None:

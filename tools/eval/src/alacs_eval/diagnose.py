@@ -268,7 +268,9 @@ def run_loc(cfg: Config, per_cell: int = 40) -> dict[str, Any]:
                         "doubt": e.get("error", "none"), "fitted": "no result", "rival": "none"})
         rows.append(row)
     res = [x for x in rows if x["ok"]]
-    misses = sorted((x for x in res if x["approach"] > LOC_MISS_MM), key=lambda x: -x["approach"])
+    # Beyond 20 mm, and the scans with no result at all (listed first: nothing went out).
+    misses = sorted((x for x in rows if not x["ok"] or x["approach"] > LOC_MISS_MM),
+                    key=lambda x: -x["approach"] if x["ok"] else -math.inf)
     # The misses again, with every row the LLE gave and the 3D gate kept, against the truth.
     by_case = {c["case"]: c["dir"] for c in cases}
     why = worlds.explain_misses(cfg.twin, [by_case[x["case"]] for x in misses], cfg.jobs,
@@ -282,6 +284,7 @@ def run_loc(cfg: Config, per_cell: int = 40) -> dict[str, Any]:
             cells[f"{'occluded' if occ else 'clear'} {dist}"] = float(np.mean(sel)) if sel else math.nan
     return {
         "world": cfg.world, "seed": cfg.seed, "scans": len(rows), "results": len(res),
+        "no_result": len(rows) - len(res),
         "process_args": list(both + cfg.process_args), "cells": cells,
         "stops_missing": sum(int(raw.get(c["dir"], {}).get("follow_up_missing", 0)) for c in cases),
         "work": str(out),
@@ -312,9 +315,11 @@ def text_loc(res: dict[str, Any]) -> str:
         L.append(f"second-pass stops the scans lack: {res['stops_missing']} (the figures above are not this "
                  f"build's: delete {res['work']} to render the scans again)")
     L += ["", "worst cases:"]
-    L += [f"  {x['case']} {x['approach']:.1f} mm (first pass {x['first']:.1f}, +{x['stops']} stops), σ {x['sigma']:.1f}, "
-          f"confidence {x['confidence']:.0f} %, {x['lines']} lines, {x['doubt']}, fitted {x['fitted']}, "
-          f"rival {x['rival']}; the target's rows lit {x['lit_rows']} (stops lit {x['stops_lit']}), found "
+    L += [f"  {x['case']} " + (f"{x['approach']:.1f} mm (first pass {x['first']:.1f}, +{x['stops']} stops), "
+                                 f"σ {x['sigma']:.1f}, confidence {x['confidence']:.0f} %, {x['lines']} lines, "
+                                 f"{x['doubt']}, fitted {x['fitted']}, rival {x['rival']}" if x["ok"] else
+                                 f"no result (+{x['stops']} stops): {x['doubt']}")
+          + f"; the target's rows lit {x['lit_rows']} (stops lit {x['stops_lit']}), found "
           f"{x['found_rows']}, kept {x['kept_on']} (other rows kept {x['kept_off']}): {x['note']}"
           for x in res["misses"]]
     return "\n".join(L)
