@@ -15,23 +15,18 @@ struct ResultClass {
 
 // - no sphere fit: ROUGH_ONLY, TOO_FEW_LINES (the rough position or one line: never a
 //   measurement); FAR_FROM_ROUGH when it is the rough position because the fit was more
-//   likely another object (ScanParams::roughWhenFarFromRough); BRIGHT_AMBIENT when it is
-//   the rough position because no line reached the fit and `brightAmbient` (the metering
-//   found direct sun: localize::MeteringDecision::bright), the likeliest cause;
+//   likely another object (ScanParams::roughWhenFarFromRough);
 // - a fit more likely another object than the target: AMBIGUOUS, with FAR_FROM_ROUGH or
 //   TWO_SURFACES (the best guess still goes out, at its σ and low confidence);
 // - a fit of the widened search: MEASURED, OUTSIDE_GATE;
 // - otherwise MEASURED, NONE.
-inline ResultClass classifyEstimate(const localize::AppleEstimate& est, bool brightAmbient = false) {
+inline ResultClass classifyEstimate(const localize::AppleEstimate& est) {
   using localize::AppleEstimate;
   using protocol::ResultReason;
   using protocol::ResultStatus;
-  if (!est.sphereFit) {
-    if (est.doubt == AppleEstimate::Doubt::kFarFromRough)
-      return {ResultStatus::kRoughOnly, ResultReason::kFarFromRough};
-    return {ResultStatus::kRoughOnly,
-            brightAmbient && est.linesUsed == 0 ? ResultReason::kBrightAmbient : ResultReason::kTooFewLines};
-  }
+  if (!est.sphereFit)
+    return {ResultStatus::kRoughOnly, est.doubt == AppleEstimate::Doubt::kFarFromRough ? ResultReason::kFarFromRough
+                                                                                       : ResultReason::kTooFewLines};
   if (est.doubt == AppleEstimate::Doubt::kTwoSurfaces) return {ResultStatus::kAmbiguous, ResultReason::kTwoSurfaces};
   if (est.doubt == AppleEstimate::Doubt::kFarFromRough) return {ResultStatus::kAmbiguous, ResultReason::kFarFromRough};
   if (est.outsideGate) return {ResultStatus::kMeasured, ResultReason::kOutsideGate};

@@ -532,14 +532,18 @@ WorkerEvent ScanWorker::doLocalize(const WorkerJob& job) {
   if (!est) {
     ev.status = Status::ok();  // the scan worked; there was no apple where we were told
     ev.resultStatus = protocol::ResultStatus::kNotFound;
-    // No stop put a point in the gate (a stop's line may be there without one: on nothing,
-    // or outside the gate); under direct sun that is most likely the sun's doing.
-    const bool anyPoint = std::any_of(lines.begin(), lines.end(), [](const localize::LineObservation& l) {
-      return !l.pointsMm.empty() || !l.arcPointsMm.empty();
-    });
-    ev.resultReason = anyPoint           ? protocol::ResultReason::kFitFailed
-                      : ev.brightAmbient ? protocol::ResultReason::kBrightAmbient
-                                         : protocol::ResultReason::kNoLinesInGate;
+    // No stop put a point in the gate (a stop's frame may hold no line at all, or one
+    // only outside the gate). None anywhere, under direct sun: most likely the sun's doing
+    // (the line too weak against sunlit skin); a line seen only beyond the gate was not.
+    const auto any = [&](auto member) {
+      return std::any_of(lines.begin(), lines.end(),
+                         [&](const localize::LineObservation& l) { return !(l.*member).empty(); });
+    };
+    const bool inGate = any(&localize::LineObservation::pointsMm) || any(&localize::LineObservation::arcPointsMm);
+    const bool beyond = any(&localize::LineObservation::outsidePointsMm);
+    ev.resultReason = inGate                        ? protocol::ResultReason::kFitFailed
+                      : ev.brightAmbient && !beyond ? protocol::ResultReason::kBrightAmbient
+                                                    : protocol::ResultReason::kNoLinesInGate;
     return ev;
   }
   ev.estimates.push_back(*est);
@@ -547,7 +551,7 @@ WorkerEvent ScanWorker::doLocalize(const WorkerJob& job) {
   // a measurement (docs/can-protocol.md, ROUGH_ONLY).
   // A fit that is more likely another object than the target goes out as AMBIGUOUS with its
   // reason: the best guess, its σ and a low confidence (app/result_status.h).
-  const ResultClass rc = classifyEstimate(*est, ev.brightAmbient);
+  const ResultClass rc = classifyEstimate(*est);
   ev.resultStatus = rc.status;
   ev.resultReason = rc.reason;
   ev.status = Status::ok();

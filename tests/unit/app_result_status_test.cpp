@@ -41,21 +41,6 @@ TEST_CASE("Result status: each kind of estimate says what it is", "[app][result]
     CHECK(rc.status == ResultStatus::kRoughOnly);
     CHECK(rc.reason == ResultReason::kTooFewLines);
   }
-  SECTION("the rough position where no line reached the fit in direct sun names the sun") {
-    est.sphereFit = false;
-    est.linesUsed = 0;  // the rough position stands in
-    CHECK(app::classifyEstimate(est, false).reason == ResultReason::kTooFewLines);
-    const app::ResultClass rc = app::classifyEstimate(est, true);
-    CHECK(rc.status == ResultStatus::kRoughOnly);
-    CHECK(rc.reason == ResultReason::kBrightAmbient);
-    // One line was seen: too few, whatever the light.
-    est.linesUsed = 1;
-    CHECK(app::classifyEstimate(est, true).reason == ResultReason::kTooFewLines);
-    // A fit set aside as another object keeps that reason in sun too.
-    est.linesUsed = 0;
-    est.doubt = localize::AppleEstimate::Doubt::kFarFromRough;
-    CHECK(app::classifyEstimate(est, true).reason == ResultReason::kFarFromRough);
-  }
   SECTION("the rough position in place of a fit that was another object says why") {
     est.sphereFit = false;
     est.doubt = localize::AppleEstimate::Doubt::kFarFromRough;

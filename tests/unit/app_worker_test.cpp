@@ -362,23 +362,27 @@ TEST_CASE("No stop finds a line: NOT_FOUND, named BRIGHT_AMBIENT when the meteri
   DarkCamera full(rig.time, rig.time, 2048, 1536);
   full.setRed(200);
   const localize::Localizer loc(sim::defaultScene().truth, image::LleParams{}, localize::ScanParams{});
-  for (const auto& [camera, barDnPerMs] : {std::pair{&rig.camera, 250.0}, std::pair{&rig.camera, 150.0},
-                                           std::pair{&full, 250.0}, std::pair{&full, 150.0}}) {
-    const bool bright = barDnPerMs < 200.0;
-    INFO((camera == &full ? "full frames" : "refused frames") << ", bright above " << barDnPerMs << " DN/ms");
-    rig.deps.camera = camera;
-    rig.deps.metering.brightDnPerMs = barDnPerMs;
-    app::ScanWorker worker(rig.deps, loc, rig.efd);
-    rig.home(worker);
-    worker.submit(twoStopScan());
-    std::optional<app::WorkerEvent> ev = rig.next(worker);
-    REQUIRE(ev);
-    CHECK(ev->status.isOk());  // the scan worked; it found nothing
-    CHECK(ev->exposures.size() == 2);
-    CHECK(ev->resultStatus == protocol::ResultStatus::kNotFound);
-    CHECK(ev->brightAmbient == bright);
-    CHECK(ev->resultReason ==
-          (bright ? protocol::ResultReason::kBrightAmbient : protocol::ResultReason::kNoLinesInGate));
+  // Stop-and-go meters before the first move, a sweep during its run-up.
+  for (const app::WorkerJob& scan : {twoStopScan(), threeStopSweep()}) {
+    for (const auto& [camera, barDnPerMs] : {std::pair{&rig.camera, 250.0}, std::pair{&rig.camera, 150.0},
+                                             std::pair{&full, 250.0}, std::pair{&full, 150.0}}) {
+      const bool bright = barDnPerMs < 200.0;
+      INFO((camera == &full ? "full frames" : "refused frames")
+           << ", bright above " << barDnPerMs << " DN/ms, " << scan.plan.stopsMm.size() << " stops");
+      rig.deps.camera = camera;
+      rig.deps.metering.brightDnPerMs = barDnPerMs;
+      app::ScanWorker worker(rig.deps, loc, rig.efd);
+      rig.home(worker);
+      worker.submit(scan);
+      std::optional<app::WorkerEvent> ev = rig.next(worker);
+      REQUIRE(ev);
+      CHECK(ev->status.isOk());  // the scan worked; it found nothing
+      CHECK(ev->exposures.size() == scan.plan.stopsMm.size());
+      CHECK(ev->resultStatus == protocol::ResultStatus::kNotFound);
+      CHECK(ev->brightAmbient == bright);
+      CHECK(ev->resultReason ==
+            (bright ? protocol::ResultReason::kBrightAmbient : protocol::ResultReason::kNoLinesInGate));
+    }
   }
 }
 

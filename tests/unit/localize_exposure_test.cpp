@@ -105,6 +105,14 @@ TEST_CASE("A saturated metering frame steps down and meters again, a bounded num
   CHECK(meter.decision().frames == 2);
   CHECK_FALSE(meter.decision().saturated);
   CHECK_FALSE(meter.decision().bright);  // 100 DN in 750 us: 133 DN/ms
+  // Bright is the last frame's: clipped at 3000 us says only "85 DN/ms or more", the
+  // frame after it 200 DN in 750 us, 267 DN/ms.
+  localize::ExposureMeter sunny(p, 3000);
+  REQUIRE(sunny.add(clipped.view, kRoi, 3000));
+  CHECK_FALSE(sunny.decision().bright);
+  Frame bright(64, 32, kRoi, 200);
+  REQUIRE(sunny.add(bright.view, kRoi, 750));
+  CHECK(sunny.decision().bright);
 
   // Clipped every time: three frames, then a guess one step below the last, flagged.
   localize::ExposureMeter always(p, 3000);

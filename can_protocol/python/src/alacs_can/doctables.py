@@ -115,12 +115,11 @@ MEANINGS: dict[type[IntEnum], dict[str, str]] = {
         "INTERNAL": "internal error",
         "OUTSIDE_GATE": "MEASURED, but found by the widened search outside the gate around the "
                         "rough position: check it is the fruit you meant (confidence is capped)",
-        "BRIGHT_AMBIENT": "no laser line reached the fit (NOT_FOUND: no stop found one in the gate; "
-                          "ROUGH_ONLY: the rough position stands in), and the metering found the "
-                          "ambient light bright (direct sun: its red grows by "
-                          "`metering.bright_dn_per_ms` or more): the line is most likely too weak "
-                          "against sunlit skin. Shade the fruit, scan again when the sun is off it, "
-                          "or fit the laser's band-pass filter",
+        "BRIGHT_AMBIENT": "NOT_FOUND: no stop found a laser line (none in the gate, none beyond it), "
+                          "and the metering found the ambient light bright (direct sun: its red "
+                          "grows by `metering.bright_dn_per_ms` or more): the line is most likely "
+                          "too weak against sunlit skin. Shade the fruit, scan again when the sun is "
+                          "off it, or fit the laser's band-pass filter",
     },
     c.ResultMode: {
         "LOCALIZE": "the result of a LOCALIZE",

@@ -274,11 +274,11 @@ class Cli:
             return EXIT_OK
         status, reason = _name(result.status), _name(result.reason)
         meaning = RESULT_MEANING.get(str(status), "not a measurement")
-        # What the reason means and what to do about it: the DBC's value table's own text
-        # (docs/can-protocol.md).
-        why = MEANINGS[alacs_can.ResultReason].get(str(reason), "")
+        # What the reason means and what to do about it: the value table's own text in
+        # docs/can-protocol.md, without its Markdown.
+        why = MEANINGS[alacs_can.ResultReason].get(str(reason), "").replace("`", "").replace("**", "")
         print(f"alacs {self.args.cmd}: result {status}, reason {reason}: {meaning}"
-              + (f" ({why})" if why and reason != "NONE" else ""), file=sys.stderr)
+              + (f"; {reason}: {why}" if why and reason != "NONE" else ""), file=sys.stderr)
         return EXIT_REJECTED
 
     def stop_and_report(self, link: SensorLink, why: str) -> None:

@@ -268,14 +268,13 @@ def run_loc(cfg: Config, per_cell: int = 40) -> dict[str, Any]:
                         "doubt": e.get("error", "none"), "fitted": "no result", "rival": "none"})
         rows.append(row)
     res = [x for x in rows if x["ok"]]
-    # Beyond 20 mm, and the scans with no result at all (listed first: nothing went out).
-    misses = sorted((x for x in rows if not x["ok"] or x["approach"] > LOC_MISS_MM),
-                    key=lambda x: -x["approach"] if x["ok"] else -math.inf)
+    misses = sorted((x for x in res if x["approach"] > LOC_MISS_MM), key=lambda x: -x["approach"])
+    none = [x for x in rows if not x["ok"]]  # no result at all: nothing went out
     # The misses again, with every row the LLE gave and the 3D gate kept, against the truth.
     by_case = {c["case"]: c["dir"] for c in cases}
-    why = worlds.explain_misses(cfg.twin, [by_case[x["case"]] for x in misses], cfg.jobs,
+    why = worlds.explain_misses(cfg.twin, [by_case[x["case"]] for x in misses + none], cfg.jobs,
                                 f"{cfg.world}: the misses' rows", cfg.quiet, extra=both + cfg.process_args)
-    for x in misses:
+    for x in misses + none:
         x.update(why[by_case[x["case"]]])
     cells = {}
     for occ in (False, True):
@@ -295,6 +294,7 @@ def run_loc(cfg: Config, per_cell: int = 40) -> dict[str, Any]:
         "misses_by_lines": dict(sorted(Counter(x["lines"] for x in misses).items())),
         "misses_by_cause": dict(Counter(x["cause"] for x in misses).most_common()),
         "misses": misses[:cfg.worst] if cfg.worst else misses,
+        "no_result_cases": none,
     }
 
 
@@ -315,11 +315,12 @@ def text_loc(res: dict[str, Any]) -> str:
         L.append(f"second-pass stops the scans lack: {res['stops_missing']} (the figures above are not this "
                  f"build's: delete {res['work']} to render the scans again)")
     L += ["", "worst cases:"]
-    L += [f"  {x['case']} " + (f"{x['approach']:.1f} mm (first pass {x['first']:.1f}, +{x['stops']} stops), "
-                                 f"σ {x['sigma']:.1f}, confidence {x['confidence']:.0f} %, {x['lines']} lines, "
-                                 f"{x['doubt']}, fitted {x['fitted']}, rival {x['rival']}" if x["ok"] else
-                                 f"no result (+{x['stops']} stops): {x['doubt']}")
-          + f"; the target's rows lit {x['lit_rows']} (stops lit {x['stops_lit']}), found "
-          f"{x['found_rows']}, kept {x['kept_on']} (other rows kept {x['kept_off']}): {x['note']}"
-          for x in res["misses"]]
+    seen = ("; the target's rows lit {lit_rows} (stops lit {stops_lit}), found {found_rows}, kept {kept_on} "
+            "(other rows kept {kept_off}), {cause}: {note}")
+    L += [f"  {x['case']} {x['approach']:.1f} mm (first pass {x['first']:.1f}, +{x['stops']} stops), "
+          f"σ {x['sigma']:.1f}, confidence {x['confidence']:.0f} %, {x['lines']} lines, {x['doubt']}, "
+          f"fitted {x['fitted']}, rival {x['rival']}" + seen.format(**x) for x in res["misses"]]
+    if res["no_result_cases"]:
+        L += ["", f"no result ({res['no_result']} scans; counted above as not within 20 mm):"]
+        L += [f"  {x['case']} (+{x['stops']} stops): {x['doubt']}" + seen.format(**x) for x in res["no_result_cases"]]
     return "\n".join(L)
