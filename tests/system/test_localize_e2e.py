@@ -13,6 +13,21 @@ import gpio_sim
 import pytest
 
 
+def test_no_line_in_direct_sun_is_named_on_the_bus(tmp_path, alacsd):
+    """Direct sun on the fruit and a laser too weak for it: no stop finds a line, and the
+    result says so with its likeliest cause (NOT_FOUND, BRIGHT_AMBIENT), decoded with the
+    committed DBC; the laser is off afterwards."""
+    sun = {"lighting": {"name": "sun", "diffuse_lux": 15000.0, "direct_lux": 75000.0},
+           "laser": {"power_mw": 1.0}}
+    ex = exchange.run_exchange(tmp_path, alacsd, seed=7, scene_extra=sun)
+    assert ex.alacsd_exit == 0, ex.alacsd_log
+    assert ex.result is not None, "no complete result on the bus:\n" + ex.alacsd_log
+    assert ex.result.status == ac.ResultStatus.NOT_FOUND, (ex.result, ex.alacsd_log)
+    assert ex.result.reason == ac.ResultReason.BRIGHT_AMBIENT, (ex.result, ex.alacsd_log)
+    assert ex.result.object_count == 0
+    assert gpio_sim.read_output("LASER") == 0
+
+
 @pytest.mark.parametrize("seed", [7, 23])
 def test_localize_over_vcan(tmp_path, alacsd, seed):
     ex = exchange.run_exchange(tmp_path, alacsd, seed=seed)

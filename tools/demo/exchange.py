@@ -84,11 +84,12 @@ def run_exchange(
     rough_error_mm: float = 15.0,
     mode: str = "STOP_AND_GO",
     extra_args: tuple[str, ...] = (),
+    scene_extra: dict | None = None,
 ) -> Exchange:
     iface = iface or os.environ.get("ALACS_CAN_IFACE", "vcan0")
     gpio_chip = gpio_chip if gpio_chip is not None else os.environ.get("ALACS_GPIO_CHIP", "")
     workdir.mkdir(parents=True, exist_ok=True)
-    scene = make_scene(seed)
+    scene = {**make_scene(seed), **(scene_extra or {})}  # e.g. the light and the laser
     scene_path = workdir / "scene.json"
     scene_path.write_text(json.dumps(scene, indent=2))
     apple = scene["apples"][0]
