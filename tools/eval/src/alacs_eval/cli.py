@@ -96,6 +96,9 @@ def _diagnose(a: argparse.Namespace) -> int:
     cfg = diagnose.Config(world=a.world, seed=a.seed, count=a.count, work=work, twin=twin.find_twin(a.twin),
                           jobs=a.jobs, process_args=extra, generate_args=gen, worst=a.worst, quiet=a.quiet)
     try:
+        if a.matched_filter:
+            print(diagnose.text_matched_filter(diagnose.matched_filter(cfg)))
+            return 0
         res = diagnose.run_loc(cfg, a.per_cell) if a.loc else diagnose.run(cfg)
     except ValueError as e:
         print(f"alacs-eval diagnose: {e}", file=sys.stderr)
@@ -150,6 +153,9 @@ def main(argv: list[str] | None = None) -> int:
     g.add_argument("--worst", type=int, default=10, help="how many of the worst frames (--loc: scans beyond 20 mm) to list")
     g.add_argument("--loc", action="store_true", help="localization: five-stop scans, the cases beyond 20 mm")
     g.add_argument("--per-cell", type=int, default=40, help="--loc: scans per distance and occlusion (default 40)")
+    g.add_argument("--matched-filter", action="store_true",
+                   help="the LLE frames: a prototype matched filter on the laser-off-subtracted red against our "
+                        "kept samples, rows found per light (docs/lle.md, \"What remains lost in sun\")")
     g.add_argument("--work", help="default build/diagnose")
     g.add_argument("--twin", help="the alacs-twin binary (default $ALACS_TWIN or the newest build/*/tools/twin)")
     g.add_argument("--jobs", type=int, default=2)

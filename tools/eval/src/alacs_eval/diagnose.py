@@ -15,6 +15,7 @@ It works on the worlds parameters may be tuned on only: the second world (`holdo
 refused, because its cases are not to be looked at while a parameter is chosen
 (docs/evaluation.md "The second world"). Extra `alacs-twin process` options (for example
 `--lle-subtracted-line-pct 20`) go after `--`, to compare settings on the same frames.
+`--matched-filter` measures a prototype detector against our kept samples (not the product).
 """
 
 from __future__ import annotations
@@ -104,7 +105,8 @@ def _refuse_second_world(world: str) -> None:
                          f"'{world}' is kept out of tuning (docs/evaluation.md \"The second world\")")
 
 
-def run(cfg: Config) -> dict[str, Any]:
+def _lle_set(cfg: Config) -> tuple[list[dict], list[str], dict[str, dict]]:
+    """The world's LLE frames (generated or reused) and `alacs-twin process --rows` on them."""
     _refuse_second_world(cfg.world)
     out = cfg.work / f"{cfg.world}-{cfg.seed}" / "lle"
     cases = twin.generate(cfg.twin, out, "lle", {"world": cfg.world, "count": cfg.count, "seed": cfg.seed,
@@ -114,6 +116,76 @@ def run(cfg: Config) -> dict[str, Any]:
     step, th = evaluate.DEFAULT_COMBO
     raw = twin.process(cfg.twin, dirs, cfg.jobs, f"{cfg.world}: our LLE", rows=True, step=step, threshold=th,
                        quiet=cfg.quiet, extra=cfg.process_args)
+    return cases, dirs, raw
+
+
+# A prototype, not the product: a matched filter across the line on the laser-off-subtracted
+# red, with hysteresis along it (docs/lle.md, "What remains lost in sun"). The kernel: a
+# Gaussian of the line's width (σ 1.5 px) less its mean over ±8 px, so that a slope of the
+# ambient left by the subtraction does not count; each row's best column, its response over
+# the row's robust σ (MAD); rows at MF_SEED σ or more start the line, rows at MF_GROW σ or
+# more join it when a row within 2 of them, already in, lies within 2 px per row apart.
+MF_SIGMA_PX, MF_HALF_PX, MF_SEED, MF_GROW = 1.5, 8, 5.0, 3.0
+
+
+def _mf_columns(diff: np.ndarray) -> dict[int, int]:
+    """Row (in `diff`) -> column of the matched filter's line (see above)."""
+    k = np.arange(-MF_HALF_PX, MF_HALF_PX + 1)
+    g = np.exp(-0.5 * (k / MF_SIGMA_PX) ** 2)
+    g -= g.mean()
+    resp = np.array([np.convolve(row, g[::-1], mode="same") for row in diff])
+    sigma = 1.4826 * np.median(np.abs(resp - np.median(resp, axis=1, keepdims=True)), axis=1) + 1e-9
+    cols = np.argmax(resp, axis=1)
+    z = resp[np.arange(len(cols)), cols] / sigma
+    taken = z >= MF_SEED
+    while True:
+        grown = taken.copy()
+        for y in np.nonzero((z >= MF_GROW) & ~taken)[0]:
+            grown[y] = any(0 <= y + dy < len(cols) and taken[y + dy] and abs(int(cols[y + dy]) - int(cols[y])) <= 2 * abs(dy)
+                           for dy in (-2, -1, 1, 2))
+        if (grown == taken).all():
+            return {int(y): int(cols[y]) for y in np.nonzero(taken)[0]}
+        taken = grown
+
+
+def matched_filter(cfg: Config) -> dict[str, Any]:
+    """Per light: the visible rows of the target that our kept samples and the prototype each
+    put within 2 px of the truth, on the frames whose laser-off frame was subtracted."""
+    cases, dirs, raw = _lle_set(cfg)
+    out: dict[str, Counter] = {}
+    for c in cases:
+        d = c["dir"]
+        s = Scan.load(d)
+        on = next(f for f in s.frames if f.laser_on)
+        off = [f for f in s.frames if not f.laser_on and f.exposure_us == on.exposure_us]
+        if not off or not raw.get(d, {}).get("laser_off_subtracted") or s.roi is None:
+            continue
+        red = lambda f: s.region(f, s.roi)[:, :, 0].astype(float)  # noqa: E731
+        x0, y0 = s.roi[0], s.roi[1]
+        mf = {y0 + y: x0 + x for y, x in _mf_columns(red(on) - red(off[-1])).items()}
+        kept = {r: col for r, (col, _) in evaluate.kept_rows(raw[d].get("frames", [{}])[0]).items()}
+        n = out.setdefault(c["lighting"], Counter())
+        for tr in metrics.visible_rows(s.truth_rows(on, s.target_id)):
+            r = int(round(tr["row"]))
+            ours = bool(r in kept and abs(kept[r] - tr["column"]) <= 2.0)
+            proto = bool(r in mf and abs(mf[r] - tr["column"]) <= 2.0)
+            n.update(rows=1, ours=int(ours), proto=int(proto), either=int(ours or proto),
+                     proto_off=int(r in mf and not proto))
+    return {"world": cfg.world, "seed": cfg.seed, "lights": {k: dict(v) for k, v in sorted(out.items())}}
+
+
+def text_matched_filter(res: dict[str, Any]) -> str:
+    L = [f"{res['world']}, seed {res['seed']}: the target's visible rows within 2 px of the truth, frames with "
+         f"the laser-off frame subtracted (a prototype matched filter against our kept samples; not the product)"]
+    for light, n in res["lights"].items():
+        pct = lambda k: 100.0 * n.get(k, 0) / max(1, n["rows"])  # noqa: E731
+        L.append(f"  {light}: rows {n['rows']}, ours {pct('ours'):.1f} %, prototype {pct('proto'):.1f} %, "
+                 f"either {pct('either'):.1f} %; the prototype's rows beyond 2 px {pct('proto_off'):.1f} %")
+    return "\n".join(L)
+
+
+def run(cfg: Config) -> dict[str, Any]:
+    cases, dirs, raw = _lle_set(cfg)
     truths, notes, line_on = {}, {}, Counter()
     for d in dirs:
         s = Scan.load(d)
