@@ -55,7 +55,7 @@ void copyRoi(const image::ImageView& frame, const image::Roi& roi, uint8_t* to) 
 }
 }  // namespace
 
-void FramePipeline::setLaserOff(const image::ImageView& frame, const image::Roi& roi) {
+void FramePipeline::setLaserOff(const image::ImageView& frame, const image::Roi& roi, bool brightAmbient) {
   (void)finish();
   std::lock_guard<std::mutex> lock(mu_);
   const size_t bytes = frame.strideBytes * static_cast<size_t>(frame.height);
@@ -65,12 +65,14 @@ void FramePipeline::setLaserOff(const image::ImageView& frame, const image::Roi&
   image::ImageView v = frame;
   v.data = laserOffBuffer_.data();
   laserOff_ = v;
+  brightAmbient_ = brightAmbient;
 }
 
 void FramePipeline::clearLaserOff() {
   (void)finish();
   std::lock_guard<std::mutex> lock(mu_);
   laserOff_.reset();
+  brightAmbient_ = false;
   laserOffBuffer_.dropPages();
 }
 
@@ -113,6 +115,7 @@ void FramePipeline::run() {
     Task task;
     image::ImageView view;
     std::optional<image::ImageView> laserOff;
+    bool bright = false;
     {
       std::unique_lock<std::mutex> lock(mu_);
       cv_.wait(lock, [&] { return quit_ || !queue_.empty(); });
@@ -122,11 +125,12 @@ void FramePipeline::run() {
       view = shape_;
       view.data = buffers_[task.buffer].data();
       laserOff = laserOff_;
+      bright = brightAmbient_;
     }
     // The localizer, plan and laser-off frame only change in begin() and setLaserOff(),
     // which first wait for this work.
-    Result<localize::LineObservation> obs =
-        localizer_->observe(view, plan_, task.slideMm, ws_, laserOff ? &*laserOff : nullptr, task.slideMmPerRow);
+    Result<localize::LineObservation> obs = localizer_->observe(
+        view, plan_, task.slideMm, ws_, laserOff ? &*laserOff : nullptr, task.slideMmPerRow, bright);
     std::lock_guard<std::mutex> lock(mu_);
     if (obs) {
       ALACS_LOG_DEBUG("scan", "frame at %.2f mm: %zu rows, %zu points", task.slideMm, obs->line.rows.size(),

@@ -31,8 +31,9 @@ class FramePipeline {
   // The laser-off frame every following frame's LLE subtracts (its `roi` copied: the
   // caller may reuse its buffer at once), until clearLaserOff(); kept across begin(), since
   // the camera is fixed and one ambient frame serves every stop of both passes. Waits for
-  // the frames already queued (they keep the previous setting).
-  void setLaserOff(const image::ImageView& frame, const image::Roi& roi);
+  // the frames already queued (they keep the previous setting). `brightAmbient`: the
+  // metering found direct sun (Localizer::observe's matched filter for the rows LLE leaves).
+  void setLaserOff(const image::ImageView& frame, const image::Roi& roi, bool brightAmbient = false);
   void clearLaserOff();
   bool hasLaserOff() const;
   // Queues `frame` (copied: the caller may reuse its buffer at once), taken at `slideMm`
@@ -80,6 +81,7 @@ class FramePipeline {
   Mapping buffers_[2];
   Mapping laserOffBuffer_;
   std::optional<image::ImageView> laserOff_;  // a view of laserOffBuffer_ when set
+  bool brightAmbient_ = false;                // with laserOff_ (setLaserOff)
   bool bufferBusy_[2] = {false, false};
   size_t lastBuffer_ = 0;
   image::ImageView shape_;  // size and format of the frames of this scan

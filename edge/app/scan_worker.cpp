@@ -593,7 +593,7 @@ void ScanWorker::meterExposure(const localize::ScanPlan& plan, ports::CaptureReq
   ev.exposureUs = d.exposureUs;
   ev.brightAmbient = d.bright;
   if (run.hasLaserOff) {
-    pipeline_.setLaserOff(run.laserOff.view, plan.roi);
+    pipeline_.setLaserOff(run.laserOff.view, plan.roi, d.bright);
     ev.laserOffSubtracted = true;
   }
   ALACS_LOG_INFO("scan",

@@ -33,6 +33,10 @@ Status LleParams::validate() const {
   if (subtractedLineThresholdPct < 10 || subtractedLineThresholdPct > 100)
     return bad(Error::kInvalidArgument, "subtractedLineThresholdPct must be in 10..100");
   if (subtractedRows != 1 && subtractedRows != 3) return bad(Error::kInvalidArgument, "subtractedRows must be 1 or 3");
+  if (!(matchedSeedSigmas >= 2.0 && matchedSeedSigmas <= 50.0))
+    return bad(Error::kInvalidArgument, "matchedSeedSigmas must be in 2..50");
+  if (!(matchedJoinSigmas >= 1.0 && matchedJoinSigmas <= matchedSeedSigmas))
+    return bad(Error::kInvalidArgument, "matchedJoinSigmas must be in 1..matchedSeedSigmas");
   if (weakLineExcessDn < 0 || weakLineExcessDn > 255)
     return bad(Error::kInvalidArgument, "weakLineExcessDn must be in 0..255");
   if (weakThresholdPct < 10 || weakThresholdPct > 100)

@@ -93,6 +93,19 @@ struct LleParams {
   // first pass would have required. With 3 rows at 15 % it gains on the tuning worlds and
   // loses on the second world: not the default (docs/lle.md, "The rerun's other segments").
   bool rerunOthersFirm = false;
+  // After that rerun of a laser-off-subtracted frame, rows with no sample at all are filled
+  // from a filter matched to the line's profile (a Gaussian of 1.5 px less its mean over
+  // ±8 px), which sums the whole profile where bRCE compares a pixel with two: a row at
+  // this many of its row's robust spread starts a run, one at matchedJoinSigmas joins a
+  // run within 2 rows whose column it continues; their rows are kSegment samples of one
+  // segment (docs/lle.md, "The sunlit line through a matched filter") (2..50).
+  // (false: off). The localizer runs it only where the metering also found the ambient
+  // bright (direct sun: Localizer::observe's brightAmbient); elsewhere a weak line's frames
+  // hold leaves and neighbours at the filter's bar as well, and the tuning worlds' fits lost
+  // as much as they gained there (docs/lle.md).
+  bool matchedFilter = true;
+  double matchedSeedSigmas = 5.0;
+  double matchedJoinSigmas = 3.0;  // (1..matchedSeedSigmas)
   int weakThresholdPct = 75; // hysteresis: candidates at this share of the strong threshold; a
                              // segment needs two rows, and a quarter of its rows, whose margin
                              // exceeds the strong threshold itself (10..100; 100: no hysteresis)

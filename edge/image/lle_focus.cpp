@@ -3,9 +3,11 @@
 #include "image/lle_focus.h"
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <cstdlib>
 #include <cstring>
+#include <limits>
 #include <type_traits>
 
 namespace alacs::image::detail {
@@ -982,6 +984,251 @@ int focusRobust(const ImageView& frame, const ImageView* laserOff, const Roi& ro
   return lineStrength(h, a, f.fitted);
 }
 
+// The matched filter's kernel: a Gaussian of the line's width (σ kMatchedSigmaPx) less its
+// mean over ±kMatchedHalfPx, in Q8 and summing to exactly zero, so that the ambient's
+// remainder after the subtraction (a slope, an offset) gives no response.
+constexpr int kMatchedHalfPx = 8;
+constexpr double kMatchedSigmaPx = 1.5;
+struct MatchedKernel {
+  std::array<int32_t, 2 * kMatchedHalfPx + 1> q8{};
+  MatchedKernel() {
+    std::array<double, 2 * kMatchedHalfPx + 1> g{};
+    double mean = 0.0;
+    for (size_t i = 0; i < g.size(); ++i) {
+      const double k = static_cast<double>(i) - kMatchedHalfPx;
+      g[i] = std::exp(-0.5 * k * k / (kMatchedSigmaPx * kMatchedSigmaPx));
+      mean += g[i] / static_cast<double>(g.size());
+    }
+    int32_t sum = 0;
+    for (size_t i = 0; i < g.size(); ++i) {
+      q8[i] = static_cast<int32_t>(std::lround(256.0 * (g[i] - mean)));
+      sum += q8[i];
+    }
+    q8[kMatchedHalfPx] -= sum;
+  }
+};
+
+// One ROI row through the matched filter: its best column (-1: none), the response there
+// over the row's robust spread (1.4826 · MAD of every response), in hundredths, and the
+// responses beside it. A column whose window holds a laser-off pixel at full scale gives no
+// response (the difference there is no measure of the line). `resp` and `sorted` hold w each.
+struct MatchedRow {
+  int x = -1;
+  int zCenti = 0;
+  int32_t left = 0, mid = 0, right = 0;  // the responses at x - 1, x, x + 1
+};
+MatchedRow matchedRow(const uint8_t* on, const uint8_t* off, int redOffset, int w, const MatchedKernel& k,
+                      int32_t* resp, int32_t* sorted) {
+  constexpr int32_t kNone = std::numeric_limits<int32_t>::min();
+  const auto ro = static_cast<size_t>(redOffset);
+  const auto red = [&](const uint8_t* f, int x) { return static_cast<int32_t>(f[static_cast<size_t>(x) * 3U + ro]); };
+  int n = 0;
+  int clipAt = -1000000;  // the last laser-off pixel at full scale up to x + half
+  for (int x = 0; x < w; ++x) {
+    resp[x] = kNone;
+    if (x + kMatchedHalfPx < w && red(off, x + kMatchedHalfPx) == 255) clipAt = x + kMatchedHalfPx;
+    if (x < kMatchedHalfPx || x + kMatchedHalfPx >= w) continue;
+    int32_t r = 0;
+    for (size_t i = 0; i < k.q8.size(); ++i) {
+      const int at = x + static_cast<int>(i) - kMatchedHalfPx;
+      r += k.q8[i] * (red(on, at) - red(off, at));
+    }
+    sorted[n++] = r;
+    if (clipAt < x - kMatchedHalfPx) resp[x] = r;
+  }
+  MatchedRow out;
+  if (n < 4) return out;
+  int32_t* mid = sorted + n / 2;
+  std::nth_element(sorted, mid, sorted + n);
+  const int32_t median = *mid;
+  for (int i = 0; i < n; ++i) sorted[i] = std::abs(sorted[i] - median);
+  std::nth_element(sorted, mid, sorted + n);
+  const double spread = 1.4826 * std::max<int32_t>(1, *mid);
+  int best = -1;
+  for (int x = kMatchedHalfPx + 1; x + kMatchedHalfPx + 1 < w; ++x)
+    if (resp[x] != kNone && (best < 0 || resp[x] > resp[best])) best = x;
+  if (best < 0 || resp[best - 1] == kNone || resp[best + 1] == kNone) return out;
+  out.x = best;
+  out.zCenti = static_cast<int>(std::lround(100.0 * (resp[best] - median) / spread));
+  out.left = resp[best - 1];
+  out.mid = resp[best];
+  out.right = resp[best + 1];
+  return out;
+}
+
+// Buffers of matchedFilterRows, per ROI row (h) or column (w).
+struct MatchedArrays {
+  int32_t* resp;    // w: a row's responses
+  int32_t* sorted;  // w: the same, for the median
+  int32_t* colQ8;   // h: the column (Q8, in the ROI) of the row's line sample or filter peak
+  int32_t* z;       // h: the peak's response over the row's spread (hundredths)
+  uint8_t* state;   // h: 0 free, 1 the line's, 2 another sample (left alone), 3 taken here
+  int32_t* run;     // h: the run the row belongs to (-1: none)
+  int32_t* stack;   // h: the walk's stack, then the smoothed columns
+};
+
+// Grows runs from the seeds (the line's rows, and free rows at `seed` or more) through free
+// rows at `join` or more: a walk over rows within 2 of each other whose columns agree within
+// `jumpQ8` (LleParams::maxJumpPx, as the LLE links its own segments). Returns the number of runs.
+int growMatchedRuns(int h, int seed, int join, int32_t jumpQ8, const MatchedArrays& a) {
+  std::fill(a.run, a.run + h, -1);
+  int runs = 0;
+  for (int y0 = 0; y0 < h; ++y0) {
+    const bool isSeed = a.state[y0] == 1 || (a.state[y0] == 0 && a.z[y0] >= seed);
+    if (!isSeed || a.run[y0] >= 0) continue;
+    int top = 0;
+    a.stack[top++] = y0;
+    a.run[y0] = runs;
+    while (top > 0) {
+      const int y = a.stack[--top];
+      for (int dy = -2; dy <= 2; ++dy) {
+        const int v = y + dy;
+        if (dy == 0 || v < 0 || v >= h || a.run[v] >= 0) continue;
+        const bool open = a.state[v] == 1 || (a.state[v] == 0 && a.z[v] >= join);
+        if (!open || std::abs(a.colQ8[v] - a.colQ8[y]) > jumpQ8) continue;
+        a.run[v] = runs;
+        a.stack[top++] = v;
+      }
+    }
+    ++runs;
+  }
+  return runs;
+}
+
+// Keeps the runs that hold a line row, or minRows free rows of their own (state 3 for their
+// free rows); then each kept row's column from the straight line through its run's rows
+// within ±smoothRows (at least 4, some on either side: no extrapolation), as the LLE smooths
+// its own rows. Returns the rows kept.
+int keepMatchedRuns(int h, int runs, int minRows, int smoothRows, const MatchedArrays& a) {
+  int kept = 0;
+  for (int r = 0; r < runs; ++r) {
+    int own = 0;
+    bool line = false;
+    for (int y = 0; y < h; ++y) {
+      if (a.run[y] != r) continue;
+      line = line || a.state[y] == 1;
+      own += a.state[y] == 0 ? 1 : 0;
+    }
+    if (own == 0 || (!line && own < minRows)) continue;
+    for (int y = 0; y < h; ++y)
+      if (a.run[y] == r && a.state[y] == 0) {
+        a.state[y] = 3;
+        ++kept;
+      }
+  }
+  for (int y = 0; y < h; ++y) {
+    if (a.state[y] != 3) continue;
+    double n = 0.0, sv = 0.0, sc = 0.0, svv = 0.0, svc = 0.0;
+    bool above = false, below = false;
+    for (int v = std::max(0, y - smoothRows); v <= std::min(h - 1, y + smoothRows); ++v) {
+      if (a.run[v] != a.run[y] || (a.state[v] != 1 && a.state[v] != 3)) continue;
+      above = above || v < y;
+      below = below || v > y;
+      const double dv = v - y;
+      const double c = a.colQ8[v];
+      n += 1.0;
+      sv += dv;
+      sc += c;
+      svv += dv * dv;
+      svc += dv * c;
+    }
+    const double det = n * svv - sv * sv;
+    a.stack[y] = n >= 4.0 && above && below && det > 0.0
+                     ? static_cast<int32_t>(std::lround((sc * svv - sv * svc) / det))
+                     : a.colQ8[y];
+  }
+  for (int y = 0; y < h; ++y)
+    if (a.state[y] == 3) a.colQ8[y] = a.stack[y];
+  return kept;
+}
+
+// Rows of a laser-off-subtracted ROI with no sample at all, filled from a filter matched to
+// the line's profile (docs/lle.md, "The sunlit line through a matched filter"): where bRCE
+// decides each pixel against two others, the filter sums the whole profile. Rows at
+// LleParams::matchedSeedSigmas of their row's spread start a run, rows at matchedJoinSigmas
+// join one (growMatchedRuns); runs that touch the line's rows are kept whatever their
+// length, others with minSegmentRows rows (keepMatchedRuns). The rows kept are kSegment
+// samples of one new segment: the 3D gate and the localizer's fit sort them, as they do
+// other segments. Integer arithmetic up to the smoothing: the same in both arithmetics.
+void matchedFilterRows(const ImageView& frame, const ImageView& laserOff, const Roi& roi, const LleParams& p,
+                       LleWorkspace& ws, LaserLine& out) {
+  static const MatchedKernel kKernel;
+  const int w = roi.width;
+  const int h = roi.height;
+  const auto uw = static_cast<size_t>(w);
+  const auto uh = static_cast<size_t>(h);
+  Arena arena(ws.scratch);
+  arena.reserve<int32_t>(2 * uw);
+  arena.reserve<int32_t>(5 * uh);
+  arena.reserve<uint8_t>(uh);
+  arena.commit();
+  MatchedArrays a{arena.take<int32_t>(uw), arena.take<int32_t>(uw), arena.take<int32_t>(uh), arena.take<int32_t>(uh),
+                  arena.take<uint8_t>(uh), arena.take<int32_t>(uh), arena.take<int32_t>(uh)};
+  std::fill(a.state, a.state + h, uint8_t{0});
+  for (const RowSample& r : out.rows) {
+    const int y = r.row - roi.y;
+    if (y < 0 || y >= h) continue;
+    if (r.status == RowStatus::kLine && a.state[y] != 1) {
+      a.state[y] = 1;
+      a.colQ8[y] = r.columnQ8 - roi.x * 256;
+    } else if (a.state[y] == 0) {
+      a.state[y] = 2;
+    }
+  }
+  const int ro = redOffset(frame.format);
+  for (int y = 0; y < h; ++y) {
+    a.z[y] = 0;
+    if (a.state[y] != 0) continue;
+    const MatchedRow m =
+        matchedRow(roiRow(&frame, roi, y), roiRow(&laserOff, roi, y), ro, w, kKernel, a.resp, a.sorted);
+    if (m.x < 0) continue;
+    a.z[y] = m.zCenti;
+    // Sub-pixel: the vertex of the parabola through the three responses (within ±0.5 px).
+    const int64_t den = 2 * (static_cast<int64_t>(m.left) - 2 * static_cast<int64_t>(m.mid) + m.right);
+    const int64_t offQ8 = den != 0 ? (256 * (static_cast<int64_t>(m.left) - m.right)) / den : 0;
+    a.colQ8[y] = m.x * 256 + static_cast<int32_t>(std::clamp<int64_t>(offQ8, -128, 128));
+  }
+  const int runs = growMatchedRuns(h, static_cast<int>(std::lround(100.0 * p.matchedSeedSigmas)),
+                                   static_cast<int>(std::lround(100.0 * p.matchedJoinSigmas)),
+                                   static_cast<int32_t>(std::lround(256.0 * p.maxJumpPx)), a);
+  const int added = keepMatchedRuns(h, runs, p.minSegmentRows, p.smoothRows, a);
+  if (added == 0) return;
+  // One new segment, in its place by first row; the segments after it renumbered.
+  LineSegment seg;
+  seg.firstRow = roi.y + static_cast<int>(std::find(a.state, a.state + h, uint8_t{3}) - a.state);
+  for (int y = h - 1; y >= 0; --y)
+    if (a.state[y] == 3) {
+      seg.lastRow = roi.y + y;
+      break;
+    }
+  seg.rows = added;
+  const auto at = std::find_if(out.segments.begin(), out.segments.end(),
+                               [&](const LineSegment& s) { return s.firstRow > seg.firstRow; });
+  const auto index = static_cast<int32_t>(at - out.segments.begin());
+  out.segments.insert(at, seg);
+  for (RowSample& r : out.rows)
+    if (r.segment >= index) ++r.segment;
+  // The new samples merged into the rows (ascending by row), from the end.
+  size_t src = out.rows.size();
+  out.rows.resize(src + static_cast<size_t>(added));
+  size_t dst = out.rows.size();
+  for (int y = h - 1; y >= 0; --y) {
+    const int row = roi.y + y;
+    while (src > 0 && out.rows[src - 1].row > row) out.rows[--dst] = out.rows[--src];
+    if (a.state[y] == 3) {
+      RowSample sm;
+      sm.row = row;
+      sm.columnQ8 = a.colQ8[y] + roi.x * 256;
+      sm.centroidQ8 = sm.columnQ8;
+      sm.column = static_cast<float>(sm.columnQ8) / 256.0F;
+      sm.confidence = std::clamp(static_cast<float>(a.z[y]) / 1000.0F, 0.1F, 1.0F);
+      sm.status = RowStatus::kSegment;
+      sm.segment = index;
+      out.rows[--dst] = sm;
+    }
+  }
+}
+
 }  // namespace
 
 template <class A>
@@ -1002,6 +1249,7 @@ void extractRobust(const ImageView& frame, const ImageView* laserOff, const Roi&
   // rerunOthersFirm: its segments off the line still need the first pass's strong bar (listSegments).
   focusRobust<A>(frame, laserOff, roi, low, rows, p.rerunOthersFirm ? p.strongThreshold() : low.strongThreshold(), ws,
                  out);
+  if (laserOff != nullptr && p.matchedFilter) matchedFilterRows(frame, *laserOff, roi, p, ws, out);
 }
 
 template <class A>

@@ -348,7 +348,7 @@ image::Roi Localizer::stopRoi(const ScanPlan& plan, double slideMm) const {
 
 Result<LineObservation> Localizer::observe(const image::ImageView& frame, const ScanPlan& plan, double slideMm,
                                            image::LleWorkspace& ws, const image::ImageView* laserOff,
-                                           double slideMmPerRow) const {
+                                           double slideMmPerRow, bool brightAmbient) const {
   if (frame.width != cal_.camera.widthPx || frame.height != cal_.camera.heightPx)
     return Status(Error::kBadInput, "frame is " + std::to_string(frame.width) + "x" + std::to_string(frame.height) +
                                         " but the calibration is for " + std::to_string(cal_.camera.widthPx) + "x" +
@@ -357,7 +357,9 @@ Result<LineObservation> Localizer::observe(const image::ImageView& frame, const 
   obs.slideMm = slideMm;
   const image::Roi roi = stopRoi(plan, slideMm);
   if (roi.empty()) return obs;  // the plane misses the gate: nothing of the target can be lit
-  if (Status s = image::extractLine(frame, roi, lle_, ws, obs.line, laserOff); !s) return s;
+  image::LleParams lle = lle_;
+  lle.matchedFilter = lle_.matchedFilter && brightAmbient;
+  if (Status s = image::extractLine(frame, roi, lle, ws, obs.line, laserOff); !s) return s;
   // Every valid row (the line's and the other surfaces' segments), not only the fitted
   // curve: a leaf can make the line, the fruit another segment; the 3D gate and the
   // robust fit sort the rows out.

@@ -225,10 +225,13 @@ class Localizer {
   // A rolling shutter in a sweep: `slideMmPerRow` is how far the slide moved from one
   // sensor row's exposure to the next's; `slideMm` is then the position for the middle row
   // of the plan's ROI, and row v's is slideMm + (v − that row) × slideMmPerRow (0: every
-  // row at slideMm, a global shutter or a frame at rest).
+  // row at slideMm, a global shutter or a frame at rest). `brightAmbient`: the metering
+  // found the ambient bright (MeteringDecision::bright, direct sun); with `laserOff`, rows
+  // the LLE leaves empty are then looked for with a matched filter
+  // (LleParams::matchedFilter).
   Result<LineObservation> observe(const image::ImageView& frame, const ScanPlan& plan, double slideMm,
                                   image::LleWorkspace& ws, const image::ImageView* laserOff = nullptr,
-                                  double slideMmPerRow = 0.0) const;
+                                  double slideMmPerRow = 0.0, bool brightAmbient = false) const;
 
   // The second pass of an adaptive scan (ScanParams "Adaptive scan"): the stops to add
   // after the first pass's `lines` gave `first`; empty when the first pass is enough, when

@@ -6,6 +6,7 @@
 #include <climits>
 #include <cmath>
 #include <random>
+#include <set>
 #include <vector>
 
 #include "image/lle.h"
@@ -442,6 +443,53 @@ TEST_CASE("In full sun, a rerun on the difference averaged over three rows keeps
   // Noise alone: no line when averaged; the row alone finds noise segments.
   CHECK(run(flat, p, nullptr, &offView).rows.empty());
   CHECK_FALSE(run(flat, alone, nullptr, &offView).rows.empty());
+}
+
+TEST_CASE("In full sun, the rows bRCE leaves are found by a filter matched to the line's profile, and noise is not",
+          "[lle][ambient][matched]") {
+  // Sunlit skin with 3 DN of shot noise in both frames (4.2 DN in the difference) and a
+  // line of 9 DN at its peak: bRCE's margin over the pixels 4 columns away is about 5 DN,
+  // at the noise's level; the matched filter sums the whole profile.
+  const auto truth = [](int y) { return 50.0 + 0.3 * y; };
+  auto [off, on, flat] = sunlitSkin(160, 200, 3.0, 21);
+  addLine(on, truth, 1.4, 9);
+  // Glare: the laser-off frame at full scale over the line in rows 150-169.
+  for (int y = 150; y < 170; ++y)
+    for (int x = 0; x < off.width; ++x)
+      if (std::abs(x - truth(y)) < 12.0) off.red(x, y) = on.red(x, y) = 255;
+  const ImageView offView = off.view();
+  LleParams p;
+  REQUIRE(p.matchedFilter);
+  LleParams without = p;
+  without.matchedFilter = false;
+  const LaserLine a = run(on, p, nullptr, &offView);
+  const LaserLine b = run(on, without, nullptr, &offView);
+  std::set<int> before;
+  for (const auto& r : b.rows)
+    if (r.valid()) before.insert(r.row);
+  int added = 0, astray = 0, inGlare = 0;
+  double errPx = 0.0;
+  for (const auto& r : a.rows) {
+    if (!r.valid() || before.count(r.row) != 0) continue;
+    INFO("row " << r.row << " column " << r.column << " truth " << truth(r.row));
+    CHECK(r.status == RowStatus::kSegment);  // the filter's rows: for the 3D gate and the fit to sort
+    const double e = std::abs(r.column - truth(r.row));
+    ++added;
+    errPx += e;
+    astray += e > 2.0 ? 1 : 0;
+    inGlare += r.row >= 150 && r.row < 170 ? 1 : 0;
+  }
+  INFO("bRCE's rows " << before.size() << ", the filter's " << added << " (mean error " << errPx / std::max(1, added)
+                      << " px, " << astray << " beyond 2 px)");
+  CHECK(added >= 15);  // (21: bRCE's rerun found 71 of the 180 rows outside the glare)
+  CHECK(errPx / added < 0.4);
+  CHECK(astray <= 1);
+  CHECK(inGlare == 0);  // the difference there is no measure of the line
+  // Its rows are one segment of their own, in order of first row.
+  CHECK(a.segments.size() == b.segments.size() + 1);
+  for (size_t i = 1; i < a.segments.size(); ++i) CHECK(a.segments[i - 1].firstRow <= a.segments[i].firstRow);
+  // Noise alone: nothing, with or without the filter.
+  CHECK(run(flat, p, nullptr, &offView).rows.empty());
 }
 
 TEST_CASE("A subtracted rerun at a low bar reports the weak line, not other surfaces as weak as it", "[lle][ambient]") {

@@ -116,7 +116,8 @@ image::ImageView viewOf(const cv::Mat& m) { return {m.data, m.cols, m.rows, m.st
 // back (a frame zero outside the region, the laser-off frame subtracted when metering kept
 // one). Returns the renders in the order taken, for exportScan.
 std::vector<cv::Mat> scanTwoPasses(const sim::SimScene& scene, const std::shared_ptr<const sim::RayTable>& rays,
-                                   const RenderPlan& rp, const cv::Mat& subtract, const localize::ScanParams& scan,
+                                   const RenderPlan& rp, const cv::Mat& subtract, bool brightAmbient,
+                                   const localize::ScanParams& scan,
                                    const std::function<FrameTaken(double slideMm, int pass)>& take) {
   std::vector<cv::Mat> renders;
   const localize::Localizer loc(scene.truth, image::LleParams{}, scan);
@@ -149,7 +150,7 @@ std::vector<cv::Mat> scanTwoPasses(const sim::SimScene& scene, const std::shared
     renderer.renderRegion(req, rp.region, renders.back());
     renders.back().copyTo(full(rp.region));
     const double recordedMm = 0.5 * (f.frame.slideStartMm + f.frame.slideEndMm);
-    return loc.observe(viewOf(full), *plan, recordedMm, ws, off.empty() ? nullptr : &offView);
+    return loc.observe(viewOf(full), *plan, recordedMm, ws, off.empty() ? nullptr : &offView, 0.0, brightAmbient);
   });
   return renders;
 }
@@ -322,12 +323,13 @@ int generateMain(const Args& args) {
           info.stopsMm = rp->plan.stopsMm;
           // The first pass at the plan's stops, then the second pass where the localizer
           // asks for one (tag "follow_up"), as the daemon scans.
-          laserRenders = scanTwoPasses(scene, rays, *rp, metered.subtract, scanParams, [&](double s, int pass) {
-            laserFrame(s - 0.5 * smearMm, s + 0.5 * smearMm, pass == 1 ? "stop" : "follow_up");
-            followUpFrames += pass == 2 ? 1 : 0;
-            t += 0.25;  // a stop every 250 ms (move, settle, expose)
-            return FrameTaken{frames.back(), frameIndices.back()};
-          });
+          laserRenders = scanTwoPasses(
+              scene, rays, *rp, metered.subtract, metered.decision.bright, scanParams, [&](double s, int pass) {
+                laserFrame(s - 0.5 * smearMm, s + 0.5 * smearMm, pass == 1 ? "stop" : "follow_up");
+                followUpFrames += pass == 2 ? 1 : 0;
+                t += 0.25;  // a stop every 250 ms (move, settle, expose)
+                return FrameTaken{frames.back(), frameIndices.back()};
+              });
           // The paper's single-line experiment: the laser aimed at the marker on the
           // apple's face (the truth's approach point), not planned from the rough position.
           const double aimed = scene.truth.laser.slideForPoint(sim::approachPoint(target));

@@ -129,6 +129,7 @@ int processMain(const Args& args) {
       static_cast<int>(args.integer("lle-subtracted-line-pct", lle.subtractedLineThresholdPct));
   lle.subtractedRows = static_cast<int>(args.integer("lle-subtracted-rows", lle.subtractedRows));
   lle.rerunOthersFirm = args.integer("lle-rerun-others-firm", lle.rerunOthersFirm ? 1 : 0) != 0;
+  lle.matchedFilter = args.integer("lle-matched-filter", lle.matchedFilter ? 1 : 0) != 0;
   if (Status s = lle.validate(); !s) {
     std::fprintf(stderr, "alacs-twin process: %s\n", s.reason().c_str());
     return 2;
@@ -224,7 +225,8 @@ int processMain(const Args& args) {
           tools::Json fo;
           const double recorded = (*src)->lastSlideMm();
           const auto t0 = std::chrono::steady_clock::now();
-          Result<localize::LineObservation> ob = loc.observe(f->view, *plan, recorded, ws, laserOff);
+          Result<localize::LineObservation> ob =
+              loc.observe(f->view, *plan, recorded, ws, laserOff, 0.0, metered.decision.bright);
           observeMs += std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
           fo["slide_mm"] = tools::jsonNumber(recorded);
           fo["frame"] = (*src)->lastFrame();
