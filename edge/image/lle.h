@@ -99,10 +99,11 @@ struct LleParams {
   // this many of its row's robust spread starts a run, one at matchedJoinSigmas joins a
   // run within 2 rows whose column it continues; their rows are kSegment samples of one
   // segment (docs/lle.md, "The sunlit line through a matched filter") (2..50).
-  // (false: off). The localizer runs it only where the metering also found the ambient
-  // bright (direct sun: Localizer::observe's brightAmbient); elsewhere a weak line's frames
-  // hold leaves and neighbours at the filter's bar as well, and the tuning worlds' fits lost
-  // as much as they gained there (docs/lle.md).
+  // With it on (the default), every subtracted rerun runs it, as alacs_lle with a laser-off
+  // frame does; the localizer turns it on only where the metering also found the ambient
+  // bright (direct sun: Localizer::observe's brightAmbient), since elsewhere a weak line's
+  // frames hold leaves and neighbours at the filter's bar as well, and the tuning worlds'
+  // fits lost as much as they gained there (docs/lle.md).
   bool matchedFilter = true;
   double matchedSeedSigmas = 5.0;
   double matchedJoinSigmas = 3.0;  // (1..matchedSeedSigmas)

@@ -1024,6 +1024,8 @@ MatchedRow matchedRow(const uint8_t* on, const uint8_t* off, int redOffset, int 
   const auto red = [&](const uint8_t* f, int x) { return static_cast<int32_t>(f[static_cast<size_t>(x) * 3U + ro]); };
   int n = 0;
   int clipAt = -1000000;  // the last laser-off pixel at full scale up to x + half
+  for (int x = 0; x < std::min(kMatchedHalfPx, w); ++x)
+    if (red(off, x) == 255) clipAt = x;
   for (int x = 0; x < w; ++x) {
     resp[x] = kNone;
     if (x + kMatchedHalfPx < w && red(off, x + kMatchedHalfPx) == 255) clipAt = x + kMatchedHalfPx;
@@ -1060,11 +1062,11 @@ MatchedRow matchedRow(const uint8_t* on, const uint8_t* off, int redOffset, int 
 struct MatchedArrays {
   int32_t* resp;    // w: a row's responses
   int32_t* sorted;  // w: the same, for the median
-  int32_t* colQ8;   // h: the column (Q8, in the ROI) of the row's line sample or filter peak
+  int32_t* colQ8;   // h: the column (Q8, in the ROI) of the row's line sample or filter peak (unsmoothed)
   int32_t* z;       // h: the peak's response over the row's spread (hundredths)
   uint8_t* state;   // h: 0 free, 1 the line's, 2 another sample (left alone), 3 taken here
   int32_t* run;     // h: the run the row belongs to (-1: none)
-  int32_t* stack;   // h: the walk's stack, then the smoothed columns
+  int32_t* stack;   // h: the walk's stack, then the kept rows' smoothed columns (Q8, in the ROI)
 };
 
 // Grows runs from the seeds (the line's rows, and free rows at `seed` or more) through free
@@ -1096,9 +1098,9 @@ int growMatchedRuns(int h, int seed, int join, int32_t jumpQ8, const MatchedArra
 }
 
 // Keeps the runs that hold a line row, or minRows free rows of their own (state 3 for their
-// free rows); then each kept row's column from the straight line through its run's rows
-// within ±smoothRows (at least 4, some on either side: no extrapolation), as the LLE smooths
-// its own rows. Returns the rows kept.
+// free rows); then each kept row's column (into `stack`) from the straight line through its
+// run's rows within ±smoothRows (at least 4, some on either side: no extrapolation; unweighted,
+// where the LLE weighs its own rows by their strength). Returns the rows kept.
 int keepMatchedRuns(int h, int runs, int minRows, int smoothRows, const MatchedArrays& a) {
   int kept = 0;
   for (int r = 0; r < runs; ++r) {
@@ -1137,8 +1139,6 @@ int keepMatchedRuns(int h, int runs, int minRows, int smoothRows, const MatchedA
                      ? static_cast<int32_t>(std::lround((sc * svv - sv * svc) / det))
                      : a.colQ8[y];
   }
-  for (int y = 0; y < h; ++y)
-    if (a.state[y] == 3) a.colQ8[y] = a.stack[y];
   return kept;
 }
 
@@ -1148,8 +1148,10 @@ int keepMatchedRuns(int h, int runs, int minRows, int smoothRows, const MatchedA
 // LleParams::matchedSeedSigmas of their row's spread start a run, rows at matchedJoinSigmas
 // join one (growMatchedRuns); runs that touch the line's rows are kept whatever their
 // length, others with minSegmentRows rows (keepMatchedRuns). The rows kept are kSegment
-// samples of one new segment: the 3D gate and the localizer's fit sort them, as they do
-// other segments. Integer arithmetic up to the smoothing: the same in both arithmetics.
+// samples of one new segment (all the filter's runs in one): the 3D gate and the localizer's
+// fit sort them, as they do other segments. The responses are integers; the spread, the
+// parabola's vertex and the smoothing are computed in double, outside the arithmetics'
+// templates (the same code for both).
 void matchedFilterRows(const ImageView& frame, const ImageView& laserOff, const Roi& roi, const LleParams& p,
                        LleWorkspace& ws, LaserLine& out) {
   static const MatchedKernel kKernel;
@@ -1157,9 +1159,9 @@ void matchedFilterRows(const ImageView& frame, const ImageView& laserOff, const 
   const int h = roi.height;
   const auto uw = static_cast<size_t>(w);
   const auto uh = static_cast<size_t>(h);
-  Arena arena(ws.scratch);
-  arena.reserve<int32_t>(2 * uw);
-  arena.reserve<int32_t>(5 * uh);
+  Arena arena(ws.scratch);  // one reserve per take (each take may pad to 16 bytes)
+  for (int i = 0; i < 2; ++i) arena.reserve<int32_t>(uw);
+  for (int i = 0; i < 4; ++i) arena.reserve<int32_t>(uh);
   arena.reserve<uint8_t>(uh);
   arena.commit();
   MatchedArrays a{arena.take<int32_t>(uw), arena.take<int32_t>(uw), arena.take<int32_t>(uh), arena.take<int32_t>(uh),
@@ -1218,8 +1220,8 @@ void matchedFilterRows(const ImageView& frame, const ImageView& laserOff, const 
     if (a.state[y] == 3) {
       RowSample sm;
       sm.row = row;
-      sm.columnQ8 = a.colQ8[y] + roi.x * 256;
-      sm.centroidQ8 = sm.columnQ8;
+      sm.columnQ8 = a.stack[y] + roi.x * 256;
+      sm.centroidQ8 = a.colQ8[y] + roi.x * 256;  // the row's own, before smoothing
       sm.column = static_cast<float>(sm.columnQ8) / 256.0F;
       sm.confidence = std::clamp(static_cast<float>(a.z[y]) / 1000.0F, 0.1F, 1.0F);
       sm.status = RowStatus::kSegment;

@@ -482,14 +482,31 @@ TEST_CASE("In full sun, the rows bRCE leaves are found by a filter matched to th
   INFO("bRCE's rows " << before.size() << ", the filter's " << added << " (mean error " << errPx / std::max(1, added)
                       << " px, " << astray << " beyond 2 px)");
   CHECK(added >= 15);  // (21: bRCE's rerun found 71 of the 180 rows outside the glare)
-  CHECK(errPx / added < 0.4);
+  CHECK(errPx / added < 0.35);  // (0.31; the parabola's vertex on the wrong side: 0.39)
   CHECK(astray <= 1);
   CHECK(inGlare == 0);  // the difference there is no measure of the line
   // Its rows are one segment of their own, in order of first row.
   CHECK(a.segments.size() == b.segments.size() + 1);
   for (size_t i = 1; i < a.segments.size(); ++i) CHECK(a.segments[i - 1].firstRow <= a.segments[i].firstRow);
-  // Noise alone: nothing, with or without the filter.
+  // Noise alone: nothing, with or without the filter; nor does the filter add rows beside
+  // glare at the ROI's left edge, where the difference steps (the laser-off frame at full
+  // scale in columns 0-7 only).
   CHECK(run(flat, p, nullptr, &offView).rows.empty());
+  auto glare = sunlitSkin(160, 200, 3.0, 22);
+  for (int y = 60; y < 140; ++y)
+    for (int x = 0; x < 8; ++x) glare.off.red(x, y) = 255;
+  const ImageView glareOff = glare.off.view();
+  CHECK(run(glare.flat, p, nullptr, &glareOff).rows.size() == run(glare.flat, without, nullptr, &glareOff).rows.size());
+  // ROIs of one to a few rows, wide: the filter's buffers fit (ASan in CI reads this; the
+  // first version overran them at 641 x 1).
+  auto wide = sunlitSkin(700, 12, 3.0, 23);
+  addLine(
+      wide.on, [](int) { return 300.0; }, 1.4, 9);
+  const ImageView wideOff = wide.off.view();
+  for (int rows = 1; rows <= 8; ++rows) {
+    const Roi thin{0, 2, 641, rows};
+    CHECK(run(wide.on, p, &thin, &wideOff).rows.size() <= static_cast<size_t>(rows) * 4U);
+  }
 }
 
 TEST_CASE("A subtracted rerun at a low bar reports the weak line, not other surfaces as weak as it", "[lle][ambient]") {

@@ -6,7 +6,7 @@
 //   LLE on the full frame (SIMD kernels; per-frame median and p99), scalar kernels,
 //   LLE on the localizer's ROI for the target (ROI mode), the paper's method in C++,
 //   the ROI with a weak line less a laser-off frame (the subtracted rerun, on the row alone
-//   and on three rows averaged),
+//   and on three rows averaged; and on the row alone without the matched filter),
 //   a plain OpenCV floating-point pipeline of the paper's method,
 //   and the numpy reference of the paper's method (tools/paper_lle, in a subprocess),
 // and prints the ratios. A benchmark, not a test: it fails only when something cannot run.
@@ -237,8 +237,9 @@ int main(int argc, char** argv) {
   });
   // A weak line less the laser-off frame (sunlit skin at a short exposure): the laser on
   // for 4 % of the exposure, so the first pass finds it weak and the subtracted rerun runs.
-  Stats subtracted[2];
-  size_t subtractedRows[2] = {0, 0};
+  // (2: the row alone without the matched filter for the rows it leaves, LleParams::matchedFilter.)
+  Stats subtracted[3];
+  size_t subtractedRows[3] = {0, 0, 0};
   const bool rendered = imagePath.empty();
   if (rendered) {
     cv::Mat weak, off;
@@ -247,9 +248,10 @@ int main(int argc, char** argv) {
     renderer.render(slide, 0.0, 2, off);
     const image::ImageView weakView{weak.data, weak.cols, weak.rows, weak.step[0], image::PixelFormat::kBgr888};
     const image::ImageView offView{off.data, off.cols, off.rows, off.step[0], image::PixelFormat::kBgr888};
-    for (int k = 0; k < 2; ++k) {
+    for (int k = 0; k < 3; ++k) {
       image::LleParams sub = p;
-      sub.subtractedRows = k == 0 ? 1 : 3;
+      sub.subtractedRows = k == 1 ? 3 : 1;
+      sub.matchedFilter = k != 2;
       subtracted[k] = timeIt(frames, [&] {
         if (!image::extractLine(weakView, roi, sub, ws, line, &offView).isOk()) std::abort();
         sink += line.rows.size();
@@ -295,6 +297,9 @@ int main(int argc, char** argv) {
     std::printf("  %-44s %8.3f ms  [%zu line rows]  (three rows cost %.2f x the row alone)\n",
                 "LLE, ROI, weak line less laser-off, 3 rows", subtracted[1].median, subtractedRows[1],
                 subtracted[1].median / subtracted[0].median);
+    std::printf("  %-44s %8.3f ms  [%zu line rows]  (the matched filter costs %.2f x)\n",
+                "LLE, ROI, weak line less laser-off, no filter", subtracted[2].median, subtractedRows[2],
+                subtracted[0].median / subtracted[2].median);
   }
   std::printf("  %-44s %8.3f ms\n", "paper's method, C++ fixed point (SIMD)", paperCpp.median);
   std::printf("  %-44s %8.3f ms  -> LLE is %.1f x faster  [%d rows]\n", "paper's method, plain OpenCV float pipeline",

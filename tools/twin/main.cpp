@@ -277,7 +277,7 @@ int main(int argc, char** argv) {
                {"lle-rerun-others-firm", Kind::kInteger,
                 "LleParams::rerunOthersFirm: 1, a rerun's other segments need the first pass's bar"},
                {"lle-matched-filter", Kind::kInteger,
-                "LleParams::matchedFilter: 0, no matched filter for the rows LLE leaves in direct sun"},
+                "LleParams::matchedFilter: 0, no matched filter for the rows LLE leaves in direct sun (process only)"},
                {"rows", Kind::kFlag, "every frame's rows, kept pixels, sunlit arcs' samples and curve"},
                {"other-object-prior", Kind::kNumber,
                 "ScanParams::otherObjectPrior (0: σ and confidence from the fit alone)"},
