@@ -1022,6 +1022,9 @@ MatchedRow matchedRow(const uint8_t* on, const uint8_t* off, int redOffset, int 
   constexpr int32_t kNone = std::numeric_limits<int32_t>::min();
   const auto ro = static_cast<size_t>(redOffset);
   const auto red = [&](const uint8_t* f, int x) { return static_cast<int32_t>(f[static_cast<size_t>(x) * 3U + ro]); };
+  // The difference first (into `sorted`), then the filter over it; each response goes to
+  // sorted[x - half], a place no window still to come reads.
+  for (int x = 0; x < w; ++x) sorted[x] = red(on, x) - red(off, x);
   int n = 0;
   int clipAt = -1000000;  // the last laser-off pixel at full scale up to x + half
   for (int x = 0; x < std::min(kMatchedHalfPx, w); ++x)
@@ -1030,11 +1033,9 @@ MatchedRow matchedRow(const uint8_t* on, const uint8_t* off, int redOffset, int 
     resp[x] = kNone;
     if (x + kMatchedHalfPx < w && red(off, x + kMatchedHalfPx) == 255) clipAt = x + kMatchedHalfPx;
     if (x < kMatchedHalfPx || x + kMatchedHalfPx >= w) continue;
+    const int32_t* d = sorted + (x - kMatchedHalfPx);
     int32_t r = 0;
-    for (size_t i = 0; i < k.q8.size(); ++i) {
-      const int at = x + static_cast<int>(i) - kMatchedHalfPx;
-      r += k.q8[i] * (red(on, at) - red(off, at));
-    }
+    for (size_t i = 0; i < k.q8.size(); ++i) r += k.q8[i] * d[i];
     sorted[n++] = r;
     if (clipAt < x - kMatchedHalfPx) resp[x] = r;
   }

@@ -481,7 +481,7 @@ TEST_CASE("In full sun, the rows bRCE leaves are found by a filter matched to th
   }
   INFO("bRCE's rows " << before.size() << ", the filter's " << added << " (mean error " << errPx / std::max(1, added)
                       << " px, " << astray << " beyond 2 px)");
-  CHECK(added >= 15);  // (21: bRCE's rerun found 71 of the 180 rows outside the glare)
+  CHECK(added >= 15);           // (21: bRCE's rerun found 71 of the 180 rows outside the glare)
   CHECK(errPx / added < 0.35);  // (0.31; the parabola's vertex on the wrong side: 0.39)
   CHECK(astray <= 1);
   CHECK(inGlare == 0);  // the difference there is no measure of the line
