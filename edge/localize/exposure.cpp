@@ -71,12 +71,13 @@ Status ExposureMeter::add(const image::ImageView& frame, const image::Roi& roi, 
   d.meteredDn = *level;
   d.meteredUs = exposureUs;
   const auto us = static_cast<double>(exposureUs);
+  // (Clipped, the rate is a lower bound.)
+  d.bright = *level * 1000.0 / us >= p_.brightDnPerMs;
   if (*level >= p_.saturatedDn) {
     // Clipped: the level is at least what was read. Ask again, shorter, while frames and
     // the shortest exposure allow; else guess it one step further down and say so.
     const int64_t shorter = std::max(p_.minExposureUs, roundUs(us / p_.stepDown));
     d.saturated = true;
-    d.bright = *level * 1000.0 / us >= p_.brightDnPerMs;
     d.exposureUs = std::clamp(roundUs(us * p_.targetDn / (*level * p_.stepDown)), p_.minExposureUs, maxUs_);
     d.ambientDn = p_.targetDn;
     d.subtract = d.ambientDn > p_.subtractAboveDn;
@@ -84,11 +85,9 @@ Status ExposureMeter::add(const image::ImageView& frame, const image::Roi& roi, 
     return Status::ok();
   }
   d.saturated = false;
-  d.bright = *level * 1000.0 / us >= p_.brightDnPerMs;
-  const bool bright = d.bright;
   // Not bright: never longer than the first metering frame as taken (the start; a replayed
   // camera reports the exposure it recorded, so a replay decides as the scan did).
-  const int64_t longest = bright ? maxUs_ : std::min(maxUs_, firstUs_);
+  const int64_t longest = d.bright ? maxUs_ : std::min(maxUs_, firstUs_);
   int64_t chosen =
       std::clamp(roundUs(us * p_.targetDn / std::max(1, *level)), std::min(p_.minExposureUs, longest), longest);
   // Within 10 % of the metered exposure: keep it, so that the metering frame can serve as

@@ -155,7 +155,7 @@ def main(argv: list[str] | None = None) -> int:
     g.add_argument("--per-cell", type=int, default=40, help="--loc: scans per distance and occlusion (default 40)")
     g.add_argument("--matched-filter", action="store_true",
                    help="the LLE frames: a prototype matched filter on the laser-off-subtracted red against our "
-                        "kept samples, rows found per light (docs/lle.md, \"What remains lost in sun\")")
+                        "kept samples, rows found per light (docs/lle.md, \"The sunlit line through a matched filter\")")
     g.add_argument("--work", help="default build/diagnose")
     g.add_argument("--twin", help="the alacs-twin binary (default $ALACS_TWIN or the newest build/*/tools/twin)")
     g.add_argument("--jobs", type=int, default=2)

@@ -120,7 +120,7 @@ def _lle_set(cfg: Config) -> tuple[list[dict], list[str], dict[str, dict]]:
 
 
 # A prototype, not the product: a matched filter across the line on the laser-off-subtracted
-# red, with hysteresis along it (docs/lle.md, "What remains lost in sun"). The kernel: a
+# red, with hysteresis along it (docs/lle.md, "The sunlit line through a matched filter"). The kernel: a
 # Gaussian of the line's width (σ 1.5 px) less its mean over ±8 px, so that a slope of the
 # ambient left by the subtraction does not count; each row's best column, its response over
 # the row's robust σ (MAD); rows at MF_SEED σ or more start the line, rows at MF_GROW σ or
