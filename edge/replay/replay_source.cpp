@@ -25,24 +25,7 @@ ReplaySource::ReplaySource(std::string dir, ScanManifest m, const Clock& clock, 
       lastSlideMm_(std::numeric_limits<double>::quiet_NaN()) {}
 
 int ReplaySource::nearestFrame(double slideMm, bool laserOn, int64_t exposureUs) const {
-  int best = -1;
-  double bestExposureErr = std::numeric_limits<double>::infinity();
-  double bestErr = std::numeric_limits<double>::infinity();
-  for (size_t i = 0; i < manifest_.frames.size(); ++i) {
-    const FrameRecord& f = manifest_.frames[i];
-    if (f.laserOn != laserOn) continue;
-    const double exposureErr =
-        !laserOn && exposureUs > 0 && f.exposureUs > 0
-            ? std::abs(std::log(static_cast<double>(f.exposureUs) / static_cast<double>(exposureUs)))
-            : 0.0;
-    const double err = std::abs(f.slideMm - slideMm);
-    if (exposureErr < bestExposureErr - 1e-9 || (exposureErr <= bestExposureErr + 1e-9 && err < bestErr)) {
-      bestExposureErr = exposureErr;
-      bestErr = err;
-      best = static_cast<int>(i);
-    }
-  }
-  return best;
+  return replay::nearestFrame(manifest_, slideMm, laserOn, exposureUs);
 }
 
 Result<ports::CapturedFrame> ReplaySource::doCapture(const ports::CaptureRequest& request,

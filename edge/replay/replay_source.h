@@ -34,10 +34,8 @@ class ReplaySource final : public ports::FrameSource {
   const ScanManifest& manifest() const { return manifest_; }
   const std::string& dir() const { return dir_; }
 
-  // The frame a capture at `slideMm` with the laser `laserOn` would serve; -1: none.
-  // Laser-off frames (the ambient, the same at every slide position) are matched by
-  // exposure first (the recorded one nearest `exposureUs` in ratio), then by position;
-  // laser-on frames by position only.
+  // The frame a capture at `slideMm` with the laser `laserOn` would serve; -1: none
+  // (replay::nearestFrame).
   int nearestFrame(double slideMm, bool laserOn, int64_t exposureUs = 0) const;
 
  private:

@@ -196,6 +196,27 @@ Result<cv::Mat> loadFrame(const std::string& dir, const ScanManifest& m, const F
   return img;
 }
 
+int nearestFrame(const ScanManifest& m, double slideMm, bool laserOn, int64_t exposureUs) {
+  int best = -1;
+  double bestExposureErr = std::numeric_limits<double>::infinity();
+  double bestErr = std::numeric_limits<double>::infinity();
+  for (size_t i = 0; i < m.frames.size(); ++i) {
+    const FrameRecord& f = m.frames[i];
+    if (f.laserOn != laserOn) continue;
+    const double exposureErr =
+        !laserOn && exposureUs > 0 && f.exposureUs > 0
+            ? std::abs(std::log(static_cast<double>(f.exposureUs) / static_cast<double>(exposureUs)))
+            : 0.0;
+    const double err = std::abs(f.slideMm - slideMm);
+    if (exposureErr < bestExposureErr - 1e-9 || (exposureErr <= bestExposureErr + 1e-9 && err < bestErr)) {
+      bestExposureErr = exposureErr;
+      bestErr = err;
+      best = static_cast<int>(i);
+    }
+  }
+  return best;
+}
+
 Result<geometry::Calibration> loadScanCalibration(const std::string& dir, const ScanManifest& m) {
   return geometry::loadCalibrationBeneath(dir, m.scan.calibrationFile);
 }

@@ -72,6 +72,11 @@ Result<cv::Mat> loadFrame(const std::string& dir, const ScanManifest& manifest, 
 // has the frame's size (only the crop is decoded apart); a full frame replaces it, `out`
 // released before the decode. On error `out` may be released.
 Status loadFrameInto(const std::string& dir, const ScanManifest& manifest, const FrameRecord& frame, cv::Mat& out);
+// The index of the frame a capture at `slideMm` with the laser `laserOn` is served in
+// replay; -1: none. Laser-off frames (the ambient, the same at every slide position) are
+// matched by exposure first (the recorded one nearest `exposureUs` in ratio; 0: any), then
+// by position; laser-on frames by position only.
+int nearestFrame(const ScanManifest& manifest, double slideMm, bool laserOn, int64_t exposureUs = 0);
 // The calibration stored with the scan.
 Result<geometry::Calibration> loadScanCalibration(const std::string& dir, const ScanManifest& manifest);
 

@@ -6,6 +6,7 @@ confidence of 80 % or more."""
 from __future__ import annotations
 
 import json
+import math
 import os
 from pathlib import Path
 
@@ -92,3 +93,26 @@ def test_every_miss_says_why(run):
         assert sum(loc["misses"][c] for c in worlds.MISS_CAUSES) == loc["misses"]["n"], world
     text = (run / "evaluation.md").read_text()
     assert "| world | beyond 20 mm or none | not lit | lit, not found | found, not taken |" in text
+
+
+def test_the_diameter_by_shape_is_the_same_results_split(run):
+    """The diameter by the target's shape counts every result once: its counts add up to the
+    results, and its means, weighed by them, to the mean over the distance cells."""
+    res = json.loads((run / "results.json").read_text())
+    for world in worlds.WORLDS:
+        loc = res[world]["loc"]
+        by = loc["diameter_by_shape"]
+        assert set(by) == set(loc["shapes"]), world
+        n = sum(c["clear_n"] + c["occluded_n"] for c in by.values())
+        assert n == loc["coverage"]["results"], world
+        for occ in ("clear", "occluded"):
+            k = sum(c[f"{occ}_n"] for c in by.values())
+            total = sum(c[occ] * c[f"{occ}_n"] for c in by.values() if c[f"{occ}_n"])
+            cells = [(v["diameter"], v["approach"]["n"] - v["approach"]["no_result"])
+                     for key, v in loc["cells"].items() if key.startswith(occ)]
+            assert k > 0, (world, occ)
+            # The cells' means weigh each distance by its results (nan where it has none).
+            cell_total = sum(m * cn for m, cn in cells if cn and not math.isnan(m))
+            assert abs(total - cell_total) < 1e-6 * max(1.0, abs(total)), (world, occ)
+    text = (run / "evaluation.md").read_text()
+    assert "| world | shape | clear | occluded |" in text

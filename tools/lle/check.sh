@@ -90,6 +90,31 @@ if "$bin/alacs_lle" --scan "$tmp/outdoor/lle_0007" --out "$tmp/scan-out" >/dev/n
 else
   fail "alacs_lle --scan DIR"
 fi
+# Sunlit scans with their laser-off frame subtracted: the frame replay would serve (nearest in
+# exposure), and the matched filter for the rows the rerun leaves (on by default; alacsd
+# runs it only where its metering found direct sun) finds rows that 0 does not.
+valid_rows() {  # DIR: the laser-on frames' valid rows, summed, after checking each subtracted
+  "$py" - "$1" <<'PY'
+import glob, json, sys
+n = 0
+for f in glob.glob(sys.argv[1] + "/*/frame_*.json"):
+    d = json.load(open(f))
+    assert d["laser_off"], f + ": no laser-off frame subtracted"
+    n += sum(r["valid"] for r in d["rows"])
+print(n)
+PY
+}
+for mf in 0 1; do
+  for k in 0 1 2 3 4 5 6 7; do
+    "$bin/alacs_lle" --scan "$tmp/sun/lle_000$k" --out "$tmp/sun-mf$mf/$k" --subtract-off --matched-filter $mf >/dev/null 2>&1
+  done
+done
+rows0=$(valid_rows "$tmp/sun-mf0") rows1=$(valid_rows "$tmp/sun-mf1")
+if [[ -n $rows0 && -n $rows1 ]] && ((rows1 > rows0)); then
+  pass "alacs_lle --scan --subtract-off in sun: valid rows $rows0 without the matched filter, $rows1 with it"
+else
+  fail "alacs_lle --scan --subtract-off in sun (rows: '$rows0' without the matched filter, '$rows1' with it)"
+fi
 refused=0
 "$bin/alacs_lle" "$tmp/missing.png" --overlay none 2>/dev/null; [[ $? -eq 1 ]] && refused=$((refused + 1))
 "$bin/alacs_lle" "$case0" --roi 0,0,99999,10 --overlay none 2>/dev/null; [[ $? -eq 1 ]] && refused=$((refused + 1))

@@ -36,7 +36,8 @@ constexpr const char* kDescription =
     ".lle.png; --overlay none: no overlay). --scan reads a scan directory (manifest.json, or\n"
     "else every *.png in it) and writes one JSON and one overlay per laser-on frame into --out,\n"
     "plus summary.json; the ROI is --roi, else the scan's planned ROI, else the whole frame.\n"
-    "--subtract-off subtracts the laser-off frame taken at the same slide position.\n"
+    "--subtract-off subtracts a laser-off frame of the scan: the one nearest the laser frame's\n"
+    "exposure, then its slide position (what replay serves; the ambient is the same at every position).\n"
     "Exit status: 0 done, 1 an input or parameter was refused (the reason on stderr), 2 usage.";
 
 struct Options {
@@ -69,7 +70,8 @@ int parseArgs(int argc, char** argv, Options& o) {
   app.add_option("--overlay", o.overlay, "the overlay PNG (default: IMAGE with .lle.png; none: no overlay)");
   app.add_option("--scan", o.scan, "a scan directory instead of IMAGE");
   app.add_option("--out", o.out, "the output directory of --scan");
-  app.add_flag("--subtract-off", o.subtractOff, "--scan: subtract the laser-off frame at the same slide position");
+  app.add_flag("--subtract-off", o.subtractOff,
+               "--scan: subtract the laser-off frame nearest the laser frame's exposure, then position");
   std::string method = "robust", form = "meaning";
   app.add_option("--method", method, "robust|paper")->check(CLI::IsMember({"robust", "paper"}))->capture_default_str();
   app.add_option("--form", form, "meaning|literal")->check(CLI::IsMember({"meaning", "literal"}))->capture_default_str();
@@ -106,6 +108,10 @@ int parseArgs(int argc, char** argv, Options& o) {
       ->capture_default_str();
   app.add_flag("--rerun-others-firm", p.rerunOthersFirm,
                "a rerun's segments off the line need the first pass's strong threshold (docs/lle.md)");
+  app.add_option("--matched-filter", p.matchedFilter,
+                 "1: rows the subtracted rerun leaves are looked for with a filter matched to the line's profile "
+                 "(alacsd does so only where its metering found direct sun; 0 reproduces any other frame)")
+      ->capture_default_str();
   bool onlyLine = false, scalar = false;
   app.add_flag("--only-line", onlyLine, "no other segments");
   app.add_flag("--scalar", scalar, "scalar kernels");
@@ -163,10 +169,12 @@ Result<cv::Mat> readImage(const std::string& path) {
 // Runs LLE on one frame and writes its JSON and overlay. Returns false (reason printed)
 // when the library refused the input.
 bool processFrame(const Options& o, const std::string& name, const cv::Mat& frame, const cv::Mat* off,
-                  const image::Roi& roi, const std::string& jsonPath, const std::string& overlayPath,
-                  image::LleWorkspace& ws, image::LaserLine& line, tools::Json* summary) {
+                  const std::string& offName, const image::Roi& roi, const std::string& jsonPath,
+                  const std::string& overlayPath, image::LleWorkspace& ws, image::LaserLine& line,
+                  tools::Json* summary) {
   tools::LleRun run;
   run.image = name;
+  run.laserOff = off != nullptr ? offName : std::string();
   run.roi = roi;
   run.params = o.params;
   run.reference = o.reference;
@@ -229,8 +237,10 @@ int runImage(const Options& o) {
   image::LaserLine line;
   const std::string json = o.json.empty() ? withSuffix(o.image, ".lle.json") : o.json;
   const std::string overlay = o.overlay.empty() ? withSuffix(o.image, ".lle.png") : o.overlay;
-  return processFrame(o, o.image, *frame, o.laserOff.empty() ? nullptr : &off, roi, json, overlay, ws, line, nullptr) ? 0
-                                                                                                                        : 1;
+  return processFrame(o, o.image, *frame, o.laserOff.empty() ? nullptr : &off, o.laserOff, roi, json, overlay, ws, line,
+                      nullptr)
+             ? 0
+             : 1;
 }
 
 int runScan(const Options& o) {
@@ -260,16 +270,22 @@ int runScan(const Options& o) {
         continue;
       }
       cv::Mat off;
+      std::string offName;
       bool haveOff = false;
       if (o.subtractOff) {
-        for (const auto& g : m->frames) {
-          if (g.laserOn || std::abs(g.slideMm - fr.slideMm) > 1e-6) continue;
-          Result<cv::Mat> r = replay::loadFrame(o.scan, *m, g);
-          if (r) {
-            off = *r;
-            haveOff = true;
+        // The ambient is the same at every slide position: the laser-off frame replay would
+        // serve, nearest in exposure, then in position (the daemon's metered one).
+        const int k = replay::nearestFrame(*m, fr.slideMm, false, fr.exposureUs);
+        if (k >= 0) {
+          Result<cv::Mat> r = replay::loadFrame(o.scan, *m, m->frames[static_cast<size_t>(k)]);
+          if (!r) {
+            std::fprintf(stderr, "alacs_lle: %s\n", r.status().toString().c_str());
+            ++failed;
+            continue;
           }
-          break;
+          off = std::move(*r);
+          offName = m->frames[static_cast<size_t>(k)].file;
+          haveOff = true;
         }
       }
       const image::Roi roi = o.haveRoi ? o.roi : m->scan.roiPx ? *m->scan.roiPx : image::Roi{0, 0, img->cols, img->rows};
@@ -277,8 +293,8 @@ int runScan(const Options& o) {
       std::snprintf(stem, sizeof stem, "frame_%04d", fr.index);
       const std::string base = (fs::path(o.out) / stem).string();
       tools::Json entry;
-      const bool ok = processFrame(o, fr.file, *img, haveOff ? &off : nullptr, roi, base + ".json", base + ".png", ws,
-                                   line, &entry);
+      const bool ok = processFrame(o, fr.file, *img, haveOff ? &off : nullptr, offName, roi, base + ".json",
+                                   base + ".png", ws, line, &entry);
       frames.push_back(ok ? entry : tools::Json{{"frame", fr.file}, {"error", true}});
       (ok ? done : failed) += 1;
     }
@@ -303,8 +319,8 @@ int runScan(const Options& o) {
       const image::Roi roi = o.haveRoi ? o.roi : image::Roi{0, 0, img->cols, img->rows};
       const std::string base = (fs::path(o.out) / path.stem()).string();
       tools::Json entry;
-      const bool ok = processFrame(o, path.filename().string(), *img, nullptr, roi, base + ".json", base + ".png", ws,
-                                   line, &entry);
+      const bool ok = processFrame(o, path.filename().string(), *img, nullptr, std::string(), roi, base + ".json",
+                                   base + ".png", ws, line, &entry);
       frames.push_back(ok ? entry : tools::Json{{"frame", path.filename().string()}, {"error", true}});
       (ok ? done : failed) += 1;
     }

@@ -52,6 +52,7 @@ Json lleDocument(const LleRun& run, int frameWidth, int frameHeight, const image
                    {"subtracted_line_threshold_pct", p.subtractedLineThresholdPct},
                    {"subtracted_rows", p.subtractedRows},
                    {"rerun_others_firm", p.rerunOthersFirm},
+                   {"matched_filter", p.matchedFilter},
                    {"edge_ratio", p.edgeRatio},
                    {"edge_agree_px", p.edgeAgreePx},
                    {"max_jump_px", jsonNumber(p.maxJumpPx, "%g")},
