@@ -597,14 +597,25 @@ std::vector<bool> explainedPoints(const std::vector<Eigen::Vector3d>& pts, const
   return out;
 }
 
-// The chosen fit with its score and its strongest rival: the best other object whose
-// centre is more than kRivalSeparationMm away.
+// The chosen fit with its score, the other objects whose centres are more than
+// kRivalSeparationMm away (one entry per object: the best score among those within
+// kRivalSeparationMm of each other), and the strongest of them, its rival.
 Result<SphereFit> withRival(Result<SphereFit> chosen, double score,
                             const std::vector<std::pair<double, Eigen::Vector3d>>& objects) {
   if (!chosen) return chosen;
   chosen->score = score;
-  for (const auto& [sc, centre] : objects) {
-    if ((centre - chosen->centerMm).norm() <= kRivalSeparationMm || sc <= chosen->rivalScore) continue;
+  for (const auto& object : objects) {
+    const double sc = object.first;
+    const Eigen::Vector3d& centre = object.second;
+    if ((centre - chosen->centerMm).norm() <= kRivalSeparationMm || !(sc > 0.0)) continue;
+    const auto same = std::find_if(chosen->others.begin(), chosen->others.end(), [&](const SphereFit::Other& o) {
+      return (o.centerMm - centre).norm() <= kRivalSeparationMm;
+    });
+    if (same == chosen->others.end())
+      chosen->others.push_back({sc, centre});
+    else if (sc > same->score)
+      *same = {sc, centre};
+    if (sc <= chosen->rivalScore) continue;
     chosen->rivalScore = sc;
     chosen->rivalCenterMm = centre;
   }

@@ -78,6 +78,14 @@ struct SphereFit {
   double score = 0.0;
   double rivalScore = 0.0;
   Eigen::Vector3d rivalCenterMm = Eigen::Vector3d::Zero();
+  // Every other object so found (the rival among them), each with its score: where the
+  // caller weighs the objects by more than their support (the localizer's distance from
+  // the rough position), a weaker one may be the likelier target.
+  struct Other {
+    double score = 0.0;
+    Eigen::Vector3d centerMm = Eigen::Vector3d::Zero();
+  };
+  std::vector<Other> others;
 };
 
 // Centres closer than this are the same object for the rival above.

@@ -552,13 +552,35 @@ Result<AppleEstimate> Localizer::estimateLines(const ScanPlan& plan, const std::
   return targetOrRough(likelierOfRival(plan, lines, std::move(est)));
 }
 
+namespace {
+struct OtherChance {
+  double pct = 0.0;
+  Eigen::Vector3d centerMm = Eigen::Vector3d::Zero();
+};
+
+// Each other object weighed as weighDoubt() weighs the fit; the likeliest.
+OtherChance likeliestOther(const ScanPlan& plan, const AppleEstimate& est, double roughSigmaMm, double ballMm,
+                           double otherPrior) {
+  OtherChance best;
+  if (!est.sphereFit || !(otherPrior > 0.0) || !(roughSigmaMm > 0.0)) return best;
+  std::vector<AppleEstimate::Other> others = est.others;
+  if (others.empty() && est.rivalShare > 0.0) others.push_back({est.rivalCenterMm, est.rivalShare});
+  for (const AppleEstimate::Other& o : others) {
+    if (!(o.share > 0.0)) continue;
+    const double pct =
+        100.0 * targetProbability((o.centerMm - plan.roughMm).norm(), roughSigmaMm, ballMm, otherPrior) * o.share;
+    if (pct > best.pct) best = {pct, o.centerMm};
+  }
+  return best;
+}
+}  // namespace
+
 double Localizer::rivalTargetPct(const ScanPlan& plan, const AppleEstimate& est) const {
-  if (!est.sphereFit || !(est.rivalShare > 0.0) || !(scan_.otherObjectPrior > 0.0) || !(scan_.roughSigmaMm > 0.0))
-    return 0.0;
-  return 100.0 *
-         targetProbability((est.rivalCenterMm - plan.roughMm).norm(), scan_.roughSigmaMm, scan_.gateMm,
-                           otherObjectPrior(est.linesUsed)) *
-         est.rivalShare;
+  return likeliestOther(plan, est, scan_.roughSigmaMm, scan_.gateMm, otherObjectPrior(est.linesUsed)).pct;
+}
+
+Eigen::Vector3d Localizer::likeliestOtherMm(const ScanPlan& plan, const AppleEstimate& est) const {
+  return likeliestOther(plan, est, scan_.roughSigmaMm, scan_.gateMm, otherObjectPrior(est.linesUsed)).centerMm;
 }
 
 double Localizer::otherObjectPrior(int linesUsed) const {
@@ -570,12 +592,12 @@ double Localizer::otherObjectPrior(int linesUsed) const {
 Result<AppleEstimate> Localizer::likelierOfRival(const ScanPlan& plan, const std::vector<LineObservation>& lines,
                                                  Result<AppleEstimate> est) const {
   if (!est || !(rivalTargetPct(plan, *est) > est->targetPct)) return est;
-  // The rival's own estimate: the same lines, the rough position's prior on the rival. It
-  // may rest on one line only (the rival object's other lines short): it is weighed alike.
+  // That object's own estimate: the same lines, the rough position's prior on it. It may
+  // rest on one line only (the object's other lines short): it is weighed alike.
   ScanPlan around = plan;
-  around.roughMm = est->rivalCenterMm;
+  around.roughMm = likeliestOtherMm(plan, *est);
   Result<AppleEstimate> rival = estimateFused(around, lines, scan_.roughSigmaMm);
-  if (!rival || (rival->centerMm - est->rivalCenterMm).norm() > geometry::kRivalSeparationMm) return est;
+  if (!rival || (rival->centerMm - around.roughMm).norm() > geometry::kRivalSeparationMm) return est;
   weighDoubt(plan, scan_.gateMm, *rival);
   return rival->targetPct > est->targetPct ? std::move(rival) : std::move(est);
 }
@@ -720,6 +742,8 @@ Result<AppleEstimate> Localizer::estimateFused(const ScanPlan& plan, const std::
   if (fit->rivalScore > 0.0 && fit->score > 0.0) {
     est.rivalShare = fit->rivalScore / (fit->score + fit->rivalScore);
     est.rivalCenterMm = fit->rivalCenterMm;
+    for (const geometry::SphereFit::Other& o : fit->others)
+      est.others.push_back({o.centerMm, o.score / (fit->score + o.score)});
   }
   const double radius = fit->radiusMm;
   const double dist = est.centerMm.norm();

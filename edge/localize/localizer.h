@@ -199,6 +199,13 @@ struct AppleEstimate {
   double fitSigmaMm = 0.0;   // σ of the approach point: the fit's, systematic and shape terms (no mixture)
   double rivalShare = 0.0;   // rival score / (own + rival) from the sphere fit (0: no rival)
   Eigen::Vector3d rivalCenterMm = Eigen::Vector3d::Zero();
+  // Every other object the sphere fit found in the same points (the rival among them),
+  // each with its share: score / (own + its score). Empty: the rival alone, if any.
+  struct Other {
+    Eigen::Vector3d centerMm = Eigen::Vector3d::Zero();
+    double share = 0.0;
+  };
+  std::vector<Other> others;
 };
 
 // The paper's candidates: one per line with points on the target.
@@ -259,13 +266,16 @@ class Localizer {
   // the gate around the rough position (empty when it cannot).
   image::Roi stopRoi(const ScanPlan& plan, double slideMm) const;
 
-  // The chance (%) that the fit's rival (AppleEstimate::rivalCenterMm: another object that
-  // explains the same lines about as well) is the target, reckoned as weighDoubt() reckons
+  // The chance (%) that another object the fit found in the same lines
+  // (AppleEstimate::others, else its rival) is the target, reckoned as weighDoubt() reckons
   // the fit's (AppleEstimate::targetPct): its distance from the rough position, its share
-  // of the support. 0 without a rival. When it exceeds the fit's, estimate() reports the
-  // rival's own estimate instead (the fit with the rough position's prior on the rival,
-  // weighed alike), if that holds up.
+  // of the support; of every such object, the likeliest (not always the strongest: a
+  // weaker one may lie nearer the rough position). 0 without one. When it exceeds the
+  // fit's, estimate() reports that object's own estimate instead (the fit with the rough
+  // position's prior on it, weighed alike), if that holds up.
   double rivalTargetPct(const ScanPlan& plan, const AppleEstimate& est) const;
+  // The same object's centre (meaningful when rivalTargetPct() > 0).
+  Eigen::Vector3d likeliestOtherMm(const ScanPlan& plan, const AppleEstimate& est) const;
 
   // The systematic part of the approach point's σ at `approachMm` (ScanParams::lineBiasPx
   // and the calibration's error), 1σ 3D, mm: added to every fit's σ.

@@ -84,8 +84,19 @@ TEST_CASE("An object whose refinement fails does not end the search for the targ
   CHECK((fit->centerMm - target).norm() < 2.0);
   CHECK(std::abs(fit->radiusMm - 38.0) < 2.0);
   CHECK(fit->linesUsed == 5);
-  // The neighbour was found too: it is the rival.
+  // The neighbour was found too: it is the rival, and among the other objects, each apart
+  // from the fit and from each other, none stronger than the rival.
   CHECK((fit->rivalCenterMm - neighbour).norm() < 3.0);
+  REQUIRE_FALSE(fit->others.empty());
+  bool rivalListed = false;
+  for (size_t i = 0; i < fit->others.size(); ++i) {
+    const auto& o = fit->others[i];
+    CHECK((o.centerMm - fit->centerMm).norm() > kRivalSeparationMm);
+    CHECK(o.score <= fit->rivalScore);
+    rivalListed = rivalListed || (o.centerMm - fit->rivalCenterMm).norm() < 1e-9;
+    for (size_t j = 0; j < i; ++j) CHECK((o.centerMm - fit->others[j].centerMm).norm() > kRivalSeparationMm);
+  }
+  CHECK(rivalListed);
 }
 
 TEST_CASE("A cap that curves tighter than any fruit is held at the smallest fruit's radius", "[geometry][sphere]") {

@@ -831,6 +831,22 @@ TEST_CASE("Of a fit and its rival, the one the doubt model finds likelier the ta
   localize::ScanParams off = k.scan;
   off.otherObjectPrior = 0.0;
   CHECK(localize::Localizer(k.cal, image::LleParams{}, off).rivalTargetPct(*plan, est) == 0.0);
+  // Of every other object the fit found, the likeliest, not the strongest: a second
+  // neighbour outscores a hidden target near the rough position (hard cases' seed 7: the
+  // fit on one neighbour, its rival the other, the target third; the rough position went
+  // out, 36 mm off, where the target's own fit was 6 mm off).
+  localize::AppleEstimate three = est;
+  three.centerMm = k.center + Eigen::Vector3d(0.0, 62.0, 0.0);
+  three.rivalShare = 0.32;
+  three.rivalCenterMm = k.center + Eigen::Vector3d(0.0, -100.0, 10.0);
+  three.others = {{three.rivalCenterMm, 0.32}, {k.center + Eigen::Vector3d(4.0, 3.0, -2.0), 0.07}};
+  const double hidden = loc.rivalTargetPct(*plan, three);
+  CHECK(hidden > 5.0);
+  CHECK((loc.likeliestOtherMm(*plan, three) - three.others[1].centerMm).norm() < 1e-9);
+  localize::AppleEstimate rivalOnly = three;
+  rivalOnly.others.resize(1);
+  CHECK(loc.rivalTargetPct(*plan, rivalOnly) < 0.1 * hidden);
+  CHECK((loc.likeliestOtherMm(*plan, rivalOnly) - three.rivalCenterMm).norm() < 1e-9);
 }
 
 TEST_CASE("A neighbour that outscores a hidden target far from the rough position gives way to the target",
