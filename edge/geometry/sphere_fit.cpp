@@ -598,26 +598,25 @@ std::vector<bool> explainedPoints(const std::vector<Eigen::Vector3d>& pts, const
 }
 
 // The chosen fit with its score, the other objects whose centres are more than
-// kRivalSeparationMm away (one entry per object: the best score among those within
-// kRivalSeparationMm of each other), and the strongest of them, its rival.
+// kRivalSeparationMm away (strongest first; one per place: an object within
+// kRivalSeparationMm of a stronger one is that one), and the strongest of them, its rival.
 Result<SphereFit> withRival(Result<SphereFit> chosen, double score,
-                            const std::vector<std::pair<double, Eigen::Vector3d>>& objects) {
+                            std::vector<std::pair<double, Eigen::Vector3d>> objects) {
   if (!chosen) return chosen;
   chosen->score = score;
+  std::stable_sort(objects.begin(), objects.end(), [](const auto& a, const auto& b) { return a.first > b.first; });
   for (const auto& object : objects) {
     const double sc = object.first;
     const Eigen::Vector3d& centre = object.second;
-    if ((centre - chosen->centerMm).norm() <= kRivalSeparationMm || !(sc > 0.0)) continue;
-    const auto same = std::find_if(chosen->others.begin(), chosen->others.end(), [&](const SphereFit::Other& o) {
-      return (o.centerMm - centre).norm() <= kRivalSeparationMm;
-    });
-    if (same == chosen->others.end())
-      chosen->others.push_back({sc, centre});
-    else if (sc > same->score)
-      *same = {sc, centre};
-    if (sc <= chosen->rivalScore) continue;
-    chosen->rivalScore = sc;
-    chosen->rivalCenterMm = centre;
+    if (!(sc > 0.0) || (centre - chosen->centerMm).norm() <= kRivalSeparationMm) continue;
+    if (std::any_of(chosen->others.begin(), chosen->others.end(),
+                    [&](const SphereFit::Other& o) { return (o.centerMm - centre).norm() <= kRivalSeparationMm; }))
+      continue;
+    chosen->others.push_back({centre, sc});
+  }
+  if (!chosen->others.empty()) {
+    chosen->rivalScore = chosen->others.front().score;
+    chosen->rivalCenterMm = chosen->others.front().centerMm;
   }
   return chosen;
 }

@@ -81,9 +81,11 @@ struct SphereFit {
   // Every other object so found (the rival among them), each with its score: where the
   // caller weighs the objects by more than their support (the localizer's distance from
   // the rough position), a weaker one may be the likelier target.
+  // One per place: the strongest first (the rival), each more than kRivalSeparationMm from
+  // the fit and from every stronger one.
   struct Other {
-    double score = 0.0;
     Eigen::Vector3d centerMm = Eigen::Vector3d::Zero();
+    double score = 0.0;
   };
   std::vector<Other> others;
 };

@@ -558,19 +558,20 @@ struct OtherChance {
   Eigen::Vector3d centerMm = Eigen::Vector3d::Zero();
 };
 
-// Each other object weighed as weighDoubt() weighs the fit; the likeliest.
+// Each other object weighed as weighDoubt() weighs the fit; the likeliest. Each share is
+// the object's against the fit's alone, as the rival's is (not normalised over them all).
 OtherChance likeliestOther(const ScanPlan& plan, const AppleEstimate& est, double roughSigmaMm, double ballMm,
                            double otherPrior) {
   OtherChance best;
   if (!est.sphereFit || !(otherPrior > 0.0) || !(roughSigmaMm > 0.0)) return best;
-  std::vector<AppleEstimate::Other> others = est.others;
-  if (others.empty() && est.rivalShare > 0.0) others.push_back({est.rivalCenterMm, est.rivalShare});
-  for (const AppleEstimate::Other& o : others) {
-    if (!(o.share > 0.0)) continue;
+  const auto weigh = [&](const Eigen::Vector3d& centerMm, double share) {
+    if (!(share > 0.0)) return;
     const double pct =
-        100.0 * targetProbability((o.centerMm - plan.roughMm).norm(), roughSigmaMm, ballMm, otherPrior) * o.share;
-    if (pct > best.pct) best = {pct, o.centerMm};
-  }
+        100.0 * targetProbability((centerMm - plan.roughMm).norm(), roughSigmaMm, ballMm, otherPrior) * share;
+    if (pct > best.pct) best = {pct, centerMm};
+  };
+  for (const AppleEstimate::Other& o : est.others) weigh(o.centerMm, o.share);
+  if (est.others.empty()) weigh(est.rivalCenterMm, est.rivalShare);  // an estimate made without the list
   return best;
 }
 }  // namespace
@@ -591,11 +592,14 @@ double Localizer::otherObjectPrior(int linesUsed) const {
 
 Result<AppleEstimate> Localizer::likelierOfRival(const ScanPlan& plan, const std::vector<LineObservation>& lines,
                                                  Result<AppleEstimate> est) const {
-  if (!est || !(rivalTargetPct(plan, *est) > est->targetPct)) return est;
+  if (!est) return est;
+  const OtherChance other =
+      likeliestOther(plan, *est, scan_.roughSigmaMm, scan_.gateMm, otherObjectPrior(est->linesUsed));
+  if (!(other.pct > est->targetPct)) return est;
   // That object's own estimate: the same lines, the rough position's prior on it. It may
   // rest on one line only (the object's other lines short): it is weighed alike.
   ScanPlan around = plan;
-  around.roughMm = likeliestOtherMm(plan, *est);
+  around.roughMm = other.centerMm;
   Result<AppleEstimate> rival = estimateFused(around, lines, scan_.roughSigmaMm);
   if (!rival || (rival->centerMm - around.roughMm).norm() > geometry::kRivalSeparationMm) return est;
   weighDoubt(plan, scan_.gateMm, *rival);

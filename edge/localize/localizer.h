@@ -291,8 +291,8 @@ class Localizer {
   Result<AppleEstimate> estimateWidened(const ScanPlan& plan, const std::vector<LineObservation>& lines) const;
   // The estimate from the rough position alone: centre there, a prior radius, σ its error.
   AppleEstimate roughEstimate(const ScanPlan& plan) const;
-  // When rivalTargetPct() exceeds the fit's targetPct: the rival's own estimate, if it is
-  // found there and weighs more; else `est`.
+  // When rivalTargetPct() exceeds the fit's targetPct: the estimate of that other object
+  // (likeliestOtherMm()), if it is found there and weighs more; else `est`.
   Result<AppleEstimate> likelierOfRival(const ScanPlan& plan, const std::vector<LineObservation>& lines,
                                         Result<AppleEstimate> est) const;
   // Triangulates `pixels` at the stop: those within the gate round the rough position go

@@ -832,9 +832,8 @@ TEST_CASE("Of a fit and its rival, the one the doubt model finds likelier the ta
   off.otherObjectPrior = 0.0;
   CHECK(localize::Localizer(k.cal, image::LleParams{}, off).rivalTargetPct(*plan, est) == 0.0);
   // Of every other object the fit found, the likeliest, not the strongest: a second
-  // neighbour outscores a hidden target near the rough position (hard cases' seed 7: the
-  // fit on one neighbour, its rival the other, the target third; the rough position went
-  // out, 36 mm off, where the target's own fit was 6 mm off).
+  // neighbour outscores a hidden target near the rough position (as in a scan of the hard
+  // cases' seed 7, where the fit was the widened search's and the rough position went out).
   localize::AppleEstimate three = est;
   three.centerMm = k.center + Eigen::Vector3d(0.0, 62.0, 0.0);
   three.rivalShare = 0.32;

@@ -143,6 +143,40 @@ TEST_CASE("A bad manifest is refused with the field named", "[replay]") {
   CHECK(replay::readManifest(dir + "/none").status().code() == Error::kNotFound);
 }
 
+TEST_CASE("The frame replay serves: laser-off frames by exposure first, then position", "[replay]") {
+  replay::ScanManifest m;
+  const auto add = [&](double slideMm, bool laserOn, int64_t exposureUs) {
+    replay::FrameRecord f;
+    f.slideMm = slideMm;
+    f.laserOn = laserOn;
+    f.exposureUs = exposureUs;
+    m.frames.push_back(f);
+  };
+  CHECK(replay::nearestFrame(m, 10.0, false, 500) == -1);  // no frame at all
+  add(10.0, true, 500);                                    // 0
+  CHECK(replay::nearestFrame(m, 10.0, false, 500) == -1);  // no laser-off frame
+  add(40.0, false, 3000);                                  // 1: a metering frame
+  add(60.0, false, 500);                                   // 2: the laser frames' exposure
+  add(0.0, false, 480);                                    // 3: near it, nearer in position
+  add(20.0, true, 500);                                    // 4
+  // Laser off: the exposure decides (ratio), the ambient being the same at every position.
+  CHECK(replay::nearestFrame(m, 0.0, false, 500) == 2);
+  CHECK(replay::nearestFrame(m, 0.0, false, 2500) == 1);
+  CHECK(replay::nearestFrame(m, 0.0, false, 470) == 3);
+  // Equal ratios (x2 and /2): the position.
+  add(5.0, false, 1000);  // 5
+  add(50.0, false, 250);  // 6
+  CHECK(replay::nearestFrame(m, 0.0, false, 500) == 2);
+  m.frames[2].exposureUs = 2000;
+  m.frames[3].exposureUs = 2000;
+  CHECK(replay::nearestFrame(m, 0.0, false, 500) == 5);
+  CHECK(replay::nearestFrame(m, 60.0, false, 500) == 6);
+  // No exposure asked: the position alone; laser on: the position alone.
+  CHECK(replay::nearestFrame(m, 49.0, false) == 6);
+  CHECK(replay::nearestFrame(m, 18.0, true, 99999) == 4);
+  CHECK(replay::nearestFrame(m, 11.0, true) == 0);
+}
+
 TEST_CASE("The replay source serves the nearest frame with the laser's state and reports its position", "[replay]") {
   const test::TempDir tmp("alacs_replay");
   const std::string dir = tmp.path();

@@ -90,30 +90,38 @@ if "$bin/alacs_lle" --scan "$tmp/outdoor/lle_0007" --out "$tmp/scan-out" >/dev/n
 else
   fail "alacs_lle --scan DIR"
 fi
-# Sunlit scans with their laser-off frame subtracted: the frame replay would serve (nearest in
-# exposure), and the matched filter for the rows the rerun leaves (on by default; alacsd
-# runs it only where its metering found direct sun) finds rows that 0 does not.
-valid_rows() {  # DIR: the laser-on frames' valid rows, summed, after checking each subtracted
-  "$py" - "$1" <<'PY'
-import glob, json, sys
+# Sunlit scans with their laser-off frame subtracted: the one at the laser frame's exposure
+# (the daemon's), and the matched filter for the rows the rerun leaves (on by default;
+# alacsd runs it only where its metering found direct sun) finds rows that 0 does not.
+valid_rows() {  # OUT SCANS: the laser-on frames' valid rows, summed, after checking what each subtracted
+  "$py" - "$1" "$2" <<'PY'
+import glob, json, os, sys
+out, scans = sys.argv[1], sys.argv[2]
 n = 0
-for f in glob.glob(sys.argv[1] + "/*/frame_*.json"):
+for f in sorted(glob.glob(out + "/*/frame_*.json")):
     d = json.load(open(f))
-    assert d["laser_off"], f + ": no laser-off frame subtracted"
+    m = json.load(open(os.path.join(scans, "lle_000" + os.path.basename(os.path.dirname(f)), "manifest.json")))
+    by_file = {fr["file"]: fr for fr in m["frames"]}
+    on, off = by_file[d["image"]], by_file.get(d["laser_off"] or "")
+    assert off is not None and not off["laser_on"], f + ": no laser-off frame subtracted"
+    assert off["exposure_us"] == on["exposure_us"], f + ": subtracted at another exposure"
     n += sum(r["valid"] for r in d["rows"])
 print(n)
 PY
 }
+mf_failed=0
 for mf in 0 1; do
   for k in 0 1 2 3 4 5 6 7; do
-    "$bin/alacs_lle" --scan "$tmp/sun/lle_000$k" --out "$tmp/sun-mf$mf/$k" --subtract-off --matched-filter $mf >/dev/null 2>&1
+    "$bin/alacs_lle" --scan "$tmp/sun/lle_000$k" --out "$tmp/sun-mf$mf/$k" --subtract-off --matched-filter "$mf" \
+      >/dev/null 2>"$tmp/sun-mf$mf-$k.err" || mf_failed=$((mf_failed + 1))
   done
 done
-rows0=$(valid_rows "$tmp/sun-mf0") rows1=$(valid_rows "$tmp/sun-mf1")
-if [[ -n $rows0 && -n $rows1 ]] && ((rows1 > rows0)); then
+rows0=$(valid_rows "$tmp/sun-mf0" "$tmp/sun") rows1=$(valid_rows "$tmp/sun-mf1" "$tmp/sun")
+if ((mf_failed == 0)) && [[ -n $rows0 && -n $rows1 ]] && ((rows1 > rows0)); then
   pass "alacs_lle --scan --subtract-off in sun: valid rows $rows0 without the matched filter, $rows1 with it"
 else
-  fail "alacs_lle --scan --subtract-off in sun (rows: '$rows0' without the matched filter, '$rows1' with it)"
+  fail "alacs_lle --scan --subtract-off in sun ($mf_failed runs failed; rows: '$rows0' without the matched filter, '$rows1' with it)"
+  cat "$tmp"/sun-mf*.err
 fi
 refused=0
 "$bin/alacs_lle" "$tmp/missing.png" --overlay none 2>/dev/null; [[ $? -eq 1 ]] && refused=$((refused + 1))

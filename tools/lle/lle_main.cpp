@@ -36,8 +36,8 @@ constexpr const char* kDescription =
     ".lle.png; --overlay none: no overlay). --scan reads a scan directory (manifest.json, or\n"
     "else every *.png in it) and writes one JSON and one overlay per laser-on frame into --out,\n"
     "plus summary.json; the ROI is --roi, else the scan's planned ROI, else the whole frame.\n"
-    "--subtract-off subtracts a laser-off frame of the scan: the one nearest the laser frame's\n"
-    "exposure, then its slide position (what replay serves; the ambient is the same at every position).\n"
+    "--subtract-off subtracts a laser-off frame of the scan at the laser frame's exposure (within 5 %),\n"
+    "the nearest in position (the ambient is the same at every position); none: a warning, no subtraction.\n"
     "Exit status: 0 done, 1 an input or parameter was refused (the reason on stderr), 2 usage.";
 
 struct Options {
@@ -71,7 +71,7 @@ int parseArgs(int argc, char** argv, Options& o) {
   app.add_option("--scan", o.scan, "a scan directory instead of IMAGE");
   app.add_option("--out", o.out, "the output directory of --scan");
   app.add_flag("--subtract-off", o.subtractOff,
-               "--scan: subtract the laser-off frame nearest the laser frame's exposure, then position");
+               "--scan: subtract the laser-off frame at the laser frame's exposure (within 5 %)");
   std::string method = "robust", form = "meaning";
   app.add_option("--method", method, "robust|paper")->check(CLI::IsMember({"robust", "paper"}))->capture_default_str();
   app.add_option("--form", form, "meaning|literal")->check(CLI::IsMember({"meaning", "literal"}))->capture_default_str();
@@ -168,6 +168,17 @@ Result<cv::Mat> readImage(const std::string& path) {
 
 // Runs LLE on one frame and writes its JSON and overlay. Returns false (reason printed)
 // when the library refused the input.
+#ifdef ALACS_LLE_HAVE_REPLAY
+// Exposures (us) a laser-off frame may differ from the laser frame's by, as a ratio, and
+// still be subtracted: what a camera reports against what was asked.
+constexpr double kSameExposureRatio = 1.05;
+bool sameExposure(int64_t aUs, int64_t bUs) {
+  if (aUs <= 0 || bUs <= 0) return aUs == bUs;
+  const double r = static_cast<double>(aUs) / static_cast<double>(bUs);
+  return r <= kSameExposureRatio && r >= 1.0 / kSameExposureRatio;
+}
+#endif
+
 bool processFrame(const Options& o, const std::string& name, const cv::Mat& frame, const cv::Mat* off,
                   const std::string& offName, const image::Roi& roi, const std::string& jsonPath,
                   const std::string& overlayPath, image::LleWorkspace& ws, image::LaserLine& line,
@@ -261,6 +272,8 @@ int runScan(const Options& o) {
       std::fprintf(stderr, "alacs_lle: %s\n", m.status().toString().c_str());
       return 1;
     }
+    cv::Mat off;        // the laser-off frame last decoded,
+    int offIndex = -1;  // its index in the manifest
     for (const auto& fr : m->frames) {
       if (!fr.laserOn) continue;
       Result<cv::Mat> img = replay::loadFrame(o.scan, *m, fr);
@@ -269,24 +282,30 @@ int runScan(const Options& o) {
         ++failed;
         continue;
       }
-      cv::Mat off;
       std::string offName;
       bool haveOff = false;
       if (o.subtractOff) {
         // The ambient is the same at every slide position: the laser-off frame replay would
-        // serve, nearest in exposure, then in position (the daemon's metered one).
+        // serve (nearest in exposure, then in position), and only at the laser frame's own
+        // exposure, as the daemon subtracts (within kSameExposureRatio: a frame reports the
+        // exposure it got).
         const int k = replay::nearestFrame(*m, fr.slideMm, false, fr.exposureUs);
-        if (k >= 0) {
-          Result<cv::Mat> r = replay::loadFrame(o.scan, *m, m->frames[static_cast<size_t>(k)]);
+        const replay::FrameRecord* g = k >= 0 ? &m->frames[static_cast<size_t>(k)] : nullptr;
+        if (g == nullptr || !sameExposure(g->exposureUs, fr.exposureUs)) {
+          std::fprintf(stderr, "alacs_lle: %s: no laser-off frame at its exposure (%lld us): nothing subtracted\n",
+                       fr.file.c_str(), static_cast<long long>(fr.exposureUs));
+        } else if (k != offIndex) {
+          Result<cv::Mat> r = replay::loadFrame(o.scan, *m, *g);
           if (!r) {
             std::fprintf(stderr, "alacs_lle: %s\n", r.status().toString().c_str());
             ++failed;
             continue;
           }
           off = std::move(*r);
-          offName = m->frames[static_cast<size_t>(k)].file;
-          haveOff = true;
+          offIndex = k;
         }
+        haveOff = offIndex == k && g != nullptr && sameExposure(g->exposureUs, fr.exposureUs);
+        if (haveOff) offName = g->file;
       }
       const image::Roi roi = o.haveRoi ? o.roi : m->scan.roiPx ? *m->scan.roiPx : image::Roi{0, 0, img->cols, img->rows};
       char stem[32];
