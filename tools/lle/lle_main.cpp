@@ -166,8 +166,6 @@ Result<cv::Mat> readImage(const std::string& path) {
   return m;
 }
 
-// Runs LLE on one frame and writes its JSON and overlay. Returns false (reason printed)
-// when the library refused the input.
 #ifdef ALACS_LLE_HAVE_REPLAY
 // Exposures (us) a laser-off frame may differ from the laser frame's by, as a ratio, and
 // still be subtracted: what a camera reports against what was asked.
@@ -179,6 +177,8 @@ bool sameExposure(int64_t aUs, int64_t bUs) {
 }
 #endif
 
+// Runs LLE on one frame and writes its JSON and overlay. Returns false (reason printed)
+// when the library refused the input.
 bool processFrame(const Options& o, const std::string& name, const cv::Mat& frame, const cv::Mat* off,
                   const std::string& offName, const image::Roi& roi, const std::string& jsonPath,
                   const std::string& overlayPath, image::LleWorkspace& ws, image::LaserLine& line,
@@ -294,18 +294,20 @@ int runScan(const Options& o) {
         if (g == nullptr || !sameExposure(g->exposureUs, fr.exposureUs)) {
           std::fprintf(stderr, "alacs_lle: %s: no laser-off frame at its exposure (%lld us): nothing subtracted\n",
                        fr.file.c_str(), static_cast<long long>(fr.exposureUs));
-        } else if (k != offIndex) {
-          Result<cv::Mat> r = replay::loadFrame(o.scan, *m, *g);
-          if (!r) {
-            std::fprintf(stderr, "alacs_lle: %s\n", r.status().toString().c_str());
-            ++failed;
-            continue;
+        } else {
+          if (k != offIndex) {
+            Result<cv::Mat> r = replay::loadFrame(o.scan, *m, *g);
+            if (!r) {
+              std::fprintf(stderr, "alacs_lle: %s\n", r.status().toString().c_str());
+              ++failed;
+              continue;
+            }
+            off = std::move(*r);
+            offIndex = k;
           }
-          off = std::move(*r);
-          offIndex = k;
+          haveOff = true;
+          offName = g->file;
         }
-        haveOff = offIndex == k && g != nullptr && sameExposure(g->exposureUs, fr.exposureUs);
-        if (haveOff) offName = g->file;
       }
       const image::Roi roi = o.haveRoi ? o.roi : m->scan.roiPx ? *m->scan.roiPx : image::Roi{0, 0, img->cols, img->rows};
       char stem[32];
