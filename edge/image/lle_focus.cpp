@@ -1068,6 +1068,7 @@ struct MatchedArrays {
   uint8_t* state;   // h: 0 free, 1 the line's, 2 another sample (left alone), 3 taken here
   int32_t* run;     // h: the run the row belongs to (-1: none)
   int32_t* stack;   // h: the walk's stack, then the kept rows' smoothed columns (Q8, in the ROI)
+  int32_t* segOf;   // h: a kept run's new segment (0.., in order of first row), -1: none
 };
 
 // Grows runs from the seeds (the line's rows, and free rows at `seed` or more) through free
@@ -1143,13 +1144,72 @@ int keepMatchedRuns(int h, int runs, int minRows, int smoothRows, const MatchedA
   return kept;
 }
 
+// One new segment per kept run (appended to out.segments, in order of first row; runs beyond
+// the segments' reserved capacity join the last new one, so that no frame allocates), the
+// line's rows renumbered for their place among them, and each kept run's final segment
+// index into segOf (run -> index). placeMatchedSegments() then moves the new segments there.
+// Ties keep an older segment before a new one with the same first row.
+void addMatchedSegments(int h, int roiY, const MatchedArrays& a, LaserLine& out) {
+  const size_t nOld = out.segments.size();
+  const size_t room = out.segments.capacity() - nOld;
+  std::fill(a.segOf, a.segOf + h, -1);
+  int32_t k = 0;
+  for (int y = 0; y < h; ++y) {
+    if (a.state[y] != 3) continue;
+    int32_t& j = a.segOf[a.run[y]];
+    if (j < 0) {
+      if (k == 0 || static_cast<size_t>(k) < room) {
+        j = k++;
+        LineSegment seg;
+        seg.firstRow = roiY + y;
+        out.segments.push_back(seg);
+      } else {
+        j = k - 1;
+      }
+    }
+    LineSegment& seg = out.segments[nOld + static_cast<size_t>(j)];
+    seg.lastRow = roiY + y;
+    ++seg.rows;
+  }
+  // The older segments move down by the new ones that start before them.
+  const auto newBefore = [&](int firstRow) {
+    int32_t n = 0;
+    for (size_t j = nOld; j < out.segments.size(); ++j) n += out.segments[j].firstRow < firstRow ? 1 : 0;
+    return n;
+  };
+  for (RowSample& r : out.rows)
+    if (r.segment >= 0) r.segment += newBefore(out.segments[static_cast<size_t>(r.segment)].firstRow);
+  // A new segment's index: its order among the new ones, after every older one starting no later.
+  for (int run = 0; run < h; ++run) {
+    if (a.segOf[run] < 0) continue;
+    const int first = out.segments[nOld + static_cast<size_t>(a.segOf[run])].firstRow;
+    int32_t older = 0;
+    for (size_t i = 0; i < nOld; ++i) older += out.segments[i].firstRow <= first ? 1 : 0;
+    a.segOf[run] += older;
+  }
+}
+
+// The new segments (appended by addMatchedSegments, in order of first row) moved into their
+// places by first row, after the older segments that start no later: the indices it gave. A
+// stable insertion sort (in place: std::stable_sort may allocate); both parts were in order.
+void placeMatchedSegments(LaserLine& out) {
+  auto& segs = out.segments;
+  for (size_t j = 1; j < segs.size(); ++j) {
+    size_t i = j;
+    while (i > 0 && segs[i - 1].firstRow > segs[j].firstRow) --i;
+    if (i < j)
+      std::rotate(segs.begin() + static_cast<std::ptrdiff_t>(i), segs.begin() + static_cast<std::ptrdiff_t>(j),
+                  segs.begin() + static_cast<std::ptrdiff_t>(j) + 1);
+  }
+}
+
 // Rows of a laser-off-subtracted ROI with no sample at all, filled from a filter matched to
 // the line's profile (docs/lle.md, "The sunlit line through a matched filter"): where bRCE
 // decides each pixel against two others, the filter sums the whole profile. Rows at
 // LleParams::matchedSeedSigmas of their row's spread start a run, rows at matchedJoinSigmas
 // join one (growMatchedRuns); runs that touch the line's rows are kept whatever their
 // length, others with minSegmentRows rows (keepMatchedRuns). The rows kept are kSegment
-// samples of one new segment (all the filter's runs in one): the 3D gate and the localizer's
+// samples of a new segment per run (addMatchedSegments): the 3D gate and the localizer's
 // fit sort them, as they do other segments. The responses are integers; the spread, the
 // parabola's vertex and the smoothing are computed in double, outside the arithmetics'
 // templates (the same code for both).
@@ -1162,11 +1222,11 @@ void matchedFilterRows(const ImageView& frame, const ImageView& laserOff, const 
   const auto uh = static_cast<size_t>(h);
   Arena arena(ws.scratch);  // one reserve per take (each take may pad to 16 bytes)
   for (int i = 0; i < 2; ++i) arena.reserve<int32_t>(uw);
-  for (int i = 0; i < 4; ++i) arena.reserve<int32_t>(uh);
+  for (int i = 0; i < 5; ++i) arena.reserve<int32_t>(uh);
   arena.reserve<uint8_t>(uh);
   arena.commit();
   MatchedArrays a{arena.take<int32_t>(uw), arena.take<int32_t>(uw), arena.take<int32_t>(uh), arena.take<int32_t>(uh),
-                  arena.take<uint8_t>(uh), arena.take<int32_t>(uh), arena.take<int32_t>(uh)};
+                  arena.take<uint8_t>(uh), arena.take<int32_t>(uh), arena.take<int32_t>(uh), arena.take<int32_t>(uh)};
   std::fill(a.state, a.state + h, uint8_t{0});
   for (const RowSample& r : out.rows) {
     const int y = r.row - roi.y;
@@ -1196,21 +1256,7 @@ void matchedFilterRows(const ImageView& frame, const ImageView& laserOff, const 
                                    static_cast<int32_t>(std::lround(256.0 * p.maxJumpPx)), a);
   const int added = keepMatchedRuns(h, runs, p.minSegmentRows, p.smoothRows, a);
   if (added == 0) return;
-  // One new segment, in its place by first row; the segments after it renumbered.
-  LineSegment seg;
-  seg.firstRow = roi.y + static_cast<int>(std::find(a.state, a.state + h, uint8_t{3}) - a.state);
-  for (int y = h - 1; y >= 0; --y)
-    if (a.state[y] == 3) {
-      seg.lastRow = roi.y + y;
-      break;
-    }
-  seg.rows = added;
-  const auto at = std::find_if(out.segments.begin(), out.segments.end(),
-                               [&](const LineSegment& s) { return s.firstRow > seg.firstRow; });
-  const auto index = static_cast<int32_t>(at - out.segments.begin());
-  out.segments.insert(at, seg);
-  for (RowSample& r : out.rows)
-    if (r.segment >= index) ++r.segment;
+  addMatchedSegments(h, roi.y, a, out);
   // The new samples merged into the rows (ascending by row), from the end.
   size_t src = out.rows.size();
   out.rows.resize(src + static_cast<size_t>(added));
@@ -1226,10 +1272,11 @@ void matchedFilterRows(const ImageView& frame, const ImageView& laserOff, const 
       sm.column = static_cast<float>(sm.columnQ8) / 256.0F;
       sm.confidence = std::clamp(static_cast<float>(a.z[y]) / 1000.0F, 0.1F, 1.0F);
       sm.status = RowStatus::kSegment;
-      sm.segment = index;
+      sm.segment = a.segOf[a.run[y]];
       out.rows[--dst] = sm;
     }
   }
+  placeMatchedSegments(out);
 }
 
 }  // namespace
