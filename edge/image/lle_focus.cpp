@@ -1005,7 +1005,9 @@ struct MatchedKernel {
       sum += q8[i];
     }
     q8[kMatchedHalfPx] -= sum;
+    for (size_t i = 0; i < q8.size(); ++i) q16[i] = static_cast<int16_t>(q8[i]);
   }
+  std::array<int16_t, 2 * kMatchedHalfPx + 1> q16{};  // the same, for 16-bit products
 };
 
 // One ROI row through the matched filter: its best column (-1: none), the response there
@@ -1018,14 +1020,24 @@ struct MatchedRow {
   int32_t left = 0, mid = 0, right = 0;  // the responses at x - 1, x, x + 1
 };
 MatchedRow matchedRow(const uint8_t* on, const uint8_t* off, int redOffset, int w, const MatchedKernel& k,
-                      int32_t* resp, int32_t* sorted) {
+                      int32_t* resp, int32_t* sorted, int16_t* diff) {
   constexpr int32_t kNone = std::numeric_limits<int32_t>::min();
   const auto ro = static_cast<size_t>(redOffset);
   const auto red = [&](const uint8_t* f, int x) { return static_cast<int32_t>(f[static_cast<size_t>(x) * 3U + ro]); };
-  // The difference first (into `sorted`), then the filter over it; each response goes to
-  // sorted[x - half], a place no window still to come reads.
-  for (int x = 0; x < w; ++x) sorted[x] = red(on, x) - red(off, x);
-  int n = 0;
+  // The difference first (16 bits: -255..255), then the filter over it into sorted[x - half],
+  // one tap at a time over the whole row (16-bit products the compiler vectorises), then
+  // each response into resp[x] where no clipped laser-off pixel is in its window.
+  const int n = std::max(0, w - 2 * kMatchedHalfPx);
+  for (int x = 0; x < w; ++x) diff[x] = static_cast<int16_t>(red(on, x) - red(off, x));
+  {
+    int32_t* __restrict__ r = sorted;
+    std::fill(r, r + n, 0);
+    for (size_t i = 0; i < k.q16.size(); ++i) {
+      const int32_t q = k.q16[i];
+      const int16_t* __restrict__ d = diff + i;
+      for (int j = 0; j < n; ++j) r[j] += q * static_cast<int32_t>(d[j]);
+    }
+  }
   int clipAt = -1000000;  // the last laser-off pixel at full scale up to x + half
   for (int x = 0; x < std::min(kMatchedHalfPx, w); ++x)
     if (red(off, x) == 255) clipAt = x;
@@ -1033,20 +1045,13 @@ MatchedRow matchedRow(const uint8_t* on, const uint8_t* off, int redOffset, int 
     resp[x] = kNone;
     if (x + kMatchedHalfPx < w && red(off, x + kMatchedHalfPx) == 255) clipAt = x + kMatchedHalfPx;
     if (x < kMatchedHalfPx || x + kMatchedHalfPx >= w) continue;
-    const int32_t* d = sorted + (x - kMatchedHalfPx);
-    int32_t r = 0;
-    for (size_t i = 0; i < k.q8.size(); ++i) r += k.q8[i] * d[i];
-    sorted[n++] = r;
-    if (clipAt < x - kMatchedHalfPx) resp[x] = r;
+    if (clipAt < x - kMatchedHalfPx) resp[x] = sorted[x - kMatchedHalfPx];
   }
   MatchedRow out;
   if (n < 4) return out;
-  int32_t* mid = sorted + n / 2;
-  std::nth_element(sorted, mid, sorted + n);
-  const int32_t median = *mid;
+  const int32_t median = kthSmallest(sorted, n, n / 2);
   for (int i = 0; i < n; ++i) sorted[i] = std::abs(sorted[i] - median);
-  std::nth_element(sorted, mid, sorted + n);
-  const double spread = 1.4826 * std::max<int32_t>(1, *mid);
+  const double spread = 1.4826 * std::max<int32_t>(1, kthSmallest(sorted, n, n / 2));
   int best = -1;
   for (int x = kMatchedHalfPx + 1; x + kMatchedHalfPx + 1 < w; ++x)
     if (resp[x] != kNone && (best < 0 || resp[x] > resp[best])) best = x;
@@ -1063,6 +1068,7 @@ MatchedRow matchedRow(const uint8_t* on, const uint8_t* off, int redOffset, int 
 struct MatchedArrays {
   int32_t* resp;    // w: a row's responses
   int32_t* sorted;  // w: the same, for the median
+  int16_t* diff;    // w: the row's red difference
   int32_t* colQ8;   // h: the column (Q8, in the ROI) of the row's line sample or filter peak (unsmoothed)
   int32_t* z;       // h: the peak's response over the row's spread (hundredths)
   uint8_t* state;   // h: 0 free, 1 the line's, 2 another sample (left alone), 3 taken here
@@ -1222,11 +1228,13 @@ void matchedFilterRows(const ImageView& frame, const ImageView& laserOff, const 
   const auto uh = static_cast<size_t>(h);
   Arena arena(ws.scratch);  // one reserve per take (each take may pad to 16 bytes)
   for (int i = 0; i < 2; ++i) arena.reserve<int32_t>(uw);
+  arena.reserve<int16_t>(uw);
   for (int i = 0; i < 5; ++i) arena.reserve<int32_t>(uh);
   arena.reserve<uint8_t>(uh);
   arena.commit();
-  MatchedArrays a{arena.take<int32_t>(uw), arena.take<int32_t>(uw), arena.take<int32_t>(uh), arena.take<int32_t>(uh),
-                  arena.take<uint8_t>(uh), arena.take<int32_t>(uh), arena.take<int32_t>(uh), arena.take<int32_t>(uh)};
+  MatchedArrays a{arena.take<int32_t>(uw), arena.take<int32_t>(uw), arena.take<int16_t>(uw),
+                  arena.take<int32_t>(uh), arena.take<int32_t>(uh), arena.take<uint8_t>(uh),
+                  arena.take<int32_t>(uh), arena.take<int32_t>(uh), arena.take<int32_t>(uh)};
   std::fill(a.state, a.state + h, uint8_t{0});
   for (const RowSample& r : out.rows) {
     const int y = r.row - roi.y;
@@ -1243,7 +1251,7 @@ void matchedFilterRows(const ImageView& frame, const ImageView& laserOff, const 
     a.z[y] = 0;
     if (a.state[y] != 0) continue;
     const MatchedRow m =
-        matchedRow(roiRow(&frame, roi, y), roiRow(&laserOff, roi, y), ro, w, kKernel, a.resp, a.sorted);
+        matchedRow(roiRow(&frame, roi, y), roiRow(&laserOff, roi, y), ro, w, kKernel, a.resp, a.sorted, a.diff);
     if (m.x < 0) continue;
     a.z[y] = m.zCenti;
     // Sub-pixel: the vertex of the parabola through the three responses (within ±0.5 px).
@@ -1280,6 +1288,31 @@ void matchedFilterRows(const ImageView& frame, const ImageView& laserOff, const 
 }
 
 }  // namespace
+
+int32_t kthSmallest(int32_t* v, int n, int k) {
+  int32_t lo = v[0];
+  int32_t hi = v[0];
+  for (int i = 1; i < n; ++i) {
+    lo = std::min(lo, v[i]);
+    hi = std::max(hi, v[i]);
+  }
+  const auto span = static_cast<uint64_t>(static_cast<int64_t>(hi) - lo);
+  int shift = 0;
+  while ((span >> shift) >= 256U) ++shift;
+  const auto bin = [&](int32_t x) {
+    return static_cast<size_t>(static_cast<uint64_t>(static_cast<int64_t>(x) - lo) >> shift);
+  };
+  std::array<int, 256> count{};
+  for (int i = 0; i < n; ++i) ++count[bin(v[i])];
+  size_t b = 0;
+  int below = 0;
+  while (below + count[b] <= k) below += count[b++];
+  int m = 0;
+  for (int i = 0; i < n; ++i)
+    if (bin(v[i]) == b) std::swap(v[m++], v[i]);
+  std::nth_element(v, v + (k - below), v + m);
+  return v[k - below];
+}
 
 template <class A>
 void extractRobust(const ImageView& frame, const ImageView* laserOff, const Roi& roi, const LleParams& p,

@@ -3,6 +3,7 @@
 // and a clear error for every bad input.
 #include <catch2/catch.hpp>
 
+#include <algorithm>
 #include <climits>
 #include <cmath>
 #include <random>
@@ -10,6 +11,7 @@
 #include <vector>
 
 #include "image/lle.h"
+#include "image/lle_internal.h"
 
 using namespace alacs::image;
 
@@ -917,4 +919,42 @@ TEST_CASE("A neighbour's stronger line at the ROI's edge is not the line; the ce
   const alacs::Status refused = extractLine(img.view(), Roi{0, 0, 200, 200}, strongest, ws, out);
   CHECK_FALSE(refused.isOk());
   CHECK_THAT(refused.reason(), Catch::Contains("centrePriorShare"));
+}
+
+TEST_CASE("kthSmallest is the value nth_element selects, on any spread of values", "[lle][matched]") {
+  // The matched filter's median and MAD (detail::kthSmallest): a histogram narrows the
+  // search to one bin. Spreads from one value to the whole int32 range, ties, a single bin
+  // holding all but a few, and every k of the small sizes.
+  std::mt19937 rng(7);
+  const std::vector<std::pair<int32_t, int32_t>> ranges{
+      {5, 5}, {0, 1}, {-3, 3}, {-255, 255}, {0, 100000}, {-250000, 250000}, {INT32_MIN, INT32_MAX}};
+  int checked = 0;
+  for (const auto& [lo, hi] : ranges) {
+    std::uniform_int_distribution<int32_t> value(lo, hi);
+    for (int n : {1, 2, 3, 7, 64, 351, 1000}) {
+      std::vector<int32_t> v(static_cast<size_t>(n));
+      for (auto& x : v) x = value(rng);
+      if (n > 10) v[0] = hi, v[1] = lo;  // the extremes present: one value far out, the rest in one bin
+      for (int k = 0; k < n; k += n < 70 ? 1 : 37) {
+        std::vector<int32_t> a = v;
+        std::vector<int32_t> b = v;
+        std::nth_element(b.begin(), b.begin() + k, b.end());
+        INFO("range " << lo << ".." << hi << ", n " << n << ", k " << k);
+        REQUIRE(detail::kthSmallest(a.data(), n, k) == b[static_cast<size_t>(k)]);
+        ++checked;
+      }
+    }
+  }
+  // All but two values in a narrow band, two far out: the band is one bin.
+  std::vector<int32_t> clustered(351);
+  for (auto& x : clustered) x = 1000 + static_cast<int32_t>(rng() % 50);
+  clustered[3] = -2000000;
+  clustered[9] = 2000000;
+  for (int k : {0, 1, 175, 349, 350}) {
+    std::vector<int32_t> a = clustered;
+    std::vector<int32_t> b = clustered;
+    std::nth_element(b.begin(), b.begin() + k, b.end());
+    CHECK(detail::kthSmallest(a.data(), 351, k) == b[static_cast<size_t>(k)]);
+  }
+  CHECK(checked > 300);
 }
