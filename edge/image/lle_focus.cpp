@@ -1106,25 +1106,29 @@ int growMatchedRuns(int h, int seed, int join, int32_t jumpQ8, const MatchedArra
 }
 
 // Keeps the runs that hold a line row, or minRows free rows of their own (state 3 for their
-// free rows); then each kept row's column (into `stack`) from the straight line through its
-// run's rows within ±smoothRows (at least 4, some on either side: no extrapolation; unweighted,
-// where the LLE weighs its own rows by their strength). Returns the rows kept.
+// free rows; O(h), where it had counted each run over every row); then each kept row's column (into `stack`) from the
+// straight line through its run's rows within ±smoothRows (at least 4, some on either side: no extrapolation;
+// unweighted, where the LLE weighs its own rows by their strength). Returns the rows kept.
 int keepMatchedRuns(int h, int runs, int minRows, int smoothRows, const MatchedArrays& a) {
+  // Per run, in one pass over the rows: its free rows (into segOf, free until
+  // addMatchedSegments) and whether it holds a line row (into stack, free until the
+  // smoothing below).
+  int32_t* own = a.segOf;
+  int32_t* line = a.stack;
+  std::fill(own, own + runs, 0);
+  std::fill(line, line + runs, 0);
+  for (int y = 0; y < h; ++y) {
+    const int r = a.run[y];
+    if (r < 0) continue;
+    line[r] |= a.state[y] == 1 ? 1 : 0;
+    own[r] += a.state[y] == 0 ? 1 : 0;
+  }
   int kept = 0;
-  for (int r = 0; r < runs; ++r) {
-    int own = 0;
-    bool line = false;
-    for (int y = 0; y < h; ++y) {
-      if (a.run[y] != r) continue;
-      line = line || a.state[y] == 1;
-      own += a.state[y] == 0 ? 1 : 0;
-    }
-    if (own == 0 || (!line && own < minRows)) continue;
-    for (int y = 0; y < h; ++y)
-      if (a.run[y] == r && a.state[y] == 0) {
-        a.state[y] = 3;
-        ++kept;
-      }
+  for (int y = 0; y < h; ++y) {
+    const int r = a.run[y];
+    if (r < 0 || a.state[y] != 0 || own[r] == 0 || (line[r] == 0 && own[r] < minRows)) continue;
+    a.state[y] = 3;
+    ++kept;
   }
   for (int y = 0; y < h; ++y) {
     if (a.state[y] != 3) continue;
