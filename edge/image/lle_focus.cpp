@@ -1007,7 +1007,7 @@ struct MatchedKernel {
     q8[kMatchedHalfPx] -= sum;
     for (size_t i = 0; i < q8.size(); ++i) q16[i] = static_cast<int16_t>(q8[i]);
   }
-  std::array<int16_t, 2 * kMatchedHalfPx + 1> q16{};  // the same, for 16-bit products
+  std::array<int16_t, 2 * kMatchedHalfPx + 1> q16{};  // the same in 16 bits (-57..199)
 };
 
 // One ROI row through the matched filter: its best column (-1: none), the response there
@@ -1025,11 +1025,12 @@ MatchedRow matchedRow(const uint8_t* on, const uint8_t* off, int redOffset, int 
   const auto ro = static_cast<size_t>(redOffset);
   const auto red = [&](const uint8_t* f, int x) { return static_cast<int32_t>(f[static_cast<size_t>(x) * 3U + ro]); };
   // The difference first (16 bits: -255..255), then the filter over it into sorted[x - half],
-  // one tap at a time over the whole row (16-bit products the compiler vectorises), then
+  // one tap at a time over the whole row (16 × 16 → 32-bit products, which the compiler
+  // vectorises), then
   // each response into resp[x] where no clipped laser-off pixel is in its window.
   const int n = std::max(0, w - 2 * kMatchedHalfPx);
   for (int x = 0; x < w; ++x) diff[x] = static_cast<int16_t>(red(on, x) - red(off, x));
-  {
+  if (n > 0) {
     int32_t* __restrict__ r = sorted;
     std::fill(r, r + n, 0);
     for (size_t i = 0; i < k.q16.size(); ++i) {

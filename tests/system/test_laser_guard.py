@@ -50,28 +50,46 @@ def _guard_pids(parent: int) -> list[int]:
     return [int(p) for p in out.split()]
 
 
-def _freeze_through_a_pulse(sensor: Sensor, pulses: int = 6) -> float:
+def _stopped(pid: int, timeout_s: float = 1.0) -> bool:
+    """Whether every thread of the process is stopped ('T' in /proc/PID/task/*/stat) within
+    the timeout: a thread still in a system call (a GPIO write) finishes it first."""
+
+    def state(task: str) -> str:
+        try:
+            with open(f"/proc/{pid}/task/{task}/stat", encoding="ascii") as f:
+                return f.read().rsplit(")", 1)[1].split()[0]
+        except FileNotFoundError:
+            return "T"  # a thread that ended runs no code
+
+    end = time.monotonic() + timeout_s
+    while time.monotonic() < end:
+        if all(state(t) == "T" for t in os.listdir(f"/proc/{pid}/task")):
+            return True
+    return False
+
+
+def _freeze_through_a_pulse(sensor: Sensor, pulses: int = 7) -> float:
     """Freezes alacsd as soon as LASER rises and returns how long the line stayed high.
 
     The freeze races the exposure: a SIGSTOP that lands after the daemon has already
-    ended the pulse (seen once in CI: high 7 ms) tests nothing, because the guard had no
-    pulse to cut. Such a try (high for less than max_on_ms, which the guard would never
-    cut) is let go, and the next pulse of the same scan is frozen instead.
+    ended the pulse (seen once in CI: high 7 ms, the guard never cut) tests nothing. So a
+    try counts only when LASER still reads high once the daemon is stopped; otherwise the
+    daemon is let go and the next pulse of the same scan is frozen instead.
     """
     for _ in range(pulses):
         rose = _wait_laser(1, 10.0)
         assert rose is not None, "the laser never came on (or the scan ended before a pulse was frozen)"
         os.kill(sensor.proc.pid, signal.SIGSTOP)
         try:
+            assert _stopped(sensor.proc.pid), "alacsd did not stop on SIGSTOP"
+            if gpio_sim.read_output("LASER") == 0:
+                continue  # the daemon ended this pulse before it stopped
             fell = _wait_laser(0, 3.0)
         finally:
             os.kill(sensor.proc.pid, signal.SIGCONT)
         assert fell is not None, "LASER still high 3 s after the daemon froze"
-        high_ms = (fell - rose) * 1000.0
-        if high_ms >= MAX_ON_MS:
-            return high_ms
+        return (fell - rose) * 1000.0
     raise AssertionError(f"the daemon ended each of {pulses} pulses before the freeze took hold")
-
 
 def test_frozen_daemon_cannot_hold_the_laser(tmp_path, alacsd) -> None:
     sensor = Sensor(alacsd, tmp_path)

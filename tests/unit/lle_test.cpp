@@ -509,6 +509,24 @@ TEST_CASE("In full sun, the rows bRCE leaves are found by a filter matched to th
     CHECK(a.segments[static_cast<size_t>(i)].rows == samplesOf[static_cast<size_t>(i)]);
     CHECK_FALSE(a.segments[static_cast<size_t>(i)].onLine);
   }
+  // The LLE's own samples keep their segments, renumbered for the new ones among them.
+  size_t matchedOld = 0;
+  for (const auto& rb : b.rows) {
+    if (rb.segment < 0) continue;
+    const auto same = std::find_if(a.rows.begin(), a.rows.end(), [&](const RowSample& ra) {
+      return ra.row == rb.row && ra.columnQ8 == rb.columnQ8 && ra.status == rb.status;
+    });
+    REQUIRE(same != a.rows.end());
+    REQUIRE(same->segment >= 0);
+    const LineSegment& sa = a.segments[static_cast<size_t>(same->segment)];
+    const LineSegment& sb = b.segments[static_cast<size_t>(rb.segment)];
+    CHECK(sa.firstRow == sb.firstRow);
+    CHECK(sa.lastRow == sb.lastRow);
+    CHECK(sa.rows == sb.rows);
+    CHECK(sa.onLine == sb.onLine);
+    ++matchedOld;
+  }
+  CHECK(matchedOld > 20);
   // Noise alone: nothing, with or without the filter; nor does the filter add rows beside
   // glare at the ROI's left edge, where the difference steps (the laser-off frame at full
   // scale in columns 0-7 only).
@@ -934,7 +952,7 @@ TEST_CASE("kthSmallest is the value nth_element selects, on any spread of values
     for (int n : {1, 2, 3, 7, 64, 351, 1000}) {
       std::vector<int32_t> v(static_cast<size_t>(n));
       for (auto& x : v) x = value(rng);
-      if (n > 10) v[0] = hi, v[1] = lo;  // the extremes present: one value far out, the rest in one bin
+      if (n > 10) v[0] = hi, v[1] = lo;  // both extremes present (the histogram spans the whole range)
       for (int k = 0; k < n; k += n < 70 ? 1 : 37) {
         std::vector<int32_t> a = v;
         std::vector<int32_t> b = v;
