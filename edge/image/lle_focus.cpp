@@ -1026,8 +1026,8 @@ MatchedRow matchedRow(const uint8_t* on, const uint8_t* off, int redOffset, int 
   const auto red = [&](const uint8_t* f, int x) { return static_cast<int32_t>(f[static_cast<size_t>(x) * 3U + ro]); };
   // The difference first (16 bits: -255..255), then the filter over it into sorted[x - half],
   // one tap at a time over the whole row (16 × 16 → 32-bit products, which the compiler
-  // vectorises), then
-  // each response into resp[x] where no clipped laser-off pixel is in its window.
+  // vectorises), then each response into resp[x] where no clipped laser-off pixel is in its
+  // window.
   const int n = std::max(0, w - 2 * kMatchedHalfPx);
   for (int x = 0; x < w; ++x) diff[x] = static_cast<int16_t>(red(on, x) - red(off, x));
   if (n > 0) {
@@ -1107,9 +1107,10 @@ int growMatchedRuns(int h, int seed, int join, int32_t jumpQ8, const MatchedArra
 }
 
 // Keeps the runs that hold a line row, or minRows free rows of their own (state 3 for their
-// free rows; O(h), where it had counted each run over every row); then each kept row's column (into `stack`) from the
-// straight line through its run's rows within ±smoothRows (at least 4, some on either side: no extrapolation;
-// unweighted, where the LLE weighs its own rows by their strength). Returns the rows kept.
+// free rows; tallied in one pass over the rows); then each kept row's column (into `stack`)
+// from the straight line through its run's rows within ±smoothRows (at least 4, some on
+// either side: no extrapolation; unweighted, where the LLE weighs its own rows by their
+// strength). Returns the rows kept.
 int keepMatchedRuns(int h, int runs, int minRows, int smoothRows, const MatchedArrays& a) {
   // Per run, in one pass over the rows: its free rows (into segOf, free until
   // addMatchedSegments) and whether it holds a line row (into stack, free until the

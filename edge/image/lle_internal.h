@@ -109,9 +109,9 @@ Status validateInputs(const ImageView& frame, const Roi& roi, const LleParams& p
 void reserveOutput(const Roi& roi, const LleParams& p, LaserLine& out);
 
 // The k-th smallest of v[0, n) (0-based): the value std::nth_element(v, v + k, v + n) puts at
-// v[k], found in linear time on average. A histogram of 256 bins over [min, max] (bins a power of two
-// wide: a shift, no division) finds the bin that holds it, and only that bin's values go
-// through std::nth_element. The matched filter's median and MAD of ~350 responses per row
+// v[k], found in linear time on average. A histogram of 256 bins over [min, max] (bins a
+// power of two wide: a shift, no division) finds the bin that holds it, and only that bin's
+// values go through std::nth_element. The matched filter's median and MAD of ~350 responses per row
 // cost two nth_elements, most of its time. `v` is reordered. Requires 0 <= k < n.
 int32_t kthSmallest(int32_t* v, int n, int k);
 

@@ -91,6 +91,7 @@ def _freeze_through_a_pulse(sensor: Sensor, pulses: int = 7) -> float:
         return (fell - rose) * 1000.0
     raise AssertionError(f"the daemon ended each of {pulses} pulses before the freeze took hold")
 
+
 def test_frozen_daemon_cannot_hold_the_laser(tmp_path, alacsd) -> None:
     sensor = Sensor(alacsd, tmp_path)
     try:
