@@ -204,7 +204,7 @@ struct LaserLine {
 struct LleWorkspace {
   std::vector<uint8_t> red;          // one padded red row
   std::vector<uint8_t> redRows;      // the last three rows of the difference (averaged rerun)
-  std::vector<uint8_t> validLanes;   // 0xFF where bRCE may fire
+  std::vector<uint8_t> validLanes;   // 1 where bRCE may fire
   std::vector<uint16_t> counts;      // per column candidate counts of the current band
   std::vector<uint8_t> counts8;      // the same over the last < 256 rows
   std::vector<int32_t> prefix;       // prefix sums / clear coverage of a band

@@ -55,9 +55,10 @@ FullScaleSpan redRowScalar(const uint8_t* on, const uint8_t* off, int redOffset,
 // bRCE over x in [0, wv) of a padded red row (the scalar reference): a candidate is
 // x in [step, w - step) with the form's condition. Adds 1 (modulo 256) to counts8[x] per
 // candidate, and writes the candidate bits, bit (x % 64) of bits[x / 64]. The caller
-// moves counts8 into wider counters at least every 255 rows (flushCounts).
-void brceRowScalar(const uint8_t* red, int w, int wv, int step, int threshold, BrceForm form,
-                   uint8_t* counts8, uint64_t* bits);
+// moves counts8 into wider counters at least every 255 rows (flushCounts). Returns non-zero
+// when the row has a candidate.
+uint64_t brceRowScalar(const uint8_t* red, int w, int wv, int step, int threshold, BrceForm form, uint8_t* counts8,
+                       uint64_t* bits);
 // The [1 2 1]/4 average of three rows, rounded as two rounding halvings:
 // out[x] = avg(avg(above[x], below[x]), mid[x]) with avg(a, b) = (a + b + 1) >> 1, x in [0, w).
 void averageRowsScalar(const uint8_t* above, const uint8_t* mid, const uint8_t* below, int w, uint8_t* out);
@@ -78,12 +79,12 @@ void clippedRunsRow(const uint8_t* on, const uint8_t* off, int redOffset, const 
 void flushCounts(uint8_t* counts8, uint16_t* counts, int wv);
 
 // The SIMD kernels, with the contract of the scalar ones; bit-exact with them. brceRow
-// takes `validLanes` (0xFF for x in [step, w - step), 0 elsewhere, wv bytes) instead of w.
+// takes `validLanes` (1 for x in [step, w - step), 0 elsewhere, wv bytes) instead of w.
 struct SimdKernels {
   const char* name;
   FullScaleSpan (*redRow)(const uint8_t* on, const uint8_t* off, int redOffset, int w, uint8_t* red);
-  void (*brceRow)(const uint8_t* red, const uint8_t* validLanes, int wv, int step, int threshold,
-                  BrceForm form, uint8_t* counts8, uint64_t* bits);
+  uint64_t (*brceRow)(const uint8_t* red, const uint8_t* validLanes, int wv, int step, int threshold, BrceForm form,
+                      uint8_t* counts8, uint64_t* bits);
   void (*averageRows)(const uint8_t* above, const uint8_t* mid, const uint8_t* below, int w, uint8_t* out);
 };
 

@@ -49,9 +49,10 @@ void averageRowsScalar(const uint8_t* above, const uint8_t* mid, const uint8_t* 
   }
 }
 
-void brceRowScalar(const uint8_t* red, int w, int wv, int step, int threshold, BrceForm form,
-                   uint8_t* counts8, uint64_t* bits) {
+uint64_t brceRowScalar(const uint8_t* red, int w, int wv, int step, int threshold, BrceForm form, uint8_t* counts8,
+                       uint64_t* bits) {
   std::fill(bits, bits + wv / 64, uint64_t{0});
+  uint64_t any = 0;
   for (int x = step; x < w - step; ++x) {
     const int c = red[x];
     const int l = red[x - step];
@@ -65,8 +66,10 @@ void brceRowScalar(const uint8_t* red, int w, int wv, int step, int threshold, B
     if (hit) {
       counts8[x] = static_cast<uint8_t>(counts8[x] + 1);
       bits[x / 64] |= uint64_t{1} << (x % 64);
+      any = 1;
     }
   }
+  return any;
 }
 
 void clippedRunsRow(const uint8_t* on, const uint8_t* off, int redOffset, const uint8_t* red, int w, FullScaleSpan span,
@@ -225,7 +228,7 @@ void candidateMask(const ImageView& frame, const ImageView* laserOff, const Roi&
   std::memset(red + w, 0, redSize - static_cast<size_t>(kRedPad + w));
   if (ws.roiWidth != w || ws.brceStep != step) {
     std::fill(ws.validLanes.begin(), ws.validLanes.end(), uint8_t{0});
-    for (int x = step; x < w - step; ++x) ws.validLanes[static_cast<size_t>(x)] = 0xFF;
+    for (int x = step; x < w - step; ++x) ws.validLanes[static_cast<size_t>(x)] = 1;
     ws.roiWidth = w;
     ws.brceStep = step;
   }
@@ -242,15 +245,14 @@ void candidateMask(const ImageView& frame, const ImageView* laserOff, const Roi&
   for (int y = 0; y < h; ++y) {
     uint64_t* bits = ws.bits.data() + static_cast<size_t>(y) * static_cast<size_t>(words);
     const FullScaleSpan fullScale = source.row(y, red);
-    if (kernels != nullptr)
-      kernels->brceRow(red, ws.validLanes.data(), wv, step, threshold, p.brceForm, ws.counts8.data(), bits);
-    else
-      brceRowScalar(red, w, wv, step, threshold, p.brceForm, ws.counts8.data(), bits);
-    if (fullScale.any() && p.method == LleMethod::kRobust)
+    uint64_t any = kernels != nullptr ? kernels->brceRow(red, ws.validLanes.data(), wv, step, threshold, p.brceForm,
+                                                         ws.counts8.data(), bits)
+                                      : brceRowScalar(red, w, wv, step, threshold, p.brceForm, ws.counts8.data(), bits);
+    if (fullScale.any() && p.method == LleMethod::kRobust) {
       clippedRunsRow(roiRow(&frame, roi, y), roiRow(laserOff, roi, y), redOffset(frame.format), red, w, fullScale, step,
                      threshold, ws.counts8.data(), bits);
-    uint64_t any = 0;
-    for (int k = 0; k < words; ++k) any |= bits[k];
+      for (int k = 0; k < words; ++k) any |= bits[k];
+    }
     ws.rowAny[static_cast<size_t>(y)] = any != 0 ? 1 : 0;
     const bool bandEnds = denoise && (y + 1) % bandRows == 0 && (y + 1) / bandRows <= bands;
     if (++pending == 255 || bandEnds) {

@@ -32,33 +32,46 @@ inline void addFullScale(const v_uint8& r, int x, FullScaleSpan& full) {
   full.add(x + __builtin_ctzll(bits), x + 63 - __builtin_clzll(bits));
 }
 
-FullScaleSpan redRow(const uint8_t* on, const uint8_t* off, int redOffset, int w, uint8_t* red) {
+// The red of each pixel of a row; kOff: less the laser-off frame's. A running maximum tells
+// whether any lane of the laser frame's red reached full scale; only then is the row read
+// again for where (clipped cores and glare: a minority of rows), which keeps the compare and
+// its mask out of the loop that streams the frame.
+template <int kRedOffset, bool kOff>
+FullScaleSpan redRowT(const uint8_t* on, const uint8_t* off, int w, uint8_t* red) {
   int x = 0;
-  FullScaleSpan full;
-  if (off == nullptr) {
-    for (; x <= w - kLanes; x += kLanes) {
-      v_uint8 b0, b1, b2;
-      cv::v_load_deinterleave(on + 3 * x, b0, b1, b2);
-      const v_uint8 r = redOffset == 0 ? b0 : b2;
-      addFullScale(r, x, full);
+  v_uint8 peak = cv::vx_setzero_u8();
+  for (; x <= w - kLanes; x += kLanes) {
+    v_uint8 b0, b1, b2;
+    cv::v_load_deinterleave(on + 3 * x, b0, b1, b2);
+    const v_uint8 r = kRedOffset == 0 ? b0 : b2;
+    peak = cv::v_max(peak, r);
+    if constexpr (kOff) {
+      v_uint8 o0, o1, o2;
+      cv::v_load_deinterleave(off + 3 * x, o0, o1, o2);
+      // operator- on u8 saturates: max(0, on - off), as the scalar kernel.
+      cv::v_store(red + x, r - (kRedOffset == 0 ? o0 : o2));
+    } else {
       cv::v_store(red + x, r);
     }
-  } else {
-    for (; x <= w - kLanes; x += kLanes) {
-      v_uint8 b0, b1, b2, o0, o1, o2;
-      cv::v_load_deinterleave(on + 3 * x, b0, b1, b2);
-      cv::v_load_deinterleave(off + 3 * x, o0, o1, o2);
-      addFullScale(redOffset == 0 ? b0 : b2, x, full);
-      // operator- on u8 saturates: max(0, on - off), as the scalar kernel.
-      cv::v_store(red + x, redOffset == 0 ? b0 - o0 : b2 - o2);
+  }
+  FullScaleSpan full;
+  if (cv::v_reduce_max(peak) == 255) {
+    for (int xf = 0; xf < x; xf += kLanes) {
+      v_uint8 b0, b1, b2;
+      cv::v_load_deinterleave(on + 3 * xf, b0, b1, b2);
+      addFullScale(kRedOffset == 0 ? b0 : b2, xf, full);
     }
   }
   if (x < w) {
-    const FullScaleSpan tail =
-        redRowScalar(on + 3 * x, off == nullptr ? nullptr : off + 3 * x, redOffset, w - x, red + x);
+    const FullScaleSpan tail = redRowScalar(on + 3 * x, kOff ? off + 3 * x : nullptr, kRedOffset, w - x, red + x);
     if (tail.any()) full.add(x + tail.first, x + tail.last);
   }
   return full;
+}
+
+FullScaleSpan redRow(const uint8_t* on, const uint8_t* off, int redOffset, int w, uint8_t* red) {
+  if (off == nullptr) return redOffset == 0 ? redRowT<0, false>(on, off, w, red) : redRowT<2, false>(on, off, w, red);
+  return redOffset == 0 ? redRowT<0, true>(on, off, w, red) : redRowT<2, true>(on, off, w, red);
 }
 
 void averageRows(const uint8_t* above, const uint8_t* mid, const uint8_t* below, int w, uint8_t* out) {
@@ -78,8 +91,9 @@ void averageRows(const uint8_t* above, const uint8_t* mid, const uint8_t* below,
 }
 
 template <bool kLiteral>
-void brceRowT(const uint8_t* red, const uint8_t* validLanes, int wv, int step, int threshold, uint8_t* counts8,
-              uint64_t* bits) {
+uint64_t brceRowT(const uint8_t* red, const uint8_t* validLanes, int wv, int step, int threshold, uint8_t* counts8,
+                  uint64_t* bits) {
+  uint64_t any = 0;
   const v_uint8 th = cv::vx_setall_u8(static_cast<uint8_t>(threshold));
   const v_uint8 zero = cv::vx_setzero_u8();
   for (int x0 = 0; x0 < wv; x0 += 64) {
@@ -89,29 +103,32 @@ void brceRowT(const uint8_t* red, const uint8_t* validLanes, int wv, int step, i
       const v_uint8 c = cv::vx_load(red + x);
       const v_uint8 l = cv::vx_load(red + x - step);
       const v_uint8 r = cv::vx_load(red + x + step);
-      v_uint8 m;
+      // d is non-zero exactly where the scalar kernel marks a candidate: u8 + and -
+      // saturate, so no unsigned compare (and no mask register) is needed.
+      v_uint8 d;
       if constexpr (kLiteral) {
-        // The printed form on uint8: (l - c) and (r - c) wrap modulo 256.
-        m = (cv::v_sub_wrap(l, c) > th) & (cv::v_sub_wrap(r, c) > th);
+        // The printed form on uint8: (l - c) and (r - c) wrap modulo 256; each > th.
+        d = cv::v_min(cv::v_sub_wrap(l, c) - th, cv::v_sub_wrap(r, c) - th);
       } else {
-        // c - l > th  <=>  c -sat (l +sat th) != 0 (u8 + and - saturate): no unsigned compare.
-        m = ~(cv::v_min(c - (l + th), c - (r + th)) == zero);
+        // c - l > th  <=>  c -sat (l +sat th) != 0.
+        d = cv::v_min(c - (l + th), c - (r + th));
       }
-      m = m & cv::vx_load(validLanes + x);
-      // m is 0xFF (-1) for a candidate: subtracting it counts one (modulo 256).
-      cv::v_store(counts8 + x, cv::v_sub_wrap(cv::vx_load(counts8 + x), m));
+      // validLanes is 1 where bRCE may fire: one (0 or 1) a lane, counted as it is.
+      const v_uint8 one = cv::v_min(d, cv::vx_load(validLanes + x));
+      cv::v_store(counts8 + x, cv::v_add_wrap(cv::vx_load(counts8 + x), one));
+      const v_uint8 m = cv::v_sub_wrap(zero, one);  // 0xFF for a candidate
       word |= (static_cast<uint64_t>(cv::v_signmask(cv::v_reinterpret_as_s8(m))) & kLaneBits) << k;
     }
     bits[x0 / 64] = word;
+    any |= word;
   }
+  return any;
 }
 
-void brceRow(const uint8_t* red, const uint8_t* validLanes, int wv, int step, int threshold, BrceForm form,
-             uint8_t* counts8, uint64_t* bits) {
-  if (form == BrceForm::kLiteral)
-    brceRowT<true>(red, validLanes, wv, step, threshold, counts8, bits);
-  else
-    brceRowT<false>(red, validLanes, wv, step, threshold, counts8, bits);
+uint64_t brceRow(const uint8_t* red, const uint8_t* validLanes, int wv, int step, int threshold, BrceForm form,
+                 uint8_t* counts8, uint64_t* bits) {
+  if (form == BrceForm::kLiteral) return brceRowT<true>(red, validLanes, wv, step, threshold, counts8, bits);
+  return brceRowT<false>(red, validLanes, wv, step, threshold, counts8, bits);
 }
 
 }  // namespace

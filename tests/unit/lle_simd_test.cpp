@@ -221,15 +221,18 @@ TEST_CASE("SIMD bRCE, candidate bits and column counts are bit-exact with the sc
                  : kind == 2 ? uint8_t{0}                                     // all dark
                              : static_cast<uint8_t>(x % 9 == 0 ? 250 : 20);   // lines, incl. x = 0
       std::vector<uint8_t> valid(static_cast<size_t>(wv), 0);
-      for (int x = step; x < w - step; ++x) valid[static_cast<size_t>(x)] = 0xFF;
+      for (int x = step; x < w - step; ++x) valid[static_cast<size_t>(x)] = 1;
       std::vector<uint8_t> ca(static_cast<size_t>(wv)), cb(ca.size());
       for (size_t i = 0; i < ca.size(); ++i) ca[i] = cb[i] = static_cast<uint8_t>(rng());  // wraps at 255
       std::vector<uint64_t> ba(static_cast<size_t>(wv / 64), ~0ULL), bb(ba.size(), 0x5555ULL);
-      detail::brceRowScalar(red, w, wv, step, th, form, ca.data(), ba.data());
-      k->brceRow(red, valid.data(), wv, step, th, form, cb.data(), bb.data());
+      const bool anyA = detail::brceRowScalar(red, w, wv, step, th, form, ca.data(), ba.data()) != 0;
+      const bool anyB = k->brceRow(red, valid.data(), wv, step, th, form, cb.data(), bb.data()) != 0;
       INFO("w " << w << " step " << step << " th " << th << " kind " << kind);
       CHECK(ca == cb);
       CHECK(ba == bb);
+      // Whether the row has a candidate, as both say, is what its bits say.
+      CHECK(anyA == std::any_of(ba.begin(), ba.end(), [](uint64_t word) { return word != 0; }));
+      CHECK(anyB == anyA);
     }
   }
 }
