@@ -85,6 +85,10 @@ void blendSpheroid(const geometry::SpheroidFit& sf, const Eigen::Vector3d& appro
 
 }  // namespace
 
+double ScanParams::sphereMaxRadiusMm() const {
+  return maxRadiusMm * std::max(1.0, priorAspect + 2.0 * priorAspectSigma);
+}
+
 Status ScanParams::validate() const {
   if (stops < 1 || stops > 15) return {Error::kInvalidArgument, "scan.stops must be in 1..15"};
   if (!(stopSpacingMm >= 0.5 && stopSpacingMm <= 50.0)) return {Error::kInvalidArgument, "scan.stop_spacing_mm must be in 0.5..50"};
@@ -719,7 +723,7 @@ Result<AppleEstimate> Localizer::estimateFused(const ScanPlan& plan, const std::
   // LLE smooths each row's column over ±smoothRows rows: that many rows share an error.
   sp.pointsPerIndependent = 2.0 * std::max(0, lle_.smoothRows) + 1.0;
   sp.minRadiusMm = scan_.minRadiusMm;
-  sp.maxRadiusMm = scan_.maxRadiusMm;
+  sp.maxRadiusMm = scan_.sphereMaxRadiusMm();
   sp.priorCenterMm = plan.roughMm;
   sp.priorCenterSigmaMm = priorCenterSigmaMm;
   sp.linePlaneNormal = cal_.laser.planeNormal;

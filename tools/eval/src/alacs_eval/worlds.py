@@ -566,8 +566,14 @@ RULES = [
     "search's fit was tried there and not kept, so the second world was not run with it. The report also "
     "splits the diameter by the target's shape. A review then found the other objects' list order-dependent, "
     "mended with nothing chosen (unchanged on the hard cases' seeds 3 and 7), and a run started before the "
-    "mend was stopped unread. The second world's aggregates were read once, in a run after these were fixed: "
-    "the tables below.",
+    "mend was stopped unread. The second world's aggregates were read once, in a run after these were fixed. "
+    "Then the sphere fit's search takes spheres up to the longest semi-axis of the largest fruit at the aspect "
+    "prior's 2σ (`ScanParams::sphereMaxRadiusMm`, 52.5 × 1.1 = 57.75 mm, from the existing bounds and priors, "
+    "no parameter tuned; docs/geometry.md, \"A large prolate fruit\"): found on the hard cases' seed 9, rendered "
+    "for it (`diagnose --loc`: a clear, sunlit target 97 mm across, prolate and lumpy, lit on eleven lines, "
+    "went out as the rough position, 22.3 mm off, its sphere above 52.5 mm refused), and checked on the stored "
+    "scans of the hard cases' seeds 3, 6 and 7. The second world's aggregates were read once, in a run after it "
+    "was fixed: the tables below.",
     "",
     "**Looking closer, on tuning worlds only.** `tools/eval/run.sh diagnose --world benchmark-hard --seed 3` "
     "lists a tuning world's worst LLE frames with their scenes, the row error against the distance to the "
