@@ -228,6 +228,7 @@ void candidateMask(const ImageView& frame, const ImageView* laserOff, const Roi&
   std::memset(red + w, 0, redSize - static_cast<size_t>(kRedPad + w));
   if (ws.roiWidth != w || ws.brceStep != step) {
     std::fill(ws.validLanes.begin(), ws.validLanes.end(), uint8_t{0});
+    // 1, not 0xFF: the SIMD bRCE counts min(d, validLanes) as the candidate's 0 or 1.
     for (int x = step; x < w - step; ++x) ws.validLanes[static_cast<size_t>(x)] = 1;
     ws.roiWidth = w;
     ws.brceStep = step;

@@ -55,12 +55,14 @@ struct ScanParams {
   double priorAspect = 0.9;
   double priorAspectSigma = 0.1;
   double stemTiltSigmaDeg = 20.0;
-  // The largest sphere the search may take for a fruit: the longest semi-axis of the
-  // largest fruit (equatorial radius maxRadiusMm) at the aspect prior's 2σ, maxRadiusMm ×
-  // max(1, priorAspect + 2·priorAspectSigma) (57.75 mm by default). A prolate or lumpy
-  // fruit curves flatter than its equatorial radius where the vertical lines cut it (c²/a
-  // at the equator), so its sphere comes out larger than maxRadiusMm, and was refused as no
-  // fruit; the spheroid refinement then sets the shape and size (docs/geometry.md).
+  // The largest sphere the sphere fit may take for a fruit (its search, its refinement and
+  // the one-line fit alike): the longest semi-axis of the largest fruit (equatorial radius
+  // maxRadiusMm) at the aspect prior's 2σ, maxRadiusMm × max(1, priorAspect +
+  // 2·priorAspectSigma) (57.75 mm by default). A prolate or lumpy fruit curves flatter than
+  // its equatorial radius where the vertical lines cut it (c²/a at the equator), so its
+  // sphere comes out larger than maxRadiusMm, and was refused as no fruit; the spheroid
+  // refinement then sets the shape and size. A fit on a few central lines of the largest
+  // such fruit comes out larger still and is refused (docs/geometry.md).
   double sphereMaxRadiusMm() const;
   // The rough position's error, 1σ per axis (the RealSense D435i's, paper Table 2:
   // 16–21.5 mm mean 3D error at 1.0–1.6 m). Among the spheres the lines support, the one

@@ -5,6 +5,7 @@
 // the NEON kernels in qemu-aarch64.
 #include <catch2/catch.hpp>
 
+#include <algorithm>
 #include <cstring>
 #include <random>
 #include <string>

@@ -95,7 +95,7 @@ localize::LineObservation spheroidLineOf(const geometry::Calibration& cal, const
     const double qb = 2.0 * q.cwiseProduct(d).dot(inv);
     const double qc = q.cwiseProduct(q).dot(inv) - 1.0;
     const double disc = qb * qb - 4.0 * qa * qc;
-    if (disc <= 0.0) return obs;  // the plane misses the fruit
+    if (disc <= 0.0) continue;  // this ray misses the fruit's section
     Eigen::Vector3d p = c0 + (-qb + std::sqrt(disc)) / (2.0 * qa) * d;
     if ((p - c).cwiseProduct(inv).dot(-p) <= 0.0) continue;  // faces away from the camera
     const int row = static_cast<int>(std::lround(geometry::projectPoint(cal.camera, p).rowPx));
@@ -278,14 +278,15 @@ TEST_CASE("One line far beyond the rough position's error is not the target", "[
   std::vector<localize::LineObservation> lines{lineOf(k.cal, other, 36.0, slide, 0.3, {}, rng)};
   // The localizer without the gate (nor the rough position for a fit that is another
   // object) takes the line's fruit: a one-line sphere, its offset from the line's plane the
-  // priors' (36 mm from the target with spheres up to sphereMaxRadiusMm, 42 mm below 52.5).
+  // priors', beyond the gate (36 mm from the target with spheres up to sphereMaxRadiusMm,
+  // 42 mm below 52.5; the gate is 32 mm).
   localize::ScanParams open = k.scan;
   open.roughGateSigmas = 0.0;
   open.roughWhenFarFromRough = false;
   auto taken = localize::Localizer(k.cal, image::LleParams{}, open).estimate(*plan, lines);
   REQUIRE(taken.isOk());
   INFO("ungated centre " << taken->centerMm.transpose());
-  CHECK((taken->centerMm - k.center).norm() > 30.0);
+  CHECK((taken->centerMm - k.center).norm() > k.scan.roughGateSigmas * k.scan.roughSigmaMm);
   auto est = loc.estimate(*plan, lines);
   REQUIRE(est.isOk());
   CHECK_FALSE(est->sphereFit);

@@ -5,7 +5,8 @@
 //   memcpy of the frame (the yardstick: the target is LLE ≤ 1.0× memcpy), one read of
 //   the frame (a sum over it: the floor for anything that looks at every byte once) and
 //   LLE on the full frame (SIMD kernels; per-frame median and p99), these three taken in
-//   turn frame by frame so that the machine's load falls on each alike; scalar kernels,
+//   turn frame by frame, in an order rotated each frame, so that the machine's load
+//   falls on each alike (and again in blocks, each alone, as before); scalar kernels,
 //   LLE on the localizer's ROI for the target (ROI mode), the paper's method in C++,
 //   the ROI with a weak line less a laser-off frame (the subtracted rerun, on the row alone
 //   and on three rows averaged; and on the row alone without the matched filter),
@@ -63,12 +64,15 @@ Stats timeIt(int n, const std::function<void()>& fn) {
   return s;
 }
 
-// The three yardstick timings, in turn frame by frame (after one warm-up of each): the
-// medians of each, and the median of the per-frame ratios of b and c to a.
+// The three yardstick timings, in turn frame by frame (after one warm-up of each), their
+// order rotated every frame so that none always follows the same one (each leaves the
+// caches as the next finds them): the medians of each, and the medians of the per-frame
+// ratios b/a, c/a and c/b.
 struct Interleaved {
   Stats a, b, c;
   double bOverA = 0.0;
   double cOverA = 0.0;
+  double cOverB = 0.0;
 };
 
 Interleaved timeInTurn(int n, const std::function<void()>& a, const std::function<void()>& b,
@@ -76,26 +80,29 @@ Interleaved timeInTurn(int n, const std::function<void()>& a, const std::functio
   a();
   b();
   c();
-  std::vector<double> ms[3], ratioB, ratioC;
+  std::vector<double> ms[3], ratioBA, ratioCA, ratioCB;
   const std::function<void()>* fns[3] = {&a, &b, &c};
   for (int i = 0; i < n; ++i) {
     double t[3];
-    for (int k = 0; k < 3; ++k) {
+    for (int j = 0; j < 3; ++j) {
+      const int k = (i + j) % 3;
       const auto t0 = std::chrono::steady_clock::now();
       (*fns[k])();
       t[k] = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
-      ms[k].push_back(t[k]);
     }
-    ratioB.push_back(t[1] / t[0]);
-    ratioC.push_back(t[2] / t[0]);
+    for (int k = 0; k < 3; ++k) ms[k].push_back(t[k]);
+    ratioBA.push_back(t[1] / t[0]);
+    ratioCA.push_back(t[2] / t[0]);
+    ratioCB.push_back(t[2] / t[1]);
   }
   const auto stats = [](std::vector<double>& v) {
     std::sort(v.begin(), v.end());
     return Stats{v[v.size() / 2], v[std::min(v.size() - 1, static_cast<size_t>(0.99 * static_cast<double>(v.size())))]};
   };
-  Interleaved r{stats(ms[0]), stats(ms[1]), stats(ms[2]), 0.0, 0.0};
-  r.bOverA = stats(ratioB).median;
-  r.cOverA = stats(ratioC).median;
+  Interleaved r{stats(ms[0]), stats(ms[1]), stats(ms[2])};
+  r.bOverA = stats(ratioBA).median;
+  r.cOverA = stats(ratioCA).median;
+  r.cOverB = stats(ratioCB).median;
   return r;
 }
 
@@ -346,15 +353,17 @@ int main(int argc, char** argv) {
   const double mb = static_cast<double>(bytes) / 1e6;
   std::printf("LLE speed on a %dx%d BGR frame (%.2f MB), one core%s, LLE kernels: %s, medians of %d frames\n", frame.cols,
               frame.rows, mb, pin ? " (pinned to CPU 0)" : "", image::lleSimdName(), frames);
-  std::printf("  %-44s %8.3f ms  (%.1f GB/s)\n", "memcpy of the frame", mem.median, mb / mem.median);
-  std::printf("  %-44s %8.3f ms  = %.2f x memcpy (the floor for one look at every byte)\n",
+  // In turn: the times' medians, and beside them the medians of the per-frame ratios (which
+  // need not equal the ratios of the medians).
+  std::printf("  %-44s %8.3f ms  (%.1f GB/s)  [in turn]\n", "memcpy of the frame", mem.median, mb / mem.median);
+  std::printf("  %-44s %8.3f ms  per frame %.2f x memcpy (the floor for one look at every byte)\n",
               "one read of the frame (a sum)", yard.b.median, yard.bOverA);
-  std::printf("  %-44s %8.3f ms  p99 %7.3f ms  = %.2f x memcpy (target <= 1.0)  [%zu rows]\n", "LLE, full frame (SIMD)",
-              lle.median, lle.p99, yard.cOverA, fullRows);
+  std::printf("  %-44s %8.3f ms  p99 %7.3f ms  per frame %.2f x memcpy, %.2f x one read  [%zu rows]\n",
+              "LLE, full frame (SIMD)", lle.median, lle.p99, yard.cOverA, yard.cOverB, fullRows);
   std::printf("  %-44s %8.3f ms against %.3f ms = %.2f x memcpy\n", "the same in blocks, each alone (LLE, memcpy)",
               lleAlone.median, memAlone.median, lleAlone.median / memAlone.median);
-  std::printf("  %-44s %8.3f ms  = %.2f x memcpy\n", "LLE, full frame (scalar kernels)", lleScalar.median,
-              lleScalar.median / mem.median);
+  std::printf("  %-44s %8.3f ms  = %.2f x memcpy in blocks\n", "LLE, full frame (scalar kernels)", lleScalar.median,
+              lleScalar.median / memAlone.median);
   char roiName[64];
   std::snprintf(roiName, sizeof roiName, "LLE, ROI mode %dx%d", roi.width, roi.height);
   std::printf("  %-44s %8.3f ms  p99 %7.3f ms  [%zu rows]\n", roiName, roiStats.median, roiStats.p99, roiRows);
@@ -380,10 +389,11 @@ int main(int argc, char** argv) {
     std::printf("  %-44s (could not run %s tools/paper_lle/paper_lle.py)\n", "paper's method, numpy reference", python.c_str());
   std::printf("per-frame latency, full frame: median %.3f ms, p99 %.3f ms; ROI: median %.3f ms, p99 %.3f ms\n", lle.median,
               lle.p99, roiStats.median, roiStats.p99);
+  // No verdict: one run's median moves with the machine's load by more than the target's
+  // margin; the brief's target (LLE <= 1.0 x memcpy) is judged on the medians of several runs.
   std::printf(
-      "ratio LLE / memcpy = %.2f in turn (median of per-frame ratios; target <= 1.0: %s), %.2f in blocks; "
-      "LLE / one read = %.2f\n",
-      yard.cOverA, yard.cOverA <= 1.0 ? "met" : "NOT met", lleAlone.median / memAlone.median,
-      yard.cOverA / yard.bOverA);
+      "ratio LLE / memcpy = %.2f in turn (median of per-frame ratios), %.2f in blocks; LLE / one read = %.2f in turn "
+      "(the brief's target: LLE <= 1.0 x memcpy, over several runs)\n",
+      yard.cOverA, lleAlone.median / memAlone.median, yard.cOverB);
   return sink == 0 ? 1 : 0;
 }
