@@ -85,15 +85,15 @@ localize::LineObservation spheroidLineOf(const geometry::Calibration& cal, const
   const Eigen::Vector3d e1 = n.unitOrthogonal();
   const Eigen::Vector3d e2 = n.cross(e1);
   const Eigen::Vector3d inv(1.0 / (a * a), 1.0 / (a * a * aspect * aspect), 1.0 / (a * a));  // x, y (stem), z
+  const Eigen::Vector3d q = c0 - c;
+  const double qc = q.cwiseProduct(q).dot(inv) - 1.0;
   std::normal_distribution<double> noise(0.0, noiseMm);
   int lastRow = -1 << 30;
   for (int i = 0; i < 20000; ++i) {
     const double phi = 2.0 * M_PI * i / 20000.0;
     const Eigen::Vector3d d = std::cos(phi) * e1 + std::sin(phi) * e2;
-    const Eigen::Vector3d q = c0 - c;
     const double qa = d.cwiseProduct(d).dot(inv);
     const double qb = 2.0 * q.cwiseProduct(d).dot(inv);
-    const double qc = q.cwiseProduct(q).dot(inv) - 1.0;
     const double disc = qb * qb - 4.0 * qa * qc;
     if (disc <= 0.0) continue;  // this ray misses the fruit's section
     Eigen::Vector3d p = c0 + (-qb + std::sqrt(disc)) / (2.0 * qa) * d;

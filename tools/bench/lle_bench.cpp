@@ -48,6 +48,15 @@ struct Stats {
   double p99 = 0.0;
 };
 
+// The median and p99 of samples (sorts them).
+Stats statsOf(std::vector<double>& ms) {
+  std::sort(ms.begin(), ms.end());
+  Stats s;
+  s.median = ms[ms.size() / 2];
+  s.p99 = ms[std::min(ms.size() - 1, static_cast<size_t>(0.99 * static_cast<double>(ms.size())))];
+  return s;
+}
+
 Stats timeIt(int n, const std::function<void()>& fn) {
   fn();  // warm-up (allocations, caches, page faults)
   std::vector<double> ms;
@@ -57,11 +66,7 @@ Stats timeIt(int n, const std::function<void()>& fn) {
     fn();
     ms.push_back(std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count());
   }
-  std::sort(ms.begin(), ms.end());
-  Stats s;
-  s.median = ms[ms.size() / 2];
-  s.p99 = ms[std::min(ms.size() - 1, static_cast<size_t>(0.99 * static_cast<double>(ms.size())))];
-  return s;
+  return statsOf(ms);
 }
 
 // The three yardstick timings, in turn frame by frame (after one warm-up of each), their
@@ -95,14 +100,10 @@ Interleaved timeInTurn(int n, const std::function<void()>& a, const std::functio
     ratioCA.push_back(t[2] / t[0]);
     ratioCB.push_back(t[2] / t[1]);
   }
-  const auto stats = [](std::vector<double>& v) {
-    std::sort(v.begin(), v.end());
-    return Stats{v[v.size() / 2], v[std::min(v.size() - 1, static_cast<size_t>(0.99 * static_cast<double>(v.size())))]};
-  };
-  Interleaved r{stats(ms[0]), stats(ms[1]), stats(ms[2])};
-  r.bOverA = stats(ratioBA).median;
-  r.cOverA = stats(ratioCA).median;
-  r.cOverB = stats(ratioCB).median;
+  Interleaved r{statsOf(ms[0]), statsOf(ms[1]), statsOf(ms[2])};
+  r.bOverA = statsOf(ratioBA).median;
+  r.cOverA = statsOf(ratioCA).median;
+  r.cOverB = statsOf(ratioCB).median;
   return r;
 }
 
@@ -271,29 +272,22 @@ int main(int argc, char** argv) {
     std::printf("%d frames, %zu rows\n", profileFrames, line.rows.size());
     return 0;
   }
+  const auto copyFrame = [&] {
+    std::memcpy(copy.data(), frame.data, bytes);
+    sink += copy[bytes / 2];
+  };
+  const auto lleFullFrame = [&] {
+    if (!image::extractLine(view, full, p, ws, line).isOk()) std::abort();
+    sink += line.rows.size();
+  };
   const Interleaved yard = timeInTurn(
-      frames,
-      [&] {
-        std::memcpy(copy.data(), frame.data, bytes);
-        sink += copy[bytes / 2];
-      },
-      [&] { sink += readOnce(frame.data, bytes); },
-      [&] {
-        if (!image::extractLine(view, full, p, ws, line).isOk()) std::abort();
-        sink += line.rows.size();
-      });
+      frames, copyFrame, [&] { sink += readOnce(frame.data, bytes); }, lleFullFrame);
   const Stats& mem = yard.a;
   const Stats& lle = yard.c;
   // The same two timed in blocks, each alone (as this benchmark did before): each then runs
   // with its own data hot in the caches, memcpy both of its buffers (2 × the frame).
-  const Stats memAlone = timeIt(frames, [&] {
-    std::memcpy(copy.data(), frame.data, bytes);
-    sink += copy[bytes / 2];
-  });
-  const Stats lleAlone = timeIt(frames, [&] {
-    if (!image::extractLine(view, full, p, ws, line).isOk()) std::abort();
-    sink += line.rows.size();
-  });
+  const Stats memAlone = timeIt(frames, copyFrame);
+  const Stats lleAlone = timeIt(frames, lleFullFrame);
   const size_t fullRows = line.rows.size();
   const Stats roiStats = timeIt(frames, [&] {
     if (!image::extractLine(view, roi, p, ws, line).isOk()) std::abort();
