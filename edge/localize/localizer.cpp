@@ -83,6 +83,19 @@ void blendSpheroid(const geometry::SpheroidFit& sf, const Eigen::Vector3d& appro
   est.diameterSigmaMm = std::sqrt(diameterSigma * diameterSigma + spreadVar * dDiameter * dDiameter);
 }
 
+// The sphere fit takes spheres up to ScanParams::sphereMaxRadiusMm, larger than any fruit's
+// equatorial radius, because a prolate or lumpy fruit curves flatter along the vertical
+// lines than across. Where the spheroid refinement does not carry the estimate, such a
+// sphere's diameter is not the fruit's width: the diameter is held to the largest fruit's,
+// and what the sphere said beyond it goes into its σ (docs/geometry.md, "A large prolate
+// fruit").
+void holdDiameterToLargestFruit(double maxRadiusMm, AppleEstimate& est) {
+  const double excessMm = est.diameterMm - 2.0 * maxRadiusMm;
+  if (!(excessMm > 0.0)) return;
+  est.diameterMm = 2.0 * maxRadiusMm;
+  est.diameterSigmaMm = std::hypot(est.diameterSigmaMm, excessMm);
+}
+
 }  // namespace
 
 double ScanParams::sphereMaxRadiusMm() const {
@@ -105,6 +118,14 @@ Status ScanParams::validate() const {
     return {Error::kInvalidArgument, "scan.prior_radius_sigma_mm must be in 0.5..100"};
   if (!(minRadiusMm >= 10.0 && maxRadiusMm > minRadiusMm && maxRadiusMm <= 100.0))
     return {Error::kInvalidArgument, "scan.min_radius_mm/max_radius_mm must satisfy 10 <= min < max <= 100"};
+  if (!(priorRadiusMm >= minRadiusMm && priorRadiusMm <= maxRadiusMm))
+    return {Error::kInvalidArgument, "scan.prior_radius_mm must lie within scan.min_radius_mm..max_radius_mm"};
+  if (!(priorAspect >= 0.7 && priorAspect <= 1.2))
+    return {Error::kInvalidArgument, "scan.prior_aspect must be in 0.7..1.2"};
+  if (!(priorAspectSigma >= 0.01 && priorAspectSigma <= 0.5))
+    return {Error::kInvalidArgument, "scan.prior_aspect_sigma must be in 0.01..0.5"};
+  if (!(stemTiltSigmaDeg >= 1.0 && stemTiltSigmaDeg <= 90.0))
+    return {Error::kInvalidArgument, "scan.stem_tilt_sigma_deg must be in 1..90"};
   if (!(roughSigmaMm >= 0.0 && roughSigmaMm <= 500.0)) return {Error::kInvalidArgument, "scan.rough_sigma_mm must be in 0..500"};
   if (!(roughGateSigmas >= 0.0 && roughGateSigmas <= 100.0))
     return {Error::kInvalidArgument, "scan.rough_gate_sigmas must be in 0..100"};
@@ -785,6 +806,7 @@ Result<AppleEstimate> Localizer::estimateFused(const ScanPlan& plan, const std::
       blendSpheroid(*sf, approach, normal, est);
     }
   }
+  holdDiameterToLargestFruit(scan_.maxRadiusMm, est);
   // Occlusion: rows expected from the fitted sphere's chord at each stop vs rows that
   // reached the fit.
   double expectedRows = 0.0;

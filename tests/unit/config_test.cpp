@@ -65,6 +65,34 @@ TEST_CASE("Config: defaults, overrides and errors that name the key", "[config]"
   CHECK(cross.status().reason().find("camera.exposure_us") != std::string::npos);
 }
 
+TEST_CASE("Config: the fruit model is set for another crop, and one that cannot hold is refused by its keys",
+          "[config]") {
+  auto defaults = app::loadConfig(write("{}"));
+  REQUIRE(defaults.isOk());
+  CHECK(defaults->scan.maxRadiusMm == 52.5);
+  CHECK(defaults->scan.priorAspect == 0.9);
+  CHECK(defaults->scan.sphereMaxRadiusMm() == Approx(57.75));
+  auto large = app::loadConfig(write(R"({"scan": {"min_radius_mm": 35, "max_radius_mm": 60, "prior_radius_mm": 48,
+      "prior_radius_sigma_mm": 5, "prior_aspect": 1.0, "prior_aspect_sigma": 0.05, "stem_tilt_sigma_deg": 30}})"));
+  REQUIRE(large.isOk());
+  CHECK(large->scan.minRadiusMm == 35.0);
+  CHECK(large->scan.priorRadiusMm == 48.0);
+  CHECK(large->scan.priorRadiusSigmaMm == 5.0);
+  CHECK(large->scan.stemTiltSigmaDeg == 30.0);
+  CHECK(large->scan.sphereMaxRadiusMm() == Approx(60.0 * 1.1));
+  // A prior outside the bounds it is a prior within, bounds the wrong way round, and an
+  // aspect the spheroid refinement never takes: each refused naming the keys.
+  auto outside = app::loadConfig(write(R"({"scan": {"prior_radius_mm": 60}})"));
+  CHECK(outside.status().code() == Error::kBadInput);
+  CHECK(outside.status().reason().find("scan.prior_radius_mm") != std::string::npos);
+  auto reversed = app::loadConfig(write(R"({"scan": {"min_radius_mm": 50, "max_radius_mm": 40}})"));
+  CHECK(reversed.status().reason().find("scan.min_radius_mm") != std::string::npos);
+  auto aspect = app::loadConfig(write(R"({"scan": {"prior_aspect": 1.4}})"));
+  CHECK(aspect.status().reason().find("scan.prior_aspect") != std::string::npos);
+  auto noSpread = app::loadConfig(write(R"({"scan": {"prior_aspect_sigma": 0}})"));
+  CHECK(noSpread.status().reason().find("scan.prior_aspect_sigma") != std::string::npos);
+}
+
 TEST_CASE("Config: the laser on the frame clock, and a sensor's shutter stated once", "[config]") {
   auto defaults = app::loadConfig(write("{}"));
   REQUIRE(defaults.isOk());

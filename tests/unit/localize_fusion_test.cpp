@@ -185,6 +185,32 @@ TEST_CASE("A large prolate fruit, whose sphere is larger than any fruit's width,
   CHECK(est->doubt == localize::AppleEstimate::Doubt::kNone);
 }
 
+TEST_CASE("A sphere larger than any fruit goes out at the largest fruit's width, its σ taking the excess",
+          "[localize]") {
+  // A ball 112 mm across (radius 56: within sphereMaxRadiusMm, beyond maxRadiusMm) on the
+  // paper's five lines: the sphere fit takes it, the spheroid refinement (bounded by
+  // maxRadiusMm) does not. Its diameter is reported as the largest fruit's, 105 mm, and the
+  // 7 mm the sphere said beyond it are in the diameter's σ, so the truth lies within it.
+  Case k;
+  const double r = 56.0;
+  localize::Localizer loc(k.cal, image::LleParams{}, k.scan);
+  auto plan = loc.plan(k.center + Eigen::Vector3d(6, -5, 10), 200.0);
+  REQUIRE(plan.isOk());
+  std::mt19937 rng(8);
+  std::vector<localize::LineObservation> lines;
+  for (double s : plan->stopsMm) lines.push_back(lineOf(k.cal, k.center, r, s, 0.4, {}, rng));
+  auto est = loc.estimate(*plan, lines);
+  REQUIRE(est.isOk());
+  INFO("d " << est->diameterMm << " σd " << est->diameterSigmaMm << " lines " << est->linesUsed << " sphere weight "
+            << est->sphereWeight);
+  REQUIRE(est->sphereFit);
+  CHECK(est->diameterMm == Approx(2.0 * k.scan.maxRadiusMm));
+  CHECK(est->diameterSigmaMm > 2.0 * r - 2.0 * k.scan.maxRadiusMm - 0.5);
+  CHECK(std::abs(2.0 * r - est->diameterMm) <= 2.0 * est->diameterSigmaMm);
+  // The position is the sphere's: the face within a millimetre.
+  CHECK((est->approachMm - (k.center - r * k.center.normalized())).norm() < 1.0);
+}
+
 TEST_CASE("Leaves in front of the fruit: the robust fit keeps to the skin", "[localize]") {
   Case k;
   std::mt19937 rng(22);
@@ -531,6 +557,20 @@ TEST_CASE("Scan parameters are validated", "[localize]") {
   p = {};
   p.followUpMinLines = 0;
   CHECK(p.validate().reason().find("follow_up_min_lines") != std::string::npos);
+  // The fruit model: the prior within its bounds, an aspect the spheroid refinement takes,
+  // spreads that are not zero (sphereMaxRadiusMm and the spheroid's priors use them).
+  p = {};
+  p.priorRadiusMm = 55.0;
+  CHECK(p.validate().reason().find("prior_radius_mm") != std::string::npos);
+  p = {};
+  p.priorAspect = 1.3;
+  CHECK(p.validate().reason().find("prior_aspect") != std::string::npos);
+  p = {};
+  p.priorAspectSigma = 0.0;
+  CHECK(p.validate().reason().find("prior_aspect_sigma") != std::string::npos);
+  p = {};
+  p.stemTiltSigmaDeg = 0.0;
+  CHECK(p.validate().reason().find("stem_tilt_sigma_deg") != std::string::npos);
 }
 
 namespace {
