@@ -90,12 +90,12 @@ Status configFromJson(const Json& json, DaemonConfig& c) {
     s->boolean("rough_when_far_from_rough", c.scan.roughWhenFarFromRough);
     s->number("line_bias_px", c.scan.lineBiasPx, Need::kOptional, 0, 5);
     s->number("shape_irregularity_pct", c.scan.shapeIrregularityPct, Need::kOptional, 0, 20);
-    s->number("min_radius_mm", c.scan.minRadiusMm, Need::kOptional, 10, 100);
-    s->number("max_radius_mm", c.scan.maxRadiusMm, Need::kOptional, 10, 100);
+    s->number("min_radius_mm", c.scan.minRadiusMm, Need::kOptional, 10, 60);
+    s->number("max_radius_mm", c.scan.maxRadiusMm, Need::kOptional, 10, 60);
     s->number("prior_radius_mm", c.scan.priorRadiusMm, Need::kOptional, 20, 80);
     s->number("prior_radius_sigma_mm", c.scan.priorRadiusSigmaMm, Need::kOptional, 0.5, 100);
     s->number("prior_aspect", c.scan.priorAspect, Need::kOptional, 0.7, 1.2);
-    s->number("prior_aspect_sigma", c.scan.priorAspectSigma, Need::kOptional, 0.01, 0.5);
+    s->number("prior_aspect_sigma", c.scan.priorAspectSigma, Need::kOptional, 0.01, 0.2);
     s->number("stem_tilt_sigma_deg", c.scan.stemTiltSigmaDeg, Need::kOptional, 1, 90);
     s->integer("follow_up_min_lines", c.scan.followUpMinLines, Need::kOptional, 1, 15);
     s->number("follow_up_hidden_pct", c.scan.followUpHiddenPct, Need::kOptional, 0, 100);

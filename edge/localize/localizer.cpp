@@ -93,6 +93,7 @@ void holdDiameterToLargestFruit(double maxRadiusMm, AppleEstimate& est) {
   const double excessMm = est.diameterMm - 2.0 * maxRadiusMm;
   if (!(excessMm > 0.0)) return;
   est.diameterMm = 2.0 * maxRadiusMm;
+  est.diameterHeldMm = excessMm;
   est.diameterSigmaMm = std::hypot(est.diameterSigmaMm, excessMm);
 }
 
@@ -114,16 +115,22 @@ Status ScanParams::validate() const {
   if (!(paperW1 >= 0.0 && paperW2 >= 0.0 && paperW1 + paperW2 > 0.0))
     return {Error::kInvalidArgument, "scan.paper_w1 and scan.paper_w2 must be non-negative, not both zero"};
   if (!(priorRadiusMm >= 20.0 && priorRadiusMm <= 80.0)) return {Error::kInvalidArgument, "scan.prior_radius_mm must be in 20..80"};
-  if (!(priorRadiusSigmaMm > 0.5 && priorRadiusSigmaMm <= 100.0))
+  if (!(priorRadiusSigmaMm >= 0.5 && priorRadiusSigmaMm <= 100.0))
     return {Error::kInvalidArgument, "scan.prior_radius_sigma_mm must be in 0.5..100"};
-  if (!(minRadiusMm >= 10.0 && maxRadiusMm > minRadiusMm && maxRadiusMm <= 100.0))
-    return {Error::kInvalidArgument, "scan.min_radius_mm/max_radius_mm must satisfy 10 <= min < max <= 100"};
+  if (!(minRadiusMm >= 10.0 && maxRadiusMm > minRadiusMm && maxRadiusMm <= 60.0))
+    return {Error::kInvalidArgument, "scan.min_radius_mm/max_radius_mm must satisfy 10 <= min < max <= 60"};
   if (!(priorRadiusMm >= minRadiusMm && priorRadiusMm <= maxRadiusMm))
     return {Error::kInvalidArgument, "scan.prior_radius_mm must lie within scan.min_radius_mm..max_radius_mm"};
   if (!(priorAspect >= 0.7 && priorAspect <= 1.2))
     return {Error::kInvalidArgument, "scan.prior_aspect must be in 0.7..1.2"};
-  if (!(priorAspectSigma >= 0.01 && priorAspectSigma <= 0.5))
-    return {Error::kInvalidArgument, "scan.prior_aspect_sigma must be in 0.01..0.5"};
+  if (!(priorAspectSigma >= 0.01 && priorAspectSigma <= 0.2))
+    return {Error::kInvalidArgument, "scan.prior_aspect_sigma must be in 0.01..0.2"};
+  // The largest sphere the fit takes (sphereMaxRadiusMm) follows the aspect's 2σ: past the
+  // spheroid refinement's largest aspect no sphere that large would ever be refined.
+  if (!(priorAspect + 2.0 * priorAspectSigma < 1.25))
+    return {Error::kInvalidArgument,
+            "scan.prior_aspect + 2 x scan.prior_aspect_sigma must stay below 1.25 (the "
+            "spheroid refinement's largest aspect)"};
   if (!(stemTiltSigmaDeg >= 1.0 && stemTiltSigmaDeg <= 90.0))
     return {Error::kInvalidArgument, "scan.stem_tilt_sigma_deg must be in 1..90"};
   if (!(roughSigmaMm >= 0.0 && roughSigmaMm <= 500.0)) return {Error::kInvalidArgument, "scan.rough_sigma_mm must be in 0..500"};
@@ -262,7 +269,7 @@ std::vector<double> Localizer::followUpStops(const ScanPlan& plan, const std::ve
   // through the gaps in the leaves; the new stops go there and one spacing round it, not
   // where a leaf hid it at every stop.
   const Eigen::Vector3d& n = cal_.laser.planeNormal;
-  const double radius = first->sphereFit ? 0.5 * first->diameterMm : scan_.maxAppleRadiusMm;
+  const double radius = first->sphereFit ? first->surfaceRadiusMm() : scan_.maxAppleRadiusMm;
   const Eigen::Vector3d centre = first->sphereFit ? first->centerMm : plan.roughMm;
   const double onSurfaceMm = std::max(5.0, 3.0 * first->rmsMm);
   constexpr size_t kMinPointsSeen = 3;
@@ -509,7 +516,7 @@ constexpr size_t kOccupiedGatePoints = 8;
 constexpr double kOffFruitMm = 6.0;
 
 size_t otherPointsInGate(const std::vector<LineObservation>& lines, const AppleEstimate& found) {
-  const double radiusMm = 0.5 * found.diameterMm;
+  const double radiusMm = found.surfaceRadiusMm();
   size_t n = 0;
   for (const LineObservation& l : lines)
     for (const Eigen::Vector3d& p : l.pointsMm)

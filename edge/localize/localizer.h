@@ -186,7 +186,12 @@ struct AppleEstimate {
   // spheroid's aspect and tilt must lower the points' χ² by 2 each to break even). Near 1:
   // the lines cannot tell the fruit from a round one; near 0: they show it oblate or prolate.
   double sphereWeight = 1.0;
-  double diameterMm = 0.0;       // equatorial (across the stem)
+  double diameterMm = 0.0;  // equatorial (across the stem), at most 2·ScanParams::maxRadiusMm
+  // How far the fitted sphere's diameter exceeded the largest fruit's before it was held
+  // there (a prolate fruit seen along its meridians; 0 when not held). The fitted surface
+  // lies at surfaceRadiusMm() about centerMm, which is what tells points on it from others.
+  double diameterHeldMm = 0.0;
+  double surfaceRadiusMm() const { return 0.5 * (diameterMm + diameterHeldMm); }
   double sigmaMm = 0.0;          // 1σ (3D) of the approach point
   double centerSigmaMm = 0.0;    // 1σ (3D) of the centre
   double diameterSigmaMm = 0.0;

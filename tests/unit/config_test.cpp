@@ -87,10 +87,21 @@ TEST_CASE("Config: the fruit model is set for another crop, and one that cannot 
   CHECK(outside.status().reason().find("scan.prior_radius_mm") != std::string::npos);
   auto reversed = app::loadConfig(write(R"({"scan": {"min_radius_mm": 50, "max_radius_mm": 40}})"));
   CHECK(reversed.status().reason().find("scan.min_radius_mm") != std::string::npos);
+  CHECK(reversed.status().code() == Error::kBadInput);
   auto aspect = app::loadConfig(write(R"({"scan": {"prior_aspect": 1.4}})"));
+  CHECK(aspect.status().code() == Error::kBadInput);
   CHECK(aspect.status().reason().find("scan.prior_aspect") != std::string::npos);
   auto noSpread = app::loadConfig(write(R"({"scan": {"prior_aspect_sigma": 0}})"));
   CHECK(noSpread.status().reason().find("scan.prior_aspect_sigma") != std::string::npos);
+  // Each within its range, but the aspect's 2σ past what the spheroid refinement takes.
+  auto tall = app::loadConfig(write(R"({"scan": {"prior_aspect": 1.1, "prior_aspect_sigma": 0.1}})"));
+  CHECK(tall.status().code() == Error::kBadInput);
+  CHECK(tall.status().reason().find("scan.prior_aspect_sigma") != std::string::npos);
+  // A fruit whose diameter the bus's DiameterMm (0..127.5 mm) could not carry.
+  auto huge = app::loadConfig(write(R"({"scan": {"max_radius_mm": 70}})"));
+  CHECK(huge.status().reason().find("scan.max_radius_mm") != std::string::npos);
+  auto edge = app::loadConfig(write(R"({"scan": {"prior_radius_sigma_mm": 0.5}})"));
+  CHECK(edge.isOk());
 }
 
 TEST_CASE("Config: the laser on the frame clock, and a sensor's shutter stated once", "[config]") {

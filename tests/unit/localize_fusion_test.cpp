@@ -207,6 +207,9 @@ TEST_CASE("A sphere larger than any fruit goes out at the largest fruit's width,
   CHECK(est->diameterMm == Approx(2.0 * k.scan.maxRadiusMm));
   CHECK(est->diameterSigmaMm > 2.0 * r - 2.0 * k.scan.maxRadiusMm - 0.5);
   CHECK(std::abs(2.0 * r - est->diameterMm) <= 2.0 * est->diameterSigmaMm);
+  // The fitted surface keeps its own radius: what tells points on it from others
+  // (the second pass's stops that saw it, other surfaces in the gate).
+  CHECK(est->surfaceRadiusMm() == Approx(r).margin(1.0));
   // The position is the sphere's: the face within a millimetre.
   CHECK((est->approachMm - (k.center - r * k.center.normalized())).norm() < 1.0);
 }
@@ -567,6 +570,10 @@ TEST_CASE("Scan parameters are validated", "[localize]") {
   CHECK(p.validate().reason().find("prior_aspect") != std::string::npos);
   p = {};
   p.priorAspectSigma = 0.0;
+  CHECK(p.validate().reason().find("prior_aspect_sigma") != std::string::npos);
+  p = {};
+  p.priorAspect = 1.05;
+  p.priorAspectSigma = 0.1;
   CHECK(p.validate().reason().find("prior_aspect_sigma") != std::string::npos);
   p = {};
   p.stemTiltSigmaDeg = 0.0;
