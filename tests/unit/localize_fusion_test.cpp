@@ -5,6 +5,7 @@
 
 #include <Eigen/Geometry>
 #include <algorithm>
+#include <functional>
 #include <random>
 
 #include "localize/localizer.h"
@@ -537,47 +538,32 @@ TEST_CASE("The second pass at the end of the stroke: clamped, never twice the sa
 }
 
 TEST_CASE("Scan parameters are validated", "[localize]") {
-  localize::ScanParams p;
-  CHECK(p.validate().isOk());
-  p.paperW1 = 0.0;
-  p.paperW2 = 0.0;
-  CHECK(p.validate().reason().find("paper_w") != std::string::npos);
-  p = {};
-  p.priorRadiusMm = 5.0;
-  CHECK(p.validate().reason().find("prior_radius_mm") != std::string::npos);
-  p = {};
-  p.followUpMaxStops = 17;
-  CHECK(p.validate().reason().find("follow_up_max_stops") != std::string::npos);
-  p = {};
-  p.followUpUnseenMaxStops = 33;
-  CHECK(p.validate().reason().find("follow_up_unseen_max_stops") != std::string::npos);
-  p = {};
-  p.followUpHiddenPct = 101.0;
-  CHECK(p.validate().reason().find("follow_up_hidden_pct") != std::string::npos);
-  p = {};
-  p.followUpDiameterSigmaMm = -1.0;
-  CHECK(p.validate().reason().find("follow_up_diameter_sigma_mm") != std::string::npos);
-  p = {};
-  p.followUpMinLines = 0;
-  CHECK(p.validate().reason().find("follow_up_min_lines") != std::string::npos);
-  // The fruit model: the prior within its bounds, an aspect the spheroid refinement takes,
-  // spreads that are not zero (sphereMaxRadiusMm and the spheroid's priors use them).
-  p = {};
-  p.priorRadiusMm = 55.0;
-  CHECK(p.validate().reason().find("prior_radius_mm") != std::string::npos);
-  p = {};
-  p.priorAspect = 1.3;
-  CHECK(p.validate().reason().find("prior_aspect") != std::string::npos);
-  p = {};
-  p.priorAspectSigma = 0.0;
-  CHECK(p.validate().reason().find("prior_aspect_sigma") != std::string::npos);
-  p = {};
-  p.priorAspect = 1.05;
-  p.priorAspectSigma = 0.1;
-  CHECK(p.validate().reason().find("prior_aspect_sigma") != std::string::npos);
-  p = {};
-  p.stemTiltSigmaDeg = 0.0;
-  CHECK(p.validate().reason().find("stem_tilt_sigma_deg") != std::string::npos);
+  CHECK(localize::ScanParams{}.validate().isOk());
+  // Each broken rule is refused naming its key. The fruit model: the prior within its
+  // bounds, an aspect the spheroid refinement takes, spreads that are not zero, and the
+  // aspect's 2σ below the refinement's largest (sphereMaxRadiusMm follows it).
+  using P = localize::ScanParams;
+  const std::vector<std::pair<std::function<void(P&)>, std::string>> broken = {
+      {[](P& p) { p.paperW1 = p.paperW2 = 0.0; }, "paper_w"},
+      {[](P& p) { p.priorRadiusMm = 5.0; }, "prior_radius_mm"},
+      {[](P& p) { p.followUpMaxStops = 17; }, "follow_up_max_stops"},
+      {[](P& p) { p.followUpUnseenMaxStops = 33; }, "follow_up_unseen_max_stops"},
+      {[](P& p) { p.followUpHiddenPct = 101.0; }, "follow_up_hidden_pct"},
+      {[](P& p) { p.followUpDiameterSigmaMm = -1.0; }, "follow_up_diameter_sigma_mm"},
+      {[](P& p) { p.followUpMinLines = 0; }, "follow_up_min_lines"},
+      {[](P& p) { p.priorRadiusMm = 55.0; }, "prior_radius_mm"},
+      {[](P& p) { p.maxRadiusMm = 65.0; }, "max_radius_mm"},
+      {[](P& p) { p.priorAspect = 1.3; }, "prior_aspect"},
+      {[](P& p) { p.priorAspectSigma = 0.0; }, "prior_aspect_sigma"},
+      {[](P& p) { p.priorAspect = 1.05; }, "prior_aspect_sigma"},
+      {[](P& p) { p.stemTiltSigmaDeg = 0.0; }, "stem_tilt_sigma_deg"},
+  };
+  for (const auto& [breakIt, key] : broken) {
+    P p;
+    breakIt(p);
+    INFO(key);
+    CHECK(p.validate().reason().find(key) != std::string::npos);
+  }
 }
 
 namespace {
