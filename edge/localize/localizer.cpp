@@ -112,8 +112,9 @@ Status ScanParams::validate() const {
     return {Error::kInvalidArgument, "scan.search_mm must be 0 (off) or above scan.gate_mm, up to 1000"};
   if (!(outsideGateConfidencePct >= 0.0 && outsideGateConfidencePct <= 100.0))
     return {Error::kInvalidArgument, "scan.outside_gate_confidence_pct must be in 0..100"};
+  // (Not configuration keys: the paper's method is chosen by code, not by the file.)
   if (!(paperW1 >= 0.0 && paperW2 >= 0.0 && paperW1 + paperW2 > 0.0))
-    return {Error::kInvalidArgument, "scan.paper_w1 and scan.paper_w2 must be non-negative, not both zero"};
+    return {Error::kInvalidArgument, "ScanParams::paperW1 and paperW2 must be non-negative, not both zero"};
   if (!(priorRadiusMm >= 20.0 && priorRadiusMm <= 80.0)) return {Error::kInvalidArgument, "scan.prior_radius_mm must be in 20..80"};
   if (!(priorRadiusSigmaMm >= 0.5 && priorRadiusSigmaMm <= 100.0))
     return {Error::kInvalidArgument, "scan.prior_radius_sigma_mm must be in 0.5..100"};
@@ -135,7 +136,13 @@ Status ScanParams::validate() const {
     return {Error::kInvalidArgument, "scan.stem_tilt_sigma_deg must be in 1..90"};
   if (!(roughSigmaMm >= 0.0 && roughSigmaMm <= 500.0)) return {Error::kInvalidArgument, "scan.rough_sigma_mm must be in 0..500"};
   if (!(roughGateSigmas >= 0.0 && roughGateSigmas <= 100.0))
-    return {Error::kInvalidArgument, "scan.rough_gate_sigmas must be in 0..100"};
+    return {Error::kInvalidArgument, "ScanParams::roughGateSigmas must be in 0..100"};
+  // The gate must hold the largest fruit's face when the rough position is 2σ off: a
+  // narrower one leaves the target outside it on ordinary scans (docs/daemon.md).
+  if (!(gateMm >= maxRadiusMm + 2.0 * roughSigmaMm))
+    return {Error::kInvalidArgument, "scan.gate_mm must be at least scan.max_radius_mm + 2 x scan.rough_sigma_mm (" +
+                                         std::to_string(static_cast<int>(std::ceil(maxRadiusMm + 2.0 * roughSigmaMm))) +
+                                         " mm): the largest fruit with the rough position 2 sigma off"};
   if (followUpMinLines < 1 || followUpMinLines > 15) return {Error::kInvalidArgument, "scan.follow_up_min_lines must be in 1..15"};
   if (followUpMaxStops < 0 || followUpMaxStops > 16) return {Error::kInvalidArgument, "scan.follow_up_max_stops must be in 0..16"};
   if (followUpUnseenMaxStops < 0 || followUpUnseenMaxStops > 32)
@@ -681,6 +688,9 @@ void Localizer::weighDoubt(const ScanPlan& plan, double ballMm, AppleEstimate& e
   const double shapeMm = std::hypot(0.5 * est.diameterSigmaMm, irregularMm);
   est.sigmaMm = std::sqrt(est.sigmaMm * est.sigmaMm + sharedMm * sharedMm + shapeMm * shapeMm);
   est.centerSigmaMm = std::hypot(est.centerSigmaMm, sharedMm, irregularMm);
+  // The width across the fruit departs from the fitted shape's on either side: twice the
+  // radius's share (after shapeMm, which took the fit's own diameter σ).
+  est.diameterSigmaMm = std::hypot(est.diameterSigmaMm, 2.0 * irregularMm);
   est.fitSigmaMm = est.sigmaMm;
   if (!(scan_.otherObjectPrior > 0.0) || !(scan_.roughSigmaMm > 0.0)) return;
   const double dMm = (est.centerMm - plan.roughMm).norm();

@@ -59,6 +59,13 @@ TEST_CASE("Config: defaults, overrides and errors that name the key", "[config]"
   auto search = app::loadConfig(write(R"({"scan": {"gate_mm": 120, "search_mm": 100}})"));
   CHECK(search.status().code() == Error::kBadInput);
   CHECK(search.status().reason().find("scan.search_mm") != std::string::npos);
+  // A gate that cannot hold the largest fruit's face when the rough position is 2σ off
+  // (52.5 + 2 x 25 mm > 90): refused naming both sides; a wider gate holds.
+  auto sloppy = app::loadConfig(write(R"({"scan": {"rough_sigma_mm": 25}})"));
+  CHECK(sloppy.status().code() == Error::kBadInput);
+  CHECK(sloppy.status().reason().find("scan.gate_mm") != std::string::npos);
+  CHECK(sloppy.status().reason().find("scan.rough_sigma_mm") != std::string::npos);
+  CHECK(app::loadConfig(write(R"({"scan": {"rough_sigma_mm": 25, "gate_mm": 103, "search_mm": 250}})")).isOk());
   auto frac = app::loadConfig(write(R"({"scan": {"stops": 2.5}})"));
   CHECK(frac.status().reason().find("scan.stops") != std::string::npos);
   auto cross = app::loadConfig(write(R"({"camera": {"exposure_us": 200000}, "laser": {"max_on_ms": 100}})"));

@@ -544,7 +544,9 @@ TEST_CASE("Scan parameters are validated", "[localize]") {
   // aspect's 2σ below the refinement's largest (sphereMaxRadiusMm follows it).
   using P = localize::ScanParams;
   const std::vector<std::pair<std::function<void(P&)>, std::string>> broken = {
-      {[](P& p) { p.paperW1 = p.paperW2 = 0.0; }, "paper_w"},
+      {[](P& p) { p.paperW1 = p.paperW2 = 0.0; }, "paperW1"},
+      {[](P& p) { p.gateMm = 80.0; }, "gate_mm"},
+      {[](P& p) { p.roughSigmaMm = 20.0; }, "rough_sigma_mm"},
       {[](P& p) { p.priorRadiusMm = 5.0; }, "prior_radius_mm"},
       {[](P& p) { p.followUpMaxStops = 17; }, "follow_up_max_stops"},
       {[](P& p) { p.followUpUnseenMaxStops = 33; }, "follow_up_unseen_max_stops"},
@@ -812,11 +814,14 @@ TEST_CASE("What all points share is in σ: the line's bias through the triangula
         Approx(std::hypot(fit->fitSigmaMm, calibrated.systematicSigmaMm(withCal->approachMm))).epsilon(0.05));
 }
 
-TEST_CASE("A fruit is not a spheroid: a share of its radius is in σ, the approach point's and the centre's",
-          "[localize]") {
+TEST_CASE(
+    "A fruit is not a spheroid: a share of its radius is in σ, the approach point's, the centre's and "
+    "twice it in the diameter's",
+    "[localize]") {
   // The same lines (one noise draw) fitted with the share at 0, 2 % (the default) and
   // 4 %: the fruit stays where it is, and σ grows by that share of the fitted radius, in
-  // quadrature, in the approach point's σ and the centre's alike.
+  // quadrature, in the approach point's σ and the centre's alike; the diameter's by twice
+  // it (the width departs on either side).
   Case k;
   const auto fitWith = [&](double pct) {
     localize::ScanParams scan = k.scan;
@@ -843,6 +848,8 @@ TEST_CASE("A fruit is not a spheroid: a share of its radius is in σ, the approa
   CHECK(two.centerSigmaMm == Approx(std::hypot(exact.centerSigmaMm, twoMm)).epsilon(1e-6));
   CHECK(four.fitSigmaMm == Approx(std::hypot(exact.fitSigmaMm, 2.0 * twoMm)).epsilon(1e-6));
   CHECK(two.sigmaMm > exact.sigmaMm);
+  CHECK(two.diameterSigmaMm == Approx(std::hypot(exact.diameterSigmaMm, 2.0 * twoMm)).epsilon(1e-6));
+  CHECK(four.diameterSigmaMm == Approx(std::hypot(exact.diameterSigmaMm, 4.0 * twoMm)).epsilon(1e-6));
   // Out of range: refused by name.
   localize::ScanParams bad;
   bad.shapeIrregularityPct = -1.0;
