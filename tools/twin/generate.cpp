@@ -12,9 +12,14 @@
 //   The localize scans take the daemon's adaptive second pass (Localizer::followUpStops,
 //              its default parameters; --follow-up-unseen-max-stops to compare one): the first pass is observed as
 //              `process` will, and the frames of the second pass it asks for are rendered too (tag "follow_up").
+//   --only NAME[,NAME..]: those cases alone, the others untouched (to render again only the
+//              scans whose second pass a change moves).
+#include <sys/stat.h>
+#include <algorithm>
 #include <cmath>
 #include <cstdio>
-#include <sys/stat.h>
+#include <fstream>
+#include <sstream>
 
 #include "localize/exposure.h"
 #include "localize/localizer.h"
@@ -155,6 +160,31 @@ std::vector<cv::Mat> scanTwoPasses(const sim::SimScene& scene, const std::shared
   return renders;
 }
 
+// The lines of the index at `path` (if any) with those of `cases` replaced by `fresh` (one
+// per case, same order), and the cases it did not hold appended.
+std::vector<std::string> mergedIndex(const std::string& path, const std::vector<CaseJob>& cases,
+                                     std::vector<std::string> fresh) {
+  std::vector<std::string> merged;
+  std::vector<bool> placed(cases.size(), false);
+  std::ifstream in(path);
+  for (std::string line; std::getline(in, line);) {
+    const tools::Json j = tools::Json::parse(line, nullptr, false);
+    const std::string name =
+        j.is_object() && j.contains("case") && j["case"].is_string() ? j["case"].get<std::string>() : "";
+    const auto it = std::find_if(cases.begin(), cases.end(), [&](const CaseJob& c) { return c.name == name; });
+    if (it == cases.end()) {
+      merged.push_back(line + "\n");
+      continue;
+    }
+    const size_t k = static_cast<size_t>(it - cases.begin());
+    merged.push_back(fresh[k]);
+    placed[k] = true;
+  }
+  for (size_t k = 0; k < cases.size(); ++k)
+    if (!placed[k]) merged.push_back(fresh[k]);
+  return merged;
+}
+
 }  // namespace
 
 int generateMain(const Args& args) {
@@ -270,6 +300,21 @@ int generateMain(const Args& args) {
         }
   }
 
+  // --only: the named cases alone (each name must be one of the set's).
+  if (const std::string only = args.str("only"); !only.empty()) {
+    std::vector<CaseJob> picked;
+    std::stringstream names(only);
+    for (std::string name; std::getline(names, name, ',');) {
+      const auto it = std::find_if(cases.begin(), cases.end(), [&](const CaseJob& j) { return j.name == name; });
+      if (it == cases.end()) {
+        std::fprintf(stderr, "alacs-twin generate: --only: no case %s in this set\n", name.c_str());
+        return 2;
+      }
+      picked.push_back(*it);
+    }
+    cases = std::move(picked);
+  }
+
   const auto rays = std::make_shared<const sim::RayTable>(sim::defaultScene().truth.camera);
   std::vector<std::string> lines(cases.size());
   const Status st = parallelFor(
@@ -380,8 +425,10 @@ int generateMain(const Args& args) {
     std::fprintf(stderr, "alacs-twin generate: %s\n", st.toString().c_str());
     return 1;
   }
-  // The set's index, in case order.
+  // The set's index, in case order; with --only, the index already there keeps its other
+  // cases' lines (in their order) and takes the new ones in place of theirs.
   const std::string indexPath = out + "/set.jsonl";
+  if (args.has("only")) lines = mergedIndex(indexPath, cases, std::move(lines));
   FILE* f = std::fopen(indexPath.c_str(), "w");
   if (f == nullptr) {
     std::fprintf(stderr, "alacs-twin generate: cannot write %s\n", indexPath.c_str());

@@ -253,7 +253,10 @@ int main(int argc, char** argv) {
            {"max-exposure-us", Kind::kInteger, "the longest exposure metering may choose: camera.exposure_us (3000)"},
            {"follow-up-unseen-max-stops", Kind::kInteger,
             "ScanParams::followUpUnseenMaxStops for the second pass rendered (default ScanParams')"},
-           {"resume", Kind::kFlag, "keep the cases already written"}}),
+           {"resume", Kind::kFlag, "keep the cases already written"},
+           {"only", Kind::kText,
+            "NAME[,NAME..]: generate these cases only (the others untouched; to render again the scans a "
+            "change moves)"}}),
       declare(app, "calib", "calibration scans: DIR/checkerboard_NN (laser off), DIR/laser_plane_NNNN", calibrationMain,
               {{"out", Kind::kText, "DIR (required)"},
                {"seed", Kind::kInteger, "random seed (default 7)"},
