@@ -57,8 +57,38 @@ def test_only_renders_the_named_cases_as_the_whole_set_does(tmp_path):
     assert _digests(alone / "lle_0002") == _digests(whole / "lle_0002")
 
 
-def test_a_name_the_set_does_not_hold_is_refused(tmp_path):
-    r = _generate(tmp_path / "out", "--only", "lle_0001,d1000_occ1_0000")
+@pytest.mark.parametrize("only, extra, why", [
+    ("lle_0001,d1000_occ1_0000", (), "no case 'd1000_occ1_0000'"),
+    ("lle_0001,lle_0001", (), "named twice"),
+    ("", (), "no case named"),
+    ("lle_0001", ("--resume",), "does not go with --resume"),
+], ids=["not in the set", "twice", "empty", "with resume"])
+def test_a_list_that_cannot_be_rendered_as_asked_is_refused(tmp_path, only, extra, why):
+    r = _generate(tmp_path / "out", "--only", only, *extra)
     assert r.returncode == 2
-    assert "no case d1000_occ1_0000" in r.stderr
+    assert why in r.stderr
     assert not (tmp_path / "out" / "lle_0001").exists()
+
+
+def test_a_case_of_a_set_made_with_another_seed_is_refused(tmp_path):
+    out = tmp_path / "out"
+    assert _generate(out, "--only", "lle_0001").returncode == 0
+    index = (out / "set.jsonl").read_text()
+    r = subprocess.run([_twin(), "generate", "--set", "lle", "--count", "3", "--seed", "6", "--world",
+                        "benchmark-hard", "--out", str(out), "--only", "lle_0001"],
+                       capture_output=True, text=True, timeout=300)
+    assert r.returncode == 2
+    assert "another seed" in r.stderr
+    assert (out / "set.jsonl").read_text() == index
+
+
+def test_resume_keeps_the_cases_already_written(tmp_path):
+    # (--resume was read as "true" -> 0 and never kept anything, until the flags' text was fixed.)
+    out = tmp_path / "out"
+    assert _generate(out, "--only", "lle_0000").returncode == 0
+    (out / "lle_0000" / "manifest.json").write_text("kept")
+    r = _generate(out, "--resume")
+    assert r.returncode == 0, r.stderr
+    assert (out / "lle_0000" / "manifest.json").read_text() == "kept"
+    assert (out / "lle_0002" / "manifest.json").exists()
+    assert [c["case"] for c in _index(out)] == ["lle_0000", "lle_0001", "lle_0002"]

@@ -666,6 +666,38 @@ TEST_CASE("Nothing within the gate: the widened search fits the lines the scan s
   CHECK(believed->outsideGate);
   CHECK(believed->doubt == localize::AppleEstimate::Doubt::kNone);
   CHECK((believed->centerMm - k.center).norm() < 2.0);
+  // The narrow gate above is no configuration a file may hold (the gate must be at least
+  // max_radius_mm + 2 x rough_sigma_mm). One that may: σ 80 mm, the gate 215 mm and the
+  // search 450 mm, the rough position 222 mm above the fruit's top (so that every stop
+  // still cuts the fruit).
+  localize::ScanParams poorValid = k.scan;
+  poorValid.roughSigmaMm = 80.0;
+  poorValid.gateMm = 215.0;
+  poorValid.searchMm = 450.0;
+  REQUIRE(poorValid.validate().isOk());
+  const Eigen::Vector3d farRough = k.center + Eigen::Vector3d(0.0, -k.radius - 222.0, 0.0);
+  localize::Localizer farLoc(k.cal, image::LleParams{}, poorValid);
+  auto farPlan = farLoc.plan(farRough, 200.0);
+  REQUIRE(farPlan.isOk());
+  std::vector<localize::LineObservation> farLines;
+  size_t farInGate = 0;
+  size_t farSeen = 0;
+  for (double s : farPlan->stopsMm) {
+    farLines.push_back(lineOf(k.cal, k.center, k.radius, s, 0.4, {}, rng));
+    farSeen += farLines.back().pointsMm.size();
+    applyGate(farLines.back(), farRough, poorValid);
+    farInGate += farLines.back().pointsMm.size();
+  }
+  REQUIRE(farSeen > 100);
+  REQUIRE(farInGate == 0);
+  auto farBelieved = farLoc.estimate(*farPlan, farLines);
+  REQUIRE(farBelieved.isOk());
+  INFO("lines " << farBelieved->linesUsed << ", chance " << farBelieved->targetPct << " %, "
+                << (farBelieved->centerMm - farRough).norm() << " mm from the rough position");
+  CHECK(farBelieved->sphereFit);
+  CHECK(farBelieved->outsideGate);
+  CHECK(farBelieved->doubt == localize::AppleEstimate::Doubt::kNone);
+  CHECK((farBelieved->centerMm - k.center).norm() < 2.0);
 }
 
 TEST_CASE("A neighbour in full view, the target hidden: the rough position, not the neighbour's centre",

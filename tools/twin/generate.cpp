@@ -160,20 +160,64 @@ std::vector<cv::Mat> scanTwoPasses(const sim::SimScene& scene, const std::shared
   return renders;
 }
 
+// One line of a set's index: the case it records ("case"; empty when none), the case's
+// seed ("seed"; 0 when none) and the line as written.
+struct IndexLine {
+  std::string name;
+  uint64_t seed = 0;
+  std::string text;
+};
+
+std::vector<IndexLine> indexLines(const std::string& path) {
+  std::vector<IndexLine> out;
+  std::ifstream in(path);
+  for (std::string line; std::getline(in, line);) {
+    const tools::Json j = tools::Json::parse(line, nullptr, false);
+    IndexLine l;
+    if (j.is_object() && j.contains("case") && j["case"].is_string()) l.name = j["case"].get<std::string>();
+    if (j.is_object() && j.contains("seed") && j["seed"].is_number_unsigned()) l.seed = j["seed"].get<uint64_t>();
+    l.text = line + "\n";
+    out.push_back(std::move(l));
+  }
+  return out;
+}
+
+// --only: the named cases of `cases`, each once. A case the set's index already records
+// under another seed (the set was generated with other --seed, --world or distances) is
+// refused: its new scan would not be the set's. With --resume a named case already written
+// would be kept, so the two do not go together.
+Result<std::vector<CaseJob>> pickCases(const std::vector<CaseJob>& cases, const std::string& only,
+                                       const std::string& indexPath, bool resume) {
+  if (resume) return Status(Error::kInvalidArgument, "does not go with --resume (it would keep the named cases)");
+  const auto stored = indexLines(indexPath);
+  std::vector<CaseJob> picked;
+  std::stringstream names(only);
+  for (std::string name; std::getline(names, name, ',');) {
+    const auto it = std::find_if(cases.begin(), cases.end(), [&](const CaseJob& j) { return j.name == name; });
+    if (it == cases.end()) return Status(Error::kInvalidArgument, "no case '" + name + "' in this set");
+    if (std::any_of(picked.begin(), picked.end(), [&](const CaseJob& j) { return j.name == name; }))
+      return Status(Error::kInvalidArgument, "case " + name + " named twice");
+    for (const IndexLine& l : stored)
+      if (l.name == name && l.seed != 0 && l.seed != it->seed)
+        return Status(Error::kInvalidArgument, "case " + name + " in " + indexPath +
+                                                   " has another seed: generate it with the set's own --seed, "
+                                                   "--world, --distance-mm and --occluded");
+    picked.push_back(*it);
+  }
+  if (picked.empty()) return Status(Error::kInvalidArgument, "no case named");
+  return picked;
+}
+
 // The lines of the index at `path` (if any) with those of `cases` replaced by `fresh` (one
 // per case, same order), and the cases it did not hold appended.
 std::vector<std::string> mergedIndex(const std::string& path, const std::vector<CaseJob>& cases,
                                      std::vector<std::string> fresh) {
   std::vector<std::string> merged;
   std::vector<bool> placed(cases.size(), false);
-  std::ifstream in(path);
-  for (std::string line; std::getline(in, line);) {
-    const tools::Json j = tools::Json::parse(line, nullptr, false);
-    const std::string name =
-        j.is_object() && j.contains("case") && j["case"].is_string() ? j["case"].get<std::string>() : "";
-    const auto it = std::find_if(cases.begin(), cases.end(), [&](const CaseJob& c) { return c.name == name; });
+  for (const IndexLine& l : indexLines(path)) {
+    const auto it = std::find_if(cases.begin(), cases.end(), [&](const CaseJob& c) { return c.name == l.name; });
     if (it == cases.end()) {
-      merged.push_back(line + "\n");
+      if (!l.name.empty()) merged.push_back(l.text);
       continue;
     }
     const size_t k = static_cast<size_t>(it - cases.begin());
@@ -300,19 +344,14 @@ int generateMain(const Args& args) {
         }
   }
 
-  // --only: the named cases alone (each name must be one of the set's).
-  if (const std::string only = args.str("only"); !only.empty()) {
-    std::vector<CaseJob> picked;
-    std::stringstream names(only);
-    for (std::string name; std::getline(names, name, ',');) {
-      const auto it = std::find_if(cases.begin(), cases.end(), [&](const CaseJob& j) { return j.name == name; });
-      if (it == cases.end()) {
-        std::fprintf(stderr, "alacs-twin generate: --only: no case %s in this set\n", name.c_str());
-        return 2;
-      }
-      picked.push_back(*it);
+  // --only: the named cases alone (each name once, each one of the set's).
+  if (args.has("only")) {
+    Result<std::vector<CaseJob>> picked = pickCases(cases, args.str("only"), out + "/set.jsonl", resume);
+    if (!picked) {
+      std::fprintf(stderr, "alacs-twin generate: --only: %s\n", picked.status().reason().c_str());
+      return 2;
     }
-    cases = std::move(picked);
+    cases = std::move(*picked);
   }
 
   const auto rays = std::make_shared<const sim::RayTable>(sim::defaultScene().truth.camera);
@@ -429,13 +468,17 @@ int generateMain(const Args& args) {
   // cases' lines (in their order) and takes the new ones in place of theirs.
   const std::string indexPath = out + "/set.jsonl";
   if (args.has("only")) lines = mergedIndex(indexPath, cases, std::move(lines));
-  FILE* f = std::fopen(indexPath.c_str(), "w");
-  if (f == nullptr) {
+  // Written beside it and renamed over it: an index that held other cases' lines is not
+  // lost to a failed write.
+  const std::string partPath = indexPath + ".part";
+  FILE* f = std::fopen(partPath.c_str(), "w");
+  bool written = f != nullptr;
+  for (const auto& l : lines) written = written && std::fputs(l.c_str(), f) >= 0;
+  if (f != nullptr) written = std::fclose(f) == 0 && written;
+  if (!written || std::rename(partPath.c_str(), indexPath.c_str()) != 0) {
     std::fprintf(stderr, "alacs-twin generate: cannot write %s\n", indexPath.c_str());
     return 1;
   }
-  for (const auto& l : lines) std::fputs(l.c_str(), f);
-  std::fclose(f);
   return 0;
 }
 

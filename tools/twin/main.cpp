@@ -58,14 +58,19 @@ struct OptionSpec {
 // into the Args its function reads (flags as "1").
 struct Subcommand {
   CLI::App* app = nullptr;
-  std::vector<std::pair<std::string, CLI::Option*>> options;
+  struct Declared {
+    std::string name;
+    CLI::Option* option;
+    bool flag;  // given: "1" (CLI11's own text for a flag varies with its version: "true")
+  };
+  std::vector<Declared> options;
   std::vector<std::string> positional;
   int (*run)(const Args&) = nullptr;
 
   Args args() const {
     Args a;
-    for (const auto& [name, opt] : options)
-      if (opt->count() > 0) a.set(name, opt->get_type_size() == 0 ? std::string("1") : opt->as<std::string>());
+    for (const auto& [name, opt, flag] : options)
+      if (opt->count() > 0) a.set(name, flag ? std::string("1") : opt->as<std::string>());
     for (const auto& p : positional) a.addPositional(p);
     return a;
   }
@@ -87,7 +92,7 @@ Subcommand declare(CLI::App& app, const char* name, const char* help, int (*run)
       if (spec.kind == Kind::kInteger) opt->check(kIntegerCheck);
       if (spec.kind == Kind::kList) opt->check(kListCheck);
     }
-    sub.options.emplace_back(spec.name, opt);
+    sub.options.push_back({spec.name, opt, spec.kind == Kind::kFlag});
   }
   return sub;
 }
