@@ -139,9 +139,9 @@ Status ScanParams::validate() const {
     return {Error::kInvalidArgument, "ScanParams::roughGateSigmas must be in 0..100"};
   // The gate must hold the largest fruit's face when the rough position is 2σ off: a
   // narrower one leaves the target outside it on ordinary scans (docs/daemon.md).
-  if (!(gateMm >= maxRadiusMm + 2.0 * roughSigmaMm))
+  if (const double leastGateMm = maxRadiusMm + 2.0 * roughSigmaMm; !(gateMm >= leastGateMm))
     return {Error::kInvalidArgument, "scan.gate_mm must be at least scan.max_radius_mm + 2 x scan.rough_sigma_mm (" +
-                                         std::to_string(static_cast<int>(std::ceil(maxRadiusMm + 2.0 * roughSigmaMm))) +
+                                         std::to_string(static_cast<int>(std::ceil(leastGateMm))) +
                                          " mm): the largest fruit with the rough position 2 sigma off"};
   if (followUpMinLines < 1 || followUpMinLines > 15) return {Error::kInvalidArgument, "scan.follow_up_min_lines must be in 1..15"};
   if (followUpMaxStops < 0 || followUpMaxStops > 16) return {Error::kInvalidArgument, "scan.follow_up_max_stops must be in 0..16"};

@@ -584,6 +584,25 @@ void applyGate(localize::LineObservation& l, const Eigen::Vector3d& roughMm, con
   }
   l = std::move(g);
 }
+
+// The fruit's lines at the plan's stops, gated round `roughMm` as observe() gates them, and
+// how many points they had before and after the gate.
+struct GatedLines {
+  std::vector<localize::LineObservation> lines;
+  size_t seen = 0;
+  size_t inGate = 0;
+};
+GatedLines gatedLinesOf(const Case& k, const localize::ScanPlan& plan, const Eigen::Vector3d& roughMm,
+                        const localize::ScanParams& sp, std::mt19937& rng) {
+  GatedLines out;
+  for (double s : plan.stopsMm) {
+    out.lines.push_back(lineOf(k.cal, k.center, k.radius, s, 0.4, {}, rng));
+    out.seen += out.lines.back().pointsMm.size();
+    applyGate(out.lines.back(), roughMm, sp);
+    out.inGate += out.lines.back().pointsMm.size();
+  }
+  return out;
+}
 }  // namespace
 
 TEST_CASE("Nothing within the gate: the widened search fits the lines the scan saw", "[localize][widened]") {
@@ -594,14 +613,11 @@ TEST_CASE("Nothing within the gate: the widened search fits the lines the scan s
   localize::Localizer loc(k.cal, image::LleParams{}, k.scan);
   auto plan = loc.plan(rough, 200.0);
   REQUIRE(plan.isOk());
-  std::vector<localize::LineObservation> lines;
-  size_t inGate = 0;
-  for (double s : plan->stopsMm) {
-    lines.push_back(lineOf(k.cal, k.center, k.radius, s, 0.4, {}, rng));
-    applyGate(lines.back(), rough, k.scan);
-    inGate += lines.back().pointsMm.size();
-  }
-  REQUIRE(inGate == 0);
+  const std::vector<localize::LineObservation> lines = [&] {
+    GatedLines g = gatedLinesOf(k, *plan, rough, k.scan, rng);
+    REQUIRE(g.inGate == 0);
+    return std::move(g.lines);
+  }();
 
   localize::ScanParams gateOnly = k.scan;
   gateOnly.searchMm = 0.0;
@@ -679,18 +695,10 @@ TEST_CASE("Nothing within the gate: the widened search fits the lines the scan s
   localize::Localizer farLoc(k.cal, image::LleParams{}, poorValid);
   auto farPlan = farLoc.plan(farRough, 200.0);
   REQUIRE(farPlan.isOk());
-  std::vector<localize::LineObservation> farLines;
-  size_t farInGate = 0;
-  size_t farSeen = 0;
-  for (double s : farPlan->stopsMm) {
-    farLines.push_back(lineOf(k.cal, k.center, k.radius, s, 0.4, {}, rng));
-    farSeen += farLines.back().pointsMm.size();
-    applyGate(farLines.back(), farRough, poorValid);
-    farInGate += farLines.back().pointsMm.size();
-  }
-  REQUIRE(farSeen > 100);
-  REQUIRE(farInGate == 0);
-  auto farBelieved = farLoc.estimate(*farPlan, farLines);
+  const GatedLines far = gatedLinesOf(k, *farPlan, farRough, poorValid, rng);
+  REQUIRE(far.seen > 100);
+  REQUIRE(far.inGate == 0);
+  auto farBelieved = farLoc.estimate(*farPlan, far.lines);
   REQUIRE(farBelieved.isOk());
   INFO("lines " << farBelieved->linesUsed << ", chance " << farBelieved->targetPct << " %, "
                 << (farBelieved->centerMm - farRough).norm() << " mm from the rough position");
