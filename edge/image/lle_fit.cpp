@@ -8,9 +8,6 @@ namespace {
 
 constexpr int64_t kOneQ30 = int64_t{1} << 30;
 
-// a / b rounded to nearest (halves away from zero), b > 0.
-Int128 divRound(Int128 a, Int128 b) { return a >= 0 ? (a + b / 2) / b : -((-a + b / 2) / b); }
-
 // p_k from p_{k-1}, p_{k-2} at one t (all Q30); the one recurrence used by fit and eval.
 int64_t nextP(int64_t t, int64_t alpha, int64_t beta, int64_t pCur, int64_t pPrev) {
   const Int128 a = (static_cast<Int128>(t - alpha) * pCur) >> 30;

@@ -163,8 +163,7 @@ struct KeyArith {
     if (d == 0) return static_cast<Col>(roundDiv(static_cast<int64_t>(sc), n));
     const Int128 num = sc * d + (n * src - sr * sc) * (static_cast<Int128>(n) * m - sr);
     const Int128 den = static_cast<Int128>(n) * d;
-    const Int128 q = num >= 0 ? (num + den / 2) / den : -((-num + den / 2) / den);
-    return static_cast<Col>(q);
+    return static_cast<Col>(divRound(num, den));  // den > 0: n > 0 and d > 0 (Cauchy-Schwarz)
   }
   // The robust fit's decisions: the fixed-point fit through the keys.
   struct Fit {
@@ -275,7 +274,7 @@ FixedArith::Col FixedArith::quadAtZero(const int* u, const Col* c, const int32_t
       a = -a;
       b = -b;
     }
-    return static_cast<Col>(a >= 0 ? (a + b / 2) / b : -((-a + b / 2) / b));
+    return static_cast<Col>(divRound(a, b));
   };
   if (order >= 2 && n >= 3) {
     const Int128 S2 = s2, S3 = s3, S4 = s4, S1 = s1, T1 = t1, T2 = t2;

@@ -96,6 +96,7 @@ uint64_t brceRowT(const uint8_t* red, const uint8_t* validLanes, int wv, int ste
   uint64_t any = 0;
   const v_uint8 th = cv::vx_setall_u8(static_cast<uint8_t>(threshold));
   const v_uint8 zero = cv::vx_setzero_u8();
+  const v_uint8 top = cv::vx_setall_u8(0x7F);  // d ⊕ 0x7F has its top bit set exactly where d != 0
   for (int x0 = 0; x0 < wv; x0 += 64) {
     uint64_t word = 0;
     for (int k = 0; k < 64; k += kLanes) {
@@ -113,7 +114,10 @@ uint64_t brceRowT(const uint8_t* red, const uint8_t* validLanes, int wv, int ste
         // c - l > th  <=>  c -sat (l +sat th) != 0.
         d = cv::v_min(c - (l + th), c - (r + th));
       }
-      // validLanes is 1 where bRCE may fire: one (0 or 1) a lane, counted as it is.
+      // Most vectors of a row hold no candidate (the line is a few pixels wide): only
+      // those that do read validLanes and the counters. validLanes is 1 where bRCE may
+      // fire: one (0 or 1) a lane, counted as it is.
+      if ((static_cast<uint64_t>(cv::v_signmask(cv::v_reinterpret_as_s8(d + top))) & kLaneBits) == 0) continue;
       const v_uint8 one = cv::v_min(d, cv::vx_load(validLanes + x));
       cv::v_store(counts8 + x, cv::v_add_wrap(cv::vx_load(counts8 + x), one));
       const v_uint8 m = cv::v_sub_wrap(zero, one);  // 0xFF for a candidate
