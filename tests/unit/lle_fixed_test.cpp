@@ -114,6 +114,50 @@ TEST_CASE("The fixed-point fit lowers its order when the points cannot support i
   CHECK_FALSE(detail::fitPolyQ(rows2, y2, none, 2, 4, 10, 20, scratch.data(), fit));
 }
 
+TEST_CASE("The fit's rounded quotient is the 128-bit one on both sides of its int64 path", "[lle][fixed][fit]") {
+  using detail::Int128;
+  // The quotient as it was before the int64 path: always in 128 bits.
+  const auto longWay = [](Int128 a, Int128 b) { return a >= 0 ? (a + b / 2) / b : -((-a + b / 2) / b); };
+  const Int128 edge = Int128{1} << 62;
+  std::vector<Int128> as{0,
+                         1,
+                         -1,
+                         2,
+                         -2,
+                         3,
+                         -3,
+                         7,
+                         -7,
+                         edge - 1,
+                         -(edge - 1),
+                         edge,
+                         -edge,
+                         edge + 1,
+                         -(edge + 1),
+                         Int128{INT64_MAX},
+                         -Int128{INT64_MAX},
+                         Int128{1} << 100,
+                         -(Int128{1} << 100)};
+  std::vector<Int128> bs{1, 2, 3, 4, 7, edge - 1, edge, edge + 1, Int128{1} << 90};
+  std::mt19937_64 rng(21);
+  for (int i = 0; i < 2000; ++i) {
+    const int shiftA = static_cast<int>(rng() % 120);
+    const Int128 a = static_cast<Int128>(rng() >> 1) << (shiftA > 57 ? shiftA - 57 : 0);
+    as.push_back(i % 2 != 0 ? a : -a);
+    bs.push_back(1 + static_cast<Int128>(rng() >> static_cast<int>(rng() % 63)));
+  }
+  int differ = 0;
+  for (const Int128 a : as)
+    for (size_t k = 0; k < bs.size(); k += 97) differ += detail::divRound(a, bs[k]) != longWay(a, bs[k]) ? 1 : 0;
+  for (size_t i = 0; i < bs.size(); ++i)
+    differ += detail::divRound(as[i % as.size()], bs[i]) != longWay(as[i % as.size()], bs[i]) ? 1 : 0;
+  CHECK(differ == 0);
+  // Halves round away from zero on both paths.
+  CHECK(detail::divRound(5, 2) == 3);
+  CHECK(detail::divRound(-5, 2) == -3);
+  CHECK(detail::divRound((edge + 1) * 2 + 1, 2) == edge + 2);
+}
+
 TEST_CASE("Fixed point agrees with the floating-point reference within 1/64 px", "[lle][fixed]") {
   std::mt19937 rng(22);
   LleWorkspace ws;
