@@ -918,11 +918,11 @@ void smoothAlongLine(const LleParams& p, const RobustArrays<typename A::Col>& a,
   const int32_t* outKey = a.outKey;
   const Col* outCol = a.outCol;
   const int32_t* outWt = a.outWt;
+  int lo = 0;  // the first sample within smoothRows above row k's (the rows come in order)
   for (int k = 0; k < nRows; ++k) {
     if (outKey[k] == -3 || outKey[k] == -4) continue;
     const int r0 = out.rows[static_cast<size_t>(k)].row;
-    int lo = k;
-    while (lo > 0 && r0 - out.rows[static_cast<size_t>(lo - 1)].row <= p.smoothRows) --lo;
+    while (r0 - out.rows[static_cast<size_t>(lo)].row > p.smoothRows) ++lo;
     int m = 0;
     for (int j = lo; j < nRows && out.rows[static_cast<size_t>(j)].row - r0 <= p.smoothRows; ++j) {
       if (outKey[j] != outKey[k]) continue;

@@ -31,9 +31,8 @@ struct FixedArith {
   static int32_t toQ8(Col c) { return static_cast<int32_t>(roundDiv(c, 256)); }
   // The reported column: the Q24.8 result, exactly.
   static float toFloat(Col c) { return static_cast<float>(toQ8(c)) / 256.0F; }
-  static Col ratio(int64_t num, int64_t den) {
-    const Int128 a = static_cast<Int128>(num) * 65536;
-    return static_cast<Col>(a >= 0 ? (a + den / 2) / den : -((-a + den / 2) / den));
+  static Col ratio(int64_t num, int64_t den) {  // den > 0
+    return static_cast<Col>(divRound(static_cast<Int128>(num) * 65536, den));
   }
   static Col absDiff(Col a, Col b) { return a > b ? a - b : b - a; }
 
