@@ -96,7 +96,7 @@ uint64_t brceRowT(const uint8_t* red, const uint8_t* validLanes, int wv, int ste
   uint64_t any = 0;
   const v_uint8 th = cv::vx_setall_u8(static_cast<uint8_t>(threshold));
   const v_uint8 zero = cv::vx_setzero_u8();
-  const v_uint8 top = cv::vx_setall_u8(0x7F);  // d ⊕ 0x7F has its top bit set exactly where d != 0
+  const v_uint8 top = cv::vx_setall_u8(0x7F);  // d + 0x7F (saturating) has its top bit set exactly where d != 0
   for (int x0 = 0; x0 < wv; x0 += 64) {
     uint64_t word = 0;
     for (int k = 0; k < 64; k += kLanes) {

@@ -144,11 +144,14 @@ TEST_CASE("The fit's rounded quotient is the 128-bit one on both sides of its in
     const int shiftA = static_cast<int>(rng() % 120);
     const Int128 a = static_cast<Int128>(rng() >> 1) << (shiftA > 57 ? shiftA - 57 : 0);
     as.push_back(i % 2 != 0 ? a : -a);
-    bs.push_back(1 + static_cast<Int128>(rng() >> static_cast<int>(rng() % 63)));
+    const int shiftB = static_cast<int>(rng() % 63);  // (one draw a statement: the same values on every compiler)
+    bs.push_back(1 + static_cast<Int128>(rng() >> shiftB));
   }
   int differ = 0;
+  // Every a against the edge divisors (the first nine), and against a sample of the others.
   for (const Int128 a : as)
-    for (size_t k = 0; k < bs.size(); k += 97) differ += detail::divRound(a, bs[k]) != longWay(a, bs[k]) ? 1 : 0;
+    for (size_t k = 0; k < bs.size(); k += k < 9 ? 1 : 97)
+      differ += detail::divRound(a, bs[k]) != longWay(a, bs[k]) ? 1 : 0;
   for (size_t i = 0; i < bs.size(); ++i)
     differ += detail::divRound(as[i % as.size()], bs[i]) != longWay(as[i % as.size()], bs[i]) ? 1 : 0;
   CHECK(differ == 0);
