@@ -17,16 +17,15 @@ __extension__ typedef __int128 Int128;
 
 constexpr int kMaxFitOrder = 6;
 
-// a / b rounded to nearest (halves away from zero), b > 0. Most quotients of the fit have
-// both terms within ±2^62, where int64 division gives the same result as the 128-bit
-// one (a library call, __divti3, several times slower); the others take the long path.
+// a / b rounded to nearest (halves away from zero), b > 0.
+inline int64_t roundDiv(int64_t a, int64_t b) { return a >= 0 ? (a + b / 2) / b : -((-a + b / 2) / b); }
+
+// The same in 128 bits. Most quotients of the fit have both terms within ±2^62, where
+// roundDiv gives the same result as the 128-bit division (a library call, __divti3,
+// several times slower); the others take the long path.
 inline Int128 divRound(Int128 a, Int128 b) {
   constexpr Int128 kShort = Int128{1} << 62;
-  if (a > -kShort && a < kShort && b < kShort) {
-    const auto a64 = static_cast<int64_t>(a);
-    const auto b64 = static_cast<int64_t>(b);
-    return a64 >= 0 ? (a64 + b64 / 2) / b64 : -((-a64 + b64 / 2) / b64);
-  }
+  if (a > -kShort && a < kShort && b < kShort) return roundDiv(static_cast<int64_t>(a), static_cast<int64_t>(b));
   return a >= 0 ? (a + b / 2) / b : -((-a + b / 2) / b);
 }
 

@@ -877,11 +877,11 @@ void markEdges(const LleParams& p, const RobustArrays<Col>& a, LaserLine& out) {
   const uint8_t* outEdge = a.outEdge;
   int32_t* outKey = a.outKey;
   const int32_t* outPeakKey = a.outPeakKey;
+  int lo = 0;  // the first sample within smoothRows above row k's (the rows come in order)
   for (int k = 0; k < nRows; ++k) {
     if (outEdge[k] == 0) continue;
     const int r0 = out.rows[static_cast<size_t>(k)].row;
-    int lo = k;
-    while (lo > 0 && r0 - out.rows[static_cast<size_t>(lo - 1)].row <= p.smoothRows) --lo;
+    while (r0 - out.rows[static_cast<size_t>(lo)].row > p.smoothRows) ++lo;
     int m = 0;
     for (int j = lo; j < nRows && out.rows[static_cast<size_t>(j)].row - r0 <= p.smoothRows && m < 64; ++j) {
       if (j == k || outEdge[j] != 0 || outKey[j] != outKey[k]) continue;

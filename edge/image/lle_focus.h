@@ -17,10 +17,6 @@ namespace alacs::image::detail {
 // Largest weight of a row in the smoothing along the line (Q0; lle_focus.cpp, stage 5b).
 constexpr int64_t kMaxSmoothWeight = 4096;
 
-inline int64_t roundDiv(int64_t a, int64_t b) {  // b > 0
-  return a >= 0 ? (a + b / 2) / b : -((-a + b / 2) / b);
-}
-
 // The product's values: columns in Q16.16 (1/65536 px; a 16384-px frame fits int32), so
 // the fit and the smoothing see the centroids to 1/65536 px; reported in Q24.8.
 struct FixedArith {
