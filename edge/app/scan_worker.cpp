@@ -540,7 +540,9 @@ WorkerEvent ScanWorker::doLocalize(const WorkerJob& job) {
                          [&](const localize::LineObservation& l) { return !(l.*member).empty(); });
     };
     const bool inGate = any(&localize::LineObservation::pointsMm) || any(&localize::LineObservation::arcPointsMm);
-    const bool beyond = any(&localize::LineObservation::outsidePointsMm);
+    // A line on leaves beyond the gate (told by their colour) was a line found too.
+    const bool beyond =
+        any(&localize::LineObservation::outsidePointsMm) || any(&localize::LineObservation::leafOutsidePointsMm);
     ev.resultReason = inGate                        ? protocol::ResultReason::kFitFailed
                       : ev.brightAmbient && !beyond ? protocol::ResultReason::kBrightAmbient
                                                     : protocol::ResultReason::kNoLinesInGate;

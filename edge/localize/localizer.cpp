@@ -15,6 +15,18 @@ namespace alacs::localize {
 
 namespace {
 
+// Whether the laser-off frame's pixel under a line sample (row, column) is leaf-green:
+// (G + 1) ≥ ratio · (R + 1) (ScanParams::leafGreenRatio; the +1 keeps a black pixel from
+// counting as either). A sample outside the frame is not.
+bool leafGreen(const image::ImageView& laserOff, int row, float column, double ratio) {
+  const int x = static_cast<int>(std::lround(column));
+  if (row < 0 || row >= laserOff.height || x < 0 || x >= laserOff.width) return false;
+  const uint8_t* px = laserOff.row(row) + 3 * static_cast<size_t>(x);
+  const int red = px[image::redOffset(laserOff.format)];
+  const int green = px[1];
+  return green + 1.0 >= ratio * (red + 1.0);
+}
+
 // P(|e| <= x) for a 3D error with isotropic Gaussian components whose total 1σ is
 // sigma3d (Maxwell distribution).
 double withinProbability(double x, double sigma3d) {
@@ -149,6 +161,8 @@ Status ScanParams::validate() const {
     return {Error::kInvalidArgument, "scan.follow_up_unseen_max_stops must be in 0..32"};
   if (!(weakArcMinZ == 0.0 || (weakArcMinZ >= 4.0 && weakArcMinZ <= 100.0)))
     return {Error::kInvalidArgument, "scan.weak_arc_min_z must be 0 (off) or in 4..100"};
+  if (!(leafGreenRatio == 0.0 || (leafGreenRatio >= 1.1 && leafGreenRatio <= 10.0)))
+    return {Error::kInvalidArgument, "scan.leaf_green_ratio must be 0 (off) or in 1.1..10"};
   if (!(followUpHiddenPct >= 0.0 && followUpHiddenPct <= 100.0))
     return {Error::kInvalidArgument, "scan.follow_up_hidden_pct must be in 0..100"};
   if (!(otherObjectPrior >= 0.0 && otherObjectPrior < 1.0))
@@ -403,17 +417,29 @@ Result<LineObservation> Localizer::observe(const image::ImageView& frame, const 
   // curve: a leaf can make the line, the fruit another segment; the 3D gate and the
   // robust fit sort the rows out.
   std::vector<geometry::PixelPoint> pixels;
+  std::vector<geometry::PixelPoint> leafPixels;
   pixels.reserve(obs.line.rows.size());
-  for (const auto& r : obs.line.rows)
-    if (r.valid()) pixels.push_back({static_cast<double>(r.column), static_cast<double>(r.row)});
+  const bool byColour = laserOff != nullptr && scan_.leafGreenRatio > 0.0;
+  for (const auto& r : obs.line.rows) {
+    if (!r.valid()) continue;
+    const geometry::PixelPoint px{static_cast<double>(r.column), static_cast<double>(r.row)};
+    (byColour && leafGreen(*laserOff, r.row, r.column, scan_.leafGreenRatio) ? leafPixels : pixels).push_back(px);
+  }
   triangulateRows(plan, slideMm, slideMmPerRow, pixels, &obs.pointsMm, &obs.pixels, &obs.outsidePointsMm);
+  if (!leafPixels.empty()) {
+    std::vector<geometry::PixelPoint> gatedLeafPixels;
+    triangulateRows(plan, slideMm, slideMmPerRow, leafPixels, &obs.leafPointsMm, &gatedLeafPixels,
+                    &obs.leafOutsidePointsMm);
+  }
   if (laserOff != nullptr && scan_.weakArcMinZ > 0.0) {
     WeakArcParams wp;
     wp.minZ = scan_.weakArcMinZ;
     const WeakArc arc = findWeakArc(frame, *laserOff, roi, cal_, slideMm, plan.roughMm, obs.line,
                                     static_cast<int>(obs.line.segments.size()), wp);
     std::vector<geometry::PixelPoint> arcPixels;
-    for (const auto& r : arc.samples) arcPixels.push_back({static_cast<double>(r.column), static_cast<double>(r.row)});
+    for (const auto& r : arc.samples)
+      if (!(byColour && leafGreen(*laserOff, r.row, r.column, scan_.leafGreenRatio)))
+        arcPixels.push_back({static_cast<double>(r.column), static_cast<double>(r.row)});
     triangulateRows(plan, slideMm, slideMmPerRow, arcPixels, &obs.arcPointsMm, &obs.arcPixels, nullptr);
   }
   return obs;
@@ -525,9 +551,11 @@ constexpr double kOffFruitMm = 6.0;
 size_t otherPointsInGate(const std::vector<LineObservation>& lines, const AppleEstimate& found) {
   const double radiusMm = found.surfaceRadiusMm();
   size_t n = 0;
-  for (const LineObservation& l : lines)
+  for (const LineObservation& l : lines) {
     for (const Eigen::Vector3d& p : l.pointsMm)
       n += std::abs((p - found.centerMm).norm() - radiusMm) > kOffFruitMm ? 1U : 0U;
+    n += l.leafPointsMm.size();  // leaves, told by their colour
+  }
   return n;
 }
 }  // namespace
@@ -581,6 +609,11 @@ Result<AppleEstimate> Localizer::estimateLines(const ScanPlan& plan, const std::
       return occupied ? targetOrRough(std::move(wide)) : wide;
     }
   }
+  // The lines in the gate fell on leaves alone (told by their colour): the target may be
+  // behind them. The rough position stands in, as for a line that fits nothing there, and
+  // the second pass looks between the leaves (followUpStops: too few lines).
+  if (!est && std::any_of(lines.begin(), lines.end(), [](const LineObservation& l) { return !l.leafPointsMm.empty(); }))
+    return roughEstimate(plan);
   // One line (or the paper's candidate) that puts the centre far beyond the rough
   // position's error is not the target (a leaf's edge, a neighbour's limb).
   if (est && !est->sphereFit && scan_.roughGateSigmas > 0.0 && scan_.roughSigmaMm > 0.0 &&

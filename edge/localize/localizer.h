@@ -135,6 +135,14 @@ struct ScanParams {
   // about 4). Its points join the fit only when the lines alone leave the target unseen
   // (estimate()). 0: off.
   double weakArcMinZ = 8.0;
+  // Leaves told from skin by their colour where the laser-off frame shows it: a line
+  // sample whose own pixel in that frame is at least this many times greener than red,
+  // (G + 1) ≥ ratio · (R + 1), lies on a leaf (chlorophyll reflects 2-3 times more green
+  // than red) and not on a red or bicolour fruit (whose yellow-green ground colour is about
+  // even): it joins no fit. Only where a laser-off frame is held (metering chose to
+  // subtract). 0: off (green varieties), else 1.1..10. docs/geometry.md "Leaves told by
+  // their colour".
+  double leafGreenRatio = 1.4;
   int followUpMinLines = 3;
   double followUpHiddenPct = 60.0;
   double followUpDiameterSigmaMm = 0.0;
@@ -171,6 +179,11 @@ struct LineObservation {
   std::vector<Eigen::Vector3d> pointsMm;       // gated 3D points of this line
   std::vector<geometry::PixelPoint> pixels;    // their pixels (same order)
   std::vector<Eigen::Vector3d> outsidePointsMm;  // beyond the gate, within scan.searchMm (the widened search's)
+  // Samples on leaves, told by their colour (ScanParams::leafGreenRatio): seen, so those in
+  // the gate show it occupied, but no fruit's surface; those beyond it (within searchMm)
+  // join no widened search and only say that the line lit something there.
+  std::vector<Eigen::Vector3d> leafPointsMm;
+  std::vector<Eigen::Vector3d> leafOutsidePointsMm;
   // The sunlit arcs the per-row extraction missed (ScanParams::weakArcMinZ), gated; used
   // only when the lines alone leave the target unseen (estimate()).
   std::vector<Eigen::Vector3d> arcPointsMm;

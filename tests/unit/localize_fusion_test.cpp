@@ -551,6 +551,8 @@ TEST_CASE("Scan parameters are validated", "[localize]") {
       {[](P& p) { p.followUpMaxStops = 17; }, "follow_up_max_stops"},
       {[](P& p) { p.followUpUnseenMaxStops = 33; }, "follow_up_unseen_max_stops"},
       {[](P& p) { p.followUpHiddenPct = 101.0; }, "follow_up_hidden_pct"},
+      {[](P& p) { p.leafGreenRatio = 0.5; }, "leaf_green_ratio"},
+      {[](P& p) { p.leafGreenRatio = 1.0; }, "leaf_green_ratio"},
       {[](P& p) { p.followUpDiameterSigmaMm = -1.0; }, "follow_up_diameter_sigma_mm"},
       {[](P& p) { p.followUpMinLines = 0; }, "follow_up_min_lines"},
       {[](P& p) { p.priorRadiusMm = 55.0; }, "prior_radius_mm"},
@@ -672,6 +674,15 @@ TEST_CASE("Nothing within the gate: the widened search fits the lines the scan s
   REQUIRE(asFound.isOk());
   CHECK(asFound->outsideGate);
   CHECK((asFound->centerMm - k.center).norm() < 2.0);
+  // The same leaf told by its colour (ScanParams::leafGreenRatio): its points join no fit,
+  // but they still show the gate occupied, so the rough position goes out as before.
+  std::vector<localize::LineObservation> toldByColour = lines;
+  toldByColour[2].leafPointsMm.assign(leafy[2].pointsMm.end() - 20, leafy[2].pointsMm.end());
+  auto stillOccupied = loc.estimate(*plan, toldByColour);
+  REQUIRE(stillOccupied.isOk());
+  CHECK_FALSE(stillOccupied->sphereFit);
+  CHECK(stillOccupied->doubt == localize::AppleEstimate::Doubt::kFarFromRough);
+  CHECK((stillOccupied->centerMm - rough).norm() < 1e-9);
   // A rough position known to be this poor (a less accurate camera: σ 60 mm per axis) lets
   // the fit be the target: MEASURED, OUTSIDE_GATE.
   localize::ScanParams poorRough = k.scan;
@@ -706,6 +717,38 @@ TEST_CASE("Nothing within the gate: the widened search fits the lines the scan s
   CHECK(farBelieved->outsideGate);
   CHECK(farBelieved->doubt == localize::AppleEstimate::Doubt::kNone);
   CHECK((farBelieved->centerMm - k.center).norm() < 2.0);
+}
+
+TEST_CASE("Lines in the gate on leaves alone: the rough position, and a second pass between the leaves",
+          "[localize][leaf]") {
+  // Every stop's line fell on a leaf 20 mm in front of where the target should be, and the
+  // laser-off frame told each sample green (ScanParams::leafGreenRatio): nothing in the gate
+  // is a fruit's, but the target may be behind the leaf. ROUGH_ONLY goes out, and the
+  // second pass looks again (too few lines); with no line in the gate at all, nothing does.
+  Case k;
+  localize::Localizer loc(k.cal, image::LleParams{}, k.scan);
+  auto plan = loc.plan(k.center, 200.0);
+  REQUIRE(plan.isOk());
+  std::vector<localize::LineObservation> leaves;
+  for (double s : plan->stopsMm) {
+    localize::LineObservation obs;
+    obs.slideMm = s;
+    for (int i = 0; i < 20; ++i)
+      obs.leafPointsMm.push_back(k.center + Eigen::Vector3d(0.5 * i - 5.0, 1.5 * i - 15.0, -k.radius - 20.0));
+    leaves.push_back(obs);
+  }
+  auto est = loc.estimate(*plan, leaves);
+  REQUIRE(est.isOk());
+  CHECK_FALSE(est->sphereFit);
+  CHECK(est->linesUsed == 0);
+  CHECK((est->centerMm - k.center).norm() < 1e-9);
+  CHECK(est->confidencePct < 50.0);
+  CHECK_FALSE(loc.followUpStops(*plan, leaves, est, 200.0).empty());
+  std::vector<localize::LineObservation> empty = leaves;
+  for (localize::LineObservation& l : empty) l.leafPointsMm.clear();
+  auto none = loc.estimate(*plan, empty);
+  CHECK(none.status().code() == Error::kNotFound);
+  CHECK(loc.followUpStops(*plan, empty, none, 200.0).empty());
 }
 
 TEST_CASE("A neighbour in full view, the target hidden: the rough position, not the neighbour's centre",

@@ -278,3 +278,51 @@ TEST_CASE("The localizer runs the matched filter only where the metering found d
   REQUIRE(bareDim.isOk());
   CHECK(bare->pointsMm.size() == bareDim->pointsMm.size());
 }
+
+TEST_CASE("Samples on a leaf, told by the laser-off frame's colour, join no fit", "[localize][leaf]") {
+  // A clear line across a fruit whose lower half a leaf covers: there both frames are green
+  // (G 120 over R 60, as chlorophyll reflects), above it red skin (R 200, G 0). The line's
+  // samples on the leaf go to leafPointsMm (seen, no fruit's surface), the skin's to the fit.
+  SunlitFrame f = render(60.0, 7);
+  REQUIRE(f.truth.size() > 60);
+  const int leafFromRow = f.truth[f.truth.size() / 2].first;
+  for (std::vector<uint8_t>* frame : {&f.on, &f.off})
+    for (int y = leafFromRow; y < f.roi.y + f.roi.height; ++y)
+      for (int x = f.roi.x; x < f.roi.x + f.roi.width; ++x) {
+        uint8_t* px = frame->data() + (static_cast<size_t>(y) * f.cal.camera.widthPx + x) * 3;  // BGR
+        px[2] = static_cast<uint8_t>(std::max(0, px[2] - 140));
+        px[1] = 120;
+      }
+  const image::ImageView on = f.view(f.on);
+  const image::ImageView off = f.view(f.off);
+  const auto observe = [&](double ratio, const image::ImageView* laserOff) {
+    localize::ScanParams scan;
+    scan.weakArcMinZ = 0.0;
+    scan.leafGreenRatio = ratio;
+    const localize::Localizer loc(f.cal, image::LleParams{}, scan);
+    const Result<localize::ScanPlan> plan = loc.plan(f.centerMm + Eigen::Vector3d(6.0, -4.0, 8.0), 200.0);
+    REQUIRE(plan.isOk());
+    image::LleWorkspace ws;
+    Result<localize::LineObservation> obs = loc.observe(on, *plan, f.slideMm, ws, laserOff);
+    REQUIRE(obs.isOk());
+    return *obs;
+  };
+  const auto rowsOnLeaf = [&](const localize::LineObservation& obs) {
+    return std::count_if(obs.pixels.begin(), obs.pixels.end(),
+                         [&](const geometry::PixelPoint& p) { return p.rowPx >= leafFromRow; });
+  };
+  const localize::LineObservation told = observe(localize::ScanParams{}.leafGreenRatio, &off);
+  const localize::LineObservation blind = observe(0.0, &off);
+  INFO("fit points " << told.pointsMm.size() << " (on the leaf " << rowsOnLeaf(told) << "), leaf points "
+                     << told.leafPointsMm.size() << "; off: " << blind.pointsMm.size() << " (on the leaf "
+                     << rowsOnLeaf(blind) << ")");
+  CHECK(rowsOnLeaf(blind) > 40);
+  CHECK(rowsOnLeaf(told) == 0);
+  CHECK(told.leafPointsMm.size() == static_cast<size_t>(rowsOnLeaf(blind)));
+  CHECK(told.pointsMm.size() + told.leafPointsMm.size() == blind.pointsMm.size());
+  CHECK(blind.leafPointsMm.empty());
+  // Without a laser-off frame the colour is unknown: every sample may be the fruit's.
+  const localize::LineObservation unseen = observe(localize::ScanParams{}.leafGreenRatio, nullptr);
+  CHECK(unseen.leafPointsMm.empty());
+  CHECK(rowsOnLeaf(unseen) > 40);
+}

@@ -296,6 +296,9 @@ int main(int argc, char** argv) {
                {"follow-up-unseen-max-stops", Kind::kInteger,
                 "ScanParams::followUpUnseenMaxStops (the scans hold the stops their generation asked for)"},
                {"weak-arc-min-z", Kind::kNumber, "ScanParams::weakArcMinZ: the sunlit arc search's bar (0: off)"},
+               {"leaf-green-ratio", Kind::kNumber,
+                "ScanParams::leafGreenRatio: samples this much greener than red in the laser-off frame join no fit (0: "
+                "off)"},
                {"metering", Kind::kInteger, "1: meter on the scan's laser-off frames and subtract as alacsd (default)"},
                {"meter-target-dn", Kind::kInteger, "metering.target_dn (default: the daemon's)"},
                {"meter-subtract-above-dn", Kind::kInteger, "metering.subtract_above_dn (default: the daemon's)"},

@@ -138,6 +138,7 @@ int processMain(const Args& args) {
   scan.otherObjectPrior = args.num("other-object-prior", scan.otherObjectPrior);
   if (args.has("fit-when-far-from-rough")) scan.roughWhenFarFromRough = false;
   scan.weakArcMinZ = args.num("weak-arc-min-z", scan.weakArcMinZ);
+  scan.leafGreenRatio = args.num("leaf-green-ratio", scan.leafGreenRatio);
   scan.shapeIrregularityPct = args.num("shape-irregularity-pct", scan.shapeIrregularityPct);
   scan.followUpUnseenMaxStops =
       static_cast<int>(args.integer("follow-up-unseen-max-stops", scan.followUpUnseenMaxStops));
