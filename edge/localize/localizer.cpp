@@ -437,9 +437,7 @@ Result<LineObservation> Localizer::observe(const image::ImageView& frame, const 
     const WeakArc arc = findWeakArc(frame, *laserOff, roi, cal_, slideMm, plan.roughMm, obs.line,
                                     static_cast<int>(obs.line.segments.size()), wp);
     std::vector<geometry::PixelPoint> arcPixels;
-    for (const auto& r : arc.samples)
-      if (!(byColour && leafGreen(*laserOff, r.row, r.column, scan_.leafGreenRatio)))
-        arcPixels.push_back({static_cast<double>(r.column), static_cast<double>(r.row)});
+    for (const auto& r : arc.samples) arcPixels.push_back({static_cast<double>(r.column), static_cast<double>(r.row)});
     triangulateRows(plan, slideMm, slideMmPerRow, arcPixels, &obs.arcPointsMm, &obs.arcPixels, nullptr);
   }
   return obs;
