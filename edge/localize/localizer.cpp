@@ -426,11 +426,8 @@ Result<LineObservation> Localizer::observe(const image::ImageView& frame, const 
     (byColour && leafGreen(*laserOff, r.row, r.column, scan_.leafGreenRatio) ? leafPixels : pixels).push_back(px);
   }
   triangulateRows(plan, slideMm, slideMmPerRow, pixels, &obs.pointsMm, &obs.pixels, &obs.outsidePointsMm);
-  if (!leafPixels.empty()) {
-    std::vector<geometry::PixelPoint> gatedLeafPixels;
-    triangulateRows(plan, slideMm, slideMmPerRow, leafPixels, &obs.leafPointsMm, &gatedLeafPixels,
-                    &obs.leafOutsidePointsMm);
-  }
+  if (!leafPixels.empty())
+    triangulateRows(plan, slideMm, slideMmPerRow, leafPixels, &obs.leafPointsMm, nullptr, &obs.leafOutsidePointsMm);
   if (laserOff != nullptr && scan_.weakArcMinZ > 0.0) {
     WeakArcParams wp;
     wp.minZ = scan_.weakArcMinZ;
@@ -456,7 +453,7 @@ void Localizer::triangulateRows(const ScanPlan& plan, double slideMm, double sli
     const double fromRoughMm = (p.pointMm - plan.roughMm).norm();
     if (fromRoughMm <= scan_.gateMm) {
       gatedMm->push_back(p.pointMm);
-      gatedPixels->push_back(pixels[i]);
+      if (gatedPixels != nullptr) gatedPixels->push_back(pixels[i]);
     } else if (outsideMm != nullptr && fromRoughMm <= scan_.searchMm) {
       outsideMm->push_back(p.pointMm);
     }

@@ -323,7 +323,8 @@ class Localizer {
   Result<AppleEstimate> likelierOfRival(const ScanPlan& plan, const std::vector<LineObservation>& lines,
                                         Result<AppleEstimate> est) const;
   // Triangulates `pixels` at the stop: those within the gate round the rough position go
-  // to gatedMm/gatedPixels, those beyond it within searchMm to outsideMm (when given).
+  // to gatedMm and gatedPixels (when given), those beyond it within searchMm to outsideMm
+  // (when given).
   void triangulateRows(const ScanPlan& plan, double slideMm, double slideMmPerRow,
                        const std::vector<geometry::PixelPoint>& pixels, std::vector<Eigen::Vector3d>* gatedMm,
                        std::vector<geometry::PixelPoint>* gatedPixels, std::vector<Eigen::Vector3d>* outsideMm) const;
