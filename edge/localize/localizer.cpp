@@ -538,8 +538,10 @@ AppleEstimate Localizer::roughEstimate(const ScanPlan& plan) const {
 
 namespace {
 // Points within the gate, off the fruit the widened search found, from which the rough
-// position's surroundings count as occupied (what the fit needs of one line): estimate().
-constexpr size_t kOccupiedGatePoints = 8;
+// position's surroundings count as occupied: estimate(). Three, the bar at which the second
+// pass counts a line as having seen the fruit (followUpStops): a few rows of a target's skin
+// through a gap are something there, not empty air (issue 17; it was 8, a line's worth).
+constexpr size_t kOccupiedGatePoints = 3;
 // Off that fruit: farther from its fitted sphere than this (its spheroid's shape, lumps).
 constexpr double kOffFruitMm = 6.0;
 

@@ -674,6 +674,18 @@ TEST_CASE("Nothing within the gate: the widened search fits the lines the scan s
   REQUIRE(asFound.isOk());
   CHECK(asFound->outsideGate);
   CHECK((asFound->centerMm - k.center).norm() < 2.0);
+  // A few rows of a surface in the gate, fewer than a line's worth (a hidden target's skin
+  // through a gap), show it occupied as well; two stray samples do not.
+  for (const auto& [points, roughOut] : {std::pair{4, true}, std::pair{2, false}}) {
+    std::vector<localize::LineObservation> few = lines;
+    few[2].pointsMm.assign(leafy[2].pointsMm.end() - points, leafy[2].pointsMm.end());
+    few[2].pixels.assign(leafy[2].pixels.end() - points, leafy[2].pixels.end());
+    auto e = loc.estimate(*plan, few);
+    REQUIRE(e.isOk());
+    INFO(points << " points in the gate");
+    CHECK(e->outsideGate != roughOut);
+    CHECK(e->sphereFit != roughOut);
+  }
   // The same leaf told by its colour (ScanParams::leafGreenRatio): its points join no fit,
   // but they still show the gate occupied, so the rough position goes out as before.
   std::vector<localize::LineObservation> toldByColour = lines;

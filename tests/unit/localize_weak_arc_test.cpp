@@ -281,7 +281,8 @@ TEST_CASE("The localizer runs the matched filter only where the metering found d
 
 TEST_CASE("Samples on a leaf, told by the laser-off frame's colour, join no fit", "[localize][leaf]") {
   // A clear line across a fruit whose lower half a leaf covers: there both frames are green
-  // (G 120 over R 60, as chlorophyll reflects), above it red skin (R 200, G 0). The line's
+  // (G 120 over R 60, as chlorophyll reflects; B 150, so that a frame read in the wrong
+  // channel order shows no leaf), above it red skin (R 200, G 0). The line's
   // samples on the leaf go to leafPointsMm (seen, no fruit's surface), the skin's to the fit.
   SunlitFrame f = render(60.0, 7);
   REQUIRE(f.truth.size() > 60);
@@ -292,6 +293,7 @@ TEST_CASE("Samples on a leaf, told by the laser-off frame's colour, join no fit"
         uint8_t* px = frame->data() + (static_cast<size_t>(y) * f.cal.camera.widthPx + x) * 3;  // BGR
         px[2] = static_cast<uint8_t>(std::max(0, px[2] - 140));
         px[1] = 120;
+        px[0] = 150;
       }
   const image::ImageView on = f.view(f.on);
   const image::ImageView off = f.view(f.off);
@@ -325,4 +327,26 @@ TEST_CASE("Samples on a leaf, told by the laser-off frame's colour, join no fit"
   const localize::LineObservation unseen = observe(localize::ScanParams{}.leafGreenRatio, nullptr);
   CHECK(unseen.leafPointsMm.empty());
   CHECK(rowsOnLeaf(unseen) > 40);
+  // The same frames in memory order R, G, B (a camera that gives RGB888): the same samples
+  // on the leaf (read as BGR, the leaf's red would be its blue, and it would not be green).
+  std::vector<uint8_t> rgbOn = f.on;
+  std::vector<uint8_t> rgbOff = f.off;
+  for (std::vector<uint8_t>* frame : {&rgbOn, &rgbOff})
+    for (size_t i = 0; i + 2 < frame->size(); i += 3) std::swap((*frame)[i], (*frame)[i + 2]);
+  const auto asRgb = [&](const std::vector<uint8_t>& px) {
+    image::ImageView v = f.view(px);
+    v.format = image::PixelFormat::kRgb888;
+    return v;
+  };
+  const image::ImageView offRgb = asRgb(rgbOff);
+  localize::ScanParams scan;
+  scan.weakArcMinZ = 0.0;
+  const localize::Localizer loc(f.cal, image::LleParams{}, scan);
+  const Result<localize::ScanPlan> plan = loc.plan(f.centerMm + Eigen::Vector3d(6.0, -4.0, 8.0), 200.0);
+  REQUIRE(plan.isOk());
+  image::LleWorkspace ws;
+  const Result<localize::LineObservation> rgb = loc.observe(asRgb(rgbOn), *plan, f.slideMm, ws, &offRgb);
+  REQUIRE(rgb.isOk());
+  CHECK(rgb->leafPointsMm.size() == told.leafPointsMm.size());
+  CHECK(rgb->pointsMm.size() == told.pointsMm.size());
 }
