@@ -247,6 +247,11 @@ struct FollowUpNeed {
   bool sizeOnly() const { return unsureSize && !fewLines && !hidden && !twoSurfaces; }
 };
 
+// Points of a line on a surface from which it counts as having seen it: the fruit, for
+// where the second pass goes (followUpStops); anything off the widened search's fruit, for
+// the gate to count as occupied (kOccupiedGatePoints).
+constexpr size_t kMinPointsSeen = 3;
+
 // The second pass's candidate stops: the two thirds between each pair of the first pass's
 // (sorted) stops, and two thirds of a spacing beyond either end.
 std::vector<double> thirdsBetween(const std::vector<double>& taken, double spacingMm) {
@@ -293,7 +298,6 @@ std::vector<double> Localizer::followUpStops(const ScanPlan& plan, const std::ve
   const double radius = first->sphereFit ? first->surfaceRadiusMm() : scan_.maxAppleRadiusMm;
   const Eigen::Vector3d centre = first->sphereFit ? first->centerMm : plan.roughMm;
   const double onSurfaceMm = std::max(5.0, 3.0 * first->rmsMm);
-  constexpr size_t kMinPointsSeen = 3;
   double seenLo = std::numeric_limits<double>::infinity();
   double seenHi = -std::numeric_limits<double>::infinity();
   double seenSum = 0.0;
@@ -538,10 +542,10 @@ AppleEstimate Localizer::roughEstimate(const ScanPlan& plan) const {
 
 namespace {
 // Points within the gate, off the fruit the widened search found, from which the rough
-// position's surroundings count as occupied: estimate(). Three, the bar at which the second
-// pass counts a line as having seen the fruit (followUpStops): a few rows of a target's skin
-// through a gap are something there, not empty air (issue 17; it was 8, a line's worth).
-constexpr size_t kOccupiedGatePoints = 3;
+// position's surroundings count as occupied: estimate(). The second pass's own bar for a line
+// that saw the fruit: a few rows of a target's skin through a gap are something there, not
+// empty air (issue 17; it was 8, a line's worth).
+constexpr size_t kOccupiedGatePoints = kMinPointsSeen;
 // Off that fruit: farther from its fitted sphere than this (its spheroid's shape, lumps).
 constexpr double kOffFruitMm = 6.0;
 

@@ -297,7 +297,7 @@ TEST_CASE("Samples on a leaf, told by the laser-off frame's colour, join no fit"
       }
   const image::ImageView on = f.view(f.on);
   const image::ImageView off = f.view(f.off);
-  const auto observe = [&](double ratio, const image::ImageView* laserOff) {
+  const auto observe = [&](double ratio, const image::ImageView* laserOff, const image::ImageView& laserOn) {
     localize::ScanParams scan;
     scan.weakArcMinZ = 0.0;
     scan.leafGreenRatio = ratio;
@@ -305,7 +305,7 @@ TEST_CASE("Samples on a leaf, told by the laser-off frame's colour, join no fit"
     const Result<localize::ScanPlan> plan = loc.plan(f.centerMm + Eigen::Vector3d(6.0, -4.0, 8.0), 200.0);
     REQUIRE(plan.isOk());
     image::LleWorkspace ws;
-    Result<localize::LineObservation> obs = loc.observe(on, *plan, f.slideMm, ws, laserOff);
+    Result<localize::LineObservation> obs = loc.observe(laserOn, *plan, f.slideMm, ws, laserOff);
     REQUIRE(obs.isOk());
     return *obs;
   };
@@ -313,8 +313,8 @@ TEST_CASE("Samples on a leaf, told by the laser-off frame's colour, join no fit"
     return std::count_if(obs.pixels.begin(), obs.pixels.end(),
                          [&](const geometry::PixelPoint& p) { return p.rowPx >= leafFromRow; });
   };
-  const localize::LineObservation told = observe(localize::ScanParams{}.leafGreenRatio, &off);
-  const localize::LineObservation blind = observe(0.0, &off);
+  const localize::LineObservation told = observe(localize::ScanParams{}.leafGreenRatio, &off, on);
+  const localize::LineObservation blind = observe(0.0, &off, on);
   INFO("fit points " << told.pointsMm.size() << " (on the leaf " << rowsOnLeaf(told) << "), leaf points "
                      << told.leafPointsMm.size() << "; off: " << blind.pointsMm.size() << " (on the leaf "
                      << rowsOnLeaf(blind) << ")");
@@ -324,7 +324,7 @@ TEST_CASE("Samples on a leaf, told by the laser-off frame's colour, join no fit"
   CHECK(told.pointsMm.size() + told.leafPointsMm.size() == blind.pointsMm.size());
   CHECK(blind.leafPointsMm.empty());
   // Without a laser-off frame the colour is unknown: every sample may be the fruit's.
-  const localize::LineObservation unseen = observe(localize::ScanParams{}.leafGreenRatio, nullptr);
+  const localize::LineObservation unseen = observe(localize::ScanParams{}.leafGreenRatio, nullptr, on);
   CHECK(unseen.leafPointsMm.empty());
   CHECK(rowsOnLeaf(unseen) > 40);
   // The same frames in memory order R, G, B (a camera that gives RGB888): the same samples
@@ -339,14 +339,7 @@ TEST_CASE("Samples on a leaf, told by the laser-off frame's colour, join no fit"
     return v;
   };
   const image::ImageView offRgb = asRgb(rgbOff);
-  localize::ScanParams scan;
-  scan.weakArcMinZ = 0.0;
-  const localize::Localizer loc(f.cal, image::LleParams{}, scan);
-  const Result<localize::ScanPlan> plan = loc.plan(f.centerMm + Eigen::Vector3d(6.0, -4.0, 8.0), 200.0);
-  REQUIRE(plan.isOk());
-  image::LleWorkspace ws;
-  const Result<localize::LineObservation> rgb = loc.observe(asRgb(rgbOn), *plan, f.slideMm, ws, &offRgb);
-  REQUIRE(rgb.isOk());
-  CHECK(rgb->leafPointsMm.size() == told.leafPointsMm.size());
-  CHECK(rgb->pointsMm.size() == told.pointsMm.size());
+  const localize::LineObservation rgb = observe(localize::ScanParams{}.leafGreenRatio, &offRgb, asRgb(rgbOn));
+  CHECK(rgb.leafPointsMm.size() == told.leafPointsMm.size());
+  CHECK(rgb.pointsMm.size() == told.pointsMm.size());
 }
