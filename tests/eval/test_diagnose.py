@@ -4,6 +4,7 @@ second world, and on a few hard frames reports what the aggregates hide."""
 from __future__ import annotations
 
 import dataclasses
+import json
 import os
 import subprocess
 from pathlib import Path
@@ -11,7 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from alacs_eval import cli, diagnose, twin, worlds
+from alacs_eval import cli, diagnose, metrics, twin, worlds
 from alacs_eval.scans import Scan
 
 
@@ -115,9 +116,14 @@ def test_a_few_hard_scans_are_diagnosed(tmp_path):
         "case": "d1000_occ1_0000", "approach": 31.0, "first": 31.0, "stops": 6, "sigma": 20.0, "confidence": 18.0,
         "lines": 0, "doubt": "FAR_FROM_ROUGH", "fitted": "nothing", "rival": "none", "note": "sun"}
     miss.update(unseen)
+    miss.setdefault("reach", worlds.reach_text({}))
     listed = diagnose.text_loc(dict(res, misses=[miss], misses_by_cause={unseen["cause"]: 1}))
     assert f"the target's rows lit {why['lit_rows']} (stops lit {why['stops_lit']}), found 0" in listed
-    assert "why (" in listed and "lit, not found 1" in listed
+    assert "why (" in listed and "lit, not found 1" in listed and "any stop lights it at" in listed
+    # Its positions, as runs of the stroke with the most rows each lights.
+    assert worlds.reach_text({"lit": [[10.0, 8], [11.0, 9], [12.0, 8], [20.0, 10]]}) == \
+        "10-12 mm (9 rows), 20-20 mm (10 rows)"
+    assert worlds.reach_text({"lit": []}) == "no position"
     # `alacs-twin render --truth` gives the truth at any slide position (which stops would
     # have lit a hidden fruit): at a recorded stop, the scan's own truth file.
     stop = next(f for f in scan.frames if f.laser_on and f.truth)
@@ -128,6 +134,26 @@ def test_a_few_hard_scans_are_diagnosed(tmp_path):
     assert (scan.dir / stop.truth).read_text() == Path(str(out) + ".csv").read_text()
     assert subprocess.run([str(cfg.twin), "render", "--out", str(out) + ".png", "--truth",
                            str(tmp_path / "no" / "such.csv")], capture_output=True).returncode == 1
+    # `alacs-twin reach` reads the same truth at any slide position: at the scan's stops it
+    # counts the target's visible, lit rows of each stop's truth file (min-rows 1: every stop
+    # that lights any), and a clear target lights 8 or more over many millimetres of stroke.
+    stops = [f for f in scan.frames if f.laser_on and f.truth and f.tag != "aimed"]
+    slides = ",".join(repr(f.slide_mm) for f in stops)
+    got = subprocess.run([str(cfg.twin), "reach", "--slides", slides, "--min-rows", "1", "--list", clear],
+                         capture_output=True, text=True, check=True).stdout
+    lit = {round(p, 3): n for p, n in json.loads(got)["lit"]}
+    for f in stops:
+        visible = len(metrics.visible_rows(scan.truth_rows(f, scan.target_id)))
+        assert lit.get(round(f.slide_mm, 3), 0) == visible, f.slide_mm
+    assert sum(v > 0 for v in lit.values()) >= 3
+    swept = json.loads(subprocess.run([str(cfg.twin), "reach", clear], capture_output=True, text=True,
+                                      check=True).stdout)
+    assert swept["positions"] >= worlds.REACH_NARROW_MM and swept["max_rows"] >= max(lit.values())
+    assert worlds.reach_class(swept["positions"]) == worlds.REACH_CLASSES[2]
+    # A directory that is no scan is named in its line; options out of range are refused.
+    bad = subprocess.run([str(cfg.twin), "reach", str(tmp_path)], capture_output=True, text=True)
+    assert bad.returncode == 0 and "no manifest.json" in json.loads(bad.stdout)["error"]
+    assert subprocess.run([str(cfg.twin), "reach", "--step-mm", "0", clear], capture_output=True).returncode == 2
 
 
 def test_a_generator_option_reaches_the_render_and_the_processing(tmp_path, monkeypatch, capsys):

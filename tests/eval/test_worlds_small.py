@@ -116,3 +116,21 @@ def test_the_diameter_by_shape_is_the_same_results_split(run):
             assert abs(total - cell_total) < 1e-6 * max(1.0, abs(total)), (world, occ)
     text = (run / "evaluation.md").read_text()
     assert "| world | shape | clear | occluded |" in text
+
+
+def test_what_any_stop_could_light_splits_the_scans(run):
+    # Every scan falls in one class of `alacs-twin reach`, and the misses counted there are
+    # the scans beyond 20 mm or without a result.
+    res = json.loads((run / "results.json").read_text())
+    for world in worlds.WORLDS:
+        loc = res[world]["loc"]
+        reach = loc["reach"]
+        assert set(reach) == set(worlds.REACH_CLASSES)
+        n = loc["measurable"]["n"] + loc["unmeasurable"]["n"]
+        assert sum(v["n"] for v in reach.values()) == n, world
+        assert sum(v["misses"] for v in reach.values()) == loc["misses"]["n"], world
+    # The clear scans' targets are lit over much of the stroke.
+    bench = [json.loads(line) for line in (run / "benchmark" / "cases.jsonl").read_text().splitlines()]
+    clear = [c for c in bench if "reach_mm" in c and not c["occluded"]]
+    assert clear and all(worlds.reach_class(c["reach_mm"]) == worlds.REACH_CLASSES[2] for c in clear)
+    assert "What any placement of the stops could see" in (run / "evaluation.md").read_text()

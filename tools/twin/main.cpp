@@ -317,6 +317,17 @@ int main(int argc, char** argv) {
                {"out", Kind::kText, "PNG (required)"},
                {"truth", Kind::kText,
                 "CSV: also the truth rows (at the exposure's middle), as a scan's truth/frame_NNNN.csv"}}),
+      declare(app, "reach",
+              "the slide positions that light each scan's target on enough visible rows (the truth; one JSON line "
+              "each)",
+              reachMain,
+              {{"stroke-mm", Kind::kNumber, "the slide's stroke (default 200)"},
+               {"step-mm", Kind::kNumber, "between the positions tried (default 1)"},
+               {"min-rows", Kind::kInteger,
+                "visible, laser-lit rows a position must light (default 8, as a line in the fit)"},
+               {"slides", Kind::kList, "these slide positions, mm, instead of the stroke at the step"},
+               {"list", Kind::kFlag, "also each such position and its rows"},
+               {"jobs", Kind::kInteger, "threads (default 2)"}}),
   };
   subs[0].app->get_option("--set")->required()->check(CLI::IsMember({"lle", "loc"}));
   subs[0].app->get_option("--out")->required();
@@ -325,6 +336,7 @@ int main(int argc, char** argv) {
   subs[2].app->add_option("DIR", subs[2].positional, "scan directories")->required();
   subs[3].app->get_option("--out")->required();
   subs[4].app->get_option("--out")->required();
+  subs[5].app->add_option("DIR", subs[5].positional, "scan directories")->required();
   if (const int rc = alacs::tools::parseCommandLine(app, argc, argv); rc >= 0) return rc;
   for (const Subcommand& sub : subs)
     if (sub.app->parsed()) return sub.run(sub.args());

@@ -90,5 +90,6 @@ int calibrationMain(const Args& args);
 int processMain(const Args& args);
 int examplesMain(const Args& args);
 int renderMain(const Args& args);
+int reachMain(const Args& args);
 
 }  // namespace alacs::twin

@@ -346,8 +346,11 @@ def run_loc(cfg: Config, per_cell: int = 40) -> dict[str, Any]:
     by_case = {c["case"]: c["dir"] for c in cases}
     why = worlds.explain_misses(cfg.twin, [by_case[x["case"]] for x in misses + none], cfg.jobs,
                                 f"{cfg.world}: the misses' rows", cfg.quiet, extra=both + cfg.process_args)
+    reach = twin.reach(cfg.twin, [by_case[x["case"]] for x in misses + none], cfg.jobs,
+                       f"{cfg.world}: what any stop could light", cfg.quiet, listing=True) if misses + none else {}
     for x in misses + none:
         x.update(why[by_case[x["case"]]])
+        x["reach"] = worlds.reach_text(reach.get(by_case[x["case"]], {}))
     cells = {}
     for occ in (False, True):
         for dist in evaluate.DISTANCES:
@@ -388,7 +391,7 @@ def text_loc(res: dict[str, Any]) -> str:
                  f"build's: delete {res['work']} to render the scans again)")
     L += ["", "worst cases:"]
     seen = ("; the target's rows lit {lit_rows} (stops lit {stops_lit}), found {found_rows}, kept {kept_on} "
-            "(other rows kept {kept_off}), {cause}: {note}")
+            "(other rows kept {kept_off}), {cause}; any stop lights it at {reach}: {note}")
     L += [f"  {x['case']} {x['approach']:.1f} mm (first pass {x['first']:.1f}, +{x['stops']} stops), "
           f"σ {x['sigma']:.1f}, confidence {x['confidence']:.0f} %, {x['lines']} lines, {x['doubt']}, "
           f"fitted {x['fitted']}, rival {x['rival']}" + seen.format(**x) for x in res["misses"]]

@@ -105,6 +105,16 @@ def process(twin: Path, dirs: list[str], jobs: int, desc: str, rows: bool = Fals
     return {r["scan"]: r for r in results}
 
 
+def reach(twin: Path, dirs: list[str], jobs: int, desc: str, quiet: bool = False,
+          listing: bool = False) -> dict[str, dict]:
+    """`alacs-twin reach` on `dirs`: the slide positions (the stroke, 1 mm apart) that light
+    each scan's target on 8 visible rows or more, from the truth (`listing`: each of them,
+    with its rows)."""
+    cmd = [str(twin), "reach", "--jobs", str(jobs)] + (["--list"] if listing else [])
+    results = run_lines(cmd + dirs, len(dirs), desc, quiet)
+    return {r["scan"]: r for r in results}
+
+
 def find_calibrate(twin_path: Path) -> Path | None:
     """alacs_calibrate (issue 5's tool) in the same build as alacs-twin, if built."""
     cand = twin_path.parent.parent / "calibrate" / "alacs_calibrate"

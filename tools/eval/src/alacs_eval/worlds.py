@@ -175,6 +175,31 @@ MEASURABLE_LINES = 2
 MEASURABLE_ROWS = 8
 
 
+# What any placement of the stops could see (`alacs-twin reach`: the truth at every slide
+# position over the stroke, 1 mm apart): the millimetres of stroke whose line lights
+# MEASURABLE_ROWS or more visible rows of the target. None: leaves hide it wherever any line
+# crosses it, and only the rough position can stand in. Under REACH_NARROW_MM (the second
+# pass's spacing, a third of the paper's 20 mm, is 6.7 mm): its stops can fall either side.
+REACH_NARROW_MM = 7
+REACH_CLASSES = ("no position", "under 7 mm", "7 mm or more")
+
+
+def reach_class(reach_mm: int) -> str:
+    return REACH_CLASSES[0] if reach_mm <= 0 else REACH_CLASSES[1] if reach_mm < REACH_NARROW_MM else REACH_CLASSES[2]
+
+
+def reach_text(reach: dict) -> str:
+    """`alacs-twin reach --list`'s positions as runs of the stroke: "141-154 mm (70 rows)",
+    each with the most rows any of its positions lights."""
+    runs: list[list[float]] = []
+    for pos, rows in reach.get("lit", []):
+        if runs and pos - runs[-1][1] <= 1.01:
+            runs[-1][1], runs[-1][2] = pos, max(runs[-1][2], rows)
+        else:
+            runs.append([pos, pos, rows])
+    return ", ".join(f"{a:.0f}-{b:.0f} mm ({n:.0f} rows)" for a, b, n in runs) or "no position"
+
+
 def _stop_truths(scan: Scan) -> dict[int, dict[int, float]]:
     """The target's visible, laser-lit truth rows (row: column) at each of the scan's stops
     (both passes, not the aimed frame), by frame index."""
@@ -254,6 +279,7 @@ def _loc(cfg: Config, world: str, cases: list[dict]) -> tuple[dict[str, Any], li
     dirs = [c["dir"] for c in cases]
     ours = twin.process(cfg.twin, dirs, cfg.jobs, f"{world}: our localization", quiet=cfg.quiet,
                         other_object_prior=cfg.other_object_prior)
+    reach = twin.reach(cfg.twin, dirs, cfg.jobs, f"{world}: what any stop could light", quiet=cfg.quiet)
     paper: dict[str, dict] = {}
     with multiprocessing.get_context("fork").Pool(cfg.jobs) as pool:
         for r in tqdm(pool.imap_unordered(evaluate._paper_loc_case, [(d, None) for d in dirs]), total=len(dirs),
@@ -272,6 +298,7 @@ def _loc(cfg: Config, world: str, cases: list[dict]) -> tuple[dict[str, Any], li
                "follow_up_stops": int(ours.get(d, {}).get("follow_up_stops", 0)),
                "follow_up_missing": int(ours.get(d, {}).get("follow_up_missing", 0)),
                "measurable": _lit_lines(scan) >= MEASURABLE_LINES,
+               "reach_mm": int(reach[d]["positions"]),
                "first_pass_approach": (float(np.linalg.norm(np.asarray(first["approach_mm"]) - approach))
                                        if first.get("ok") else math.nan)}
         if e.get("ok"):
@@ -318,6 +345,11 @@ def _loc_summary(rows: list[dict]) -> dict[str, Any]:
                        ("unmeasurable", [r for r in rows if not r.get("measurable", True)])):
         out[label] = {"n": len(sel), "within20": float(np.mean([r["approach"] <= metrics.TOLERANCE_MM for r in sel])) if sel else math.nan,
                       "occluded": sum(r["occluded"] for r in sel)}
+    out["reach"] = {}
+    for label in REACH_CLASSES:
+        sel = [r for r in rows if reach_class(r["reach_mm"]) == label]
+        out["reach"][label] = {"n": len(sel), "occluded": sum(r["occluded"] for r in sel),
+                               "misses": sum(not r["approach"] <= metrics.TOLERANCE_MM for r in sel)}
     out["misses"] = {"n": sum("miss" in r for r in rows), **{c: sum(r.get("miss") == c for r in rows) for c in MISS_CAUSES}}
     out["second_pass"] = {"share": float(np.mean([r["follow_up_stops"] > 0 for r in rows])),
                           "stops_per_scan": float(np.mean([r["follow_up_stops"] for r in rows])),
@@ -450,7 +482,9 @@ RULES = [
     "or more of the target's visible rows), lit but not found (the LLE's valid samples and the sunlit arcs lay "
     "on under a third of the lit rows), or found but not taken (on a third or more, and what went out is still "
     "beyond 20 mm: another object's fit, the rough position, or a poor fit of the target); "
-    "`alacs-twin render --truth FILE` writes the truth at any other slide position. "
+    "`alacs-twin render --truth FILE` writes the truth at any other slide position, and `alacs-twin reach "
+    "--list DIR` the positions over the whole stroke that light the target (the table \"What any placement of the "
+    "stops could see\" below), which `diagnose --loc` gives for each miss. "
     "Both refuse `--world holdout`.",
 ]
 
@@ -541,9 +575,10 @@ def markdown(res: dict[str, Any], figure: str | None, command: str) -> str:
             L.append(f"- {name}: a second pass on {_pct(sp['share'])} of the scans, {sp['stops_per_scan']:.2f} stops "
                      f"per scan on average; second-pass stops the scans lack (regenerate when not 0): "
                      f"{sp['missing_frames']}.")
-    L += ["", f"Targets no scan strategy can measure: scans in which fewer than {MEASURABLE_LINES} of the stops (both "
-          f"passes) light {MEASURABLE_ROWS} or more visible rows of the target (leaves hide it from the camera where "
-          "every line crosses it), and the share within 20 mm (all scans) apart:", "",
+    L += ["", f"Targets the stops taken could not measure: scans in which fewer than {MEASURABLE_LINES} of the stops "
+          f"(both passes) light {MEASURABLE_ROWS} or more visible rows of the target (leaves hide it from the camera "
+          "where those lines cross it; the next table says whether any stop could), and the share within 20 mm (all "
+          "scans) apart:", "",
           "| world | scans | unmeasurable (occluded) | within 20 mm, measurable | within 20 mm, unmeasurable |",
           "| --- | --- | --- | --- | --- |"]
     for name, w in ws:
@@ -551,6 +586,20 @@ def markdown(res: dict[str, Any], figure: str | None, command: str) -> str:
         if m and u:
             L.append(f"| {name} | {m['n'] + u['n']} | {u['n']} ({u['occluded']}) | {_pct(m['within20'])} | "
                      f"{_pct(u['within20'])} |")
+    L += ["", "What any placement of the stops could see (`alacs-twin reach`: the truth at every slide position over "
+          f"the 200 mm stroke, 1 mm apart): the scans by how much of the stroke lights {MEASURABLE_ROWS} or more visible "
+          "rows of the target, and of them, those beyond 20 mm or without a result. Where no position does, only the "
+          f"rough position can stand in; under {REACH_NARROW_MM} mm, the second pass's stops (6.7 mm apart) can fall "
+          "either side:", "",
+          "| world | scans | " + " | ".join(REACH_CLASSES) + " | beyond 20 mm or none: " + " / ".join(REACH_CLASSES) + " |",
+          "| --- | --- |" + " --- |" * (len(REACH_CLASSES) + 1)]
+    for name, w in ws:
+        rc = w["loc"].get("reach")
+        if rc:
+            L.append(f"| {name} | {sum(v['n'] for v in rc.values())} | "
+                     + " | ".join(f"{rc[c]['n']} ({rc[c]['occluded']})" for c in REACH_CLASSES) + " | "
+                     + " / ".join(str(rc[c]["misses"]) for c in REACH_CLASSES) + " |")
+    L += ["", "(In brackets: of them, occluded.)"]
     L += ["", f"Scans beyond 20 mm or without a result, by why ({MISS_CAUSES_TEXT}):", "",
           "| world | beyond 20 mm or none | " + " | ".join(MISS_CAUSES) + " |", "| --- | --- |" + " --- |" * len(MISS_CAUSES)]
     for name, w in ws:
