@@ -122,8 +122,13 @@ def test_a_few_hard_scans_are_diagnosed(tmp_path):
     assert "why (" in listed and "lit, not found 1" in listed and "any stop lights it at" in listed
     # Its positions, as runs of the stroke with the most rows each lights.
     assert worlds.reach_text({"lit": [[10.0, 8], [11.0, 9], [12.0, 8], [20.0, 10]]}) == \
-        "10-12 mm (9 rows), 20-20 mm (10 rows)"
+        "10-12 mm (9 rows), 20 mm (10 rows)"
     assert worlds.reach_text({"lit": []}) == "no position"
+    assert worlds.reach_text({"error": "no truth"}) == "unknown (no truth)"
+    # The classes: a run narrower than the second pass's spacing can fall between its stops.
+    assert worlds.reach_class({"positions": 0}) == worlds.REACH_CLASSES[0]
+    assert worlds.reach_class({"positions": 7, "widest_run_mm": 6.0}) == worlds.REACH_CLASSES[1]
+    assert worlds.reach_class({"positions": 8, "widest_run_mm": 7.0}) == worlds.REACH_CLASSES[2]
     # `alacs-twin render --truth` gives the truth at any slide position (which stops would
     # have lit a hidden fruit): at a recorded stop, the scan's own truth file.
     stop = next(f for f in scan.frames if f.laser_on and f.truth)
@@ -146,13 +151,24 @@ def test_a_few_hard_scans_are_diagnosed(tmp_path):
         visible = len(metrics.visible_rows(scan.truth_rows(f, scan.target_id)))
         assert lit.get(round(f.slide_mm, 3), 0) == visible, f.slide_mm
     assert sum(v > 0 for v in lit.values()) >= 3
+    # The sweep covers the whole stroke, both ends included, and keeps the positions that
+    # light 8 rows or more (the fit's bar): the same as every position listed at a bar of 1.
     swept = json.loads(subprocess.run([str(cfg.twin), "reach", clear], capture_output=True, text=True,
                                       check=True).stdout)
-    assert swept["positions"] >= worlds.REACH_NARROW_MM and swept["max_rows"] >= max(lit.values())
-    assert worlds.reach_class(swept["positions"]) == worlds.REACH_CLASSES[2]
-    # A directory that is no scan is named in its line; options out of range are refused.
+    every = json.loads(subprocess.run([str(cfg.twin), "reach", "--min-rows", "1", "--list", "--slides",
+                                       ",".join(str(p) for p in range(201)), clear], capture_output=True, text=True,
+                                      check=True).stdout)
+    assert swept["positions"] == sum(n >= worlds.MEASURABLE_ROWS for _, n in every["lit"])
+    assert swept["max_rows"] == every["max_rows"] >= max(lit.values())
+    assert worlds.reach_class(swept) == worlds.REACH_CLASSES[2] and swept["widest_run_mm"] >= 20
+    # A directory that is no scan, or a scan without its truth, is named in its line; options
+    # out of range are refused.
     bad = subprocess.run([str(cfg.twin), "reach", str(tmp_path)], capture_output=True, text=True)
-    assert bad.returncode == 0 and "no manifest.json" in json.loads(bad.stdout)["error"]
+    assert bad.returncode == 0 and "manifest" in json.loads(bad.stdout)["error"]
+    (tmp_path / "broken").mkdir()
+    (tmp_path / "broken" / "manifest.json").write_text("{not json")
+    broken = subprocess.run([str(cfg.twin), "reach", str(tmp_path / "broken")], capture_output=True, text=True)
+    assert broken.returncode == 0 and "error" in json.loads(broken.stdout)
     assert subprocess.run([str(cfg.twin), "reach", "--step-mm", "0", clear], capture_output=True).returncode == 2
 
 

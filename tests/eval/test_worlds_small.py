@@ -119,18 +119,18 @@ def test_the_diameter_by_shape_is_the_same_results_split(run):
 
 
 def test_what_any_stop_could_light_splits_the_scans(run):
-    # Every scan falls in one class of `alacs-twin reach`, and the misses counted there are
-    # the scans beyond 20 mm or without a result.
     res = json.loads((run / "results.json").read_text())
     for world in worlds.WORLDS:
         loc = res[world]["loc"]
-        reach = loc["reach"]
-        assert set(reach) == set(worlds.REACH_CLASSES)
+        assert set(loc["reach"]) == set(worlds.REACH_CLASSES)
         n = loc["measurable"]["n"] + loc["unmeasurable"]["n"]
-        assert sum(v["n"] for v in reach.values()) == n, world
-        assert sum(v["misses"] for v in reach.values()) == loc["misses"]["n"], world
-    # The clear scans' targets are lit over much of the stroke.
-    bench = [json.loads(line) for line in (run / "benchmark" / "cases.jsonl").read_text().splitlines()]
-    clear = [c for c in bench if "reach_mm" in c and not c["occluded"]]
-    assert clear and all(worlds.reach_class(c["reach_mm"]) == worlds.REACH_CLASSES[2] for c in clear)
+        assert sum(v["n"] for v in loc["reach"].values()) == n, world
+    for world in ("benchmark",):  # the second world's per-case results are not opened
+        cases = [json.loads(line) for line in (run / world / "cases.jsonl").read_text().splitlines()]
+        loc = [c for c in cases if "reach" in c]
+        # A target that two of the scan's own stops light on 8 rows is lit at some position
+        # of the sweep, and a clear one over more than a second-pass spacing.
+        assert all(c["reach"] != worlds.REACH_CLASSES[0] for c in loc if c["measurable"])
+        assert all(c["reach"] == worlds.REACH_CLASSES[2] for c in loc if not c["occluded"])
+        assert all(c["reach_widest_mm"] >= 0.0 for c in loc)
     assert "What any placement of the stops could see" in (run / "evaluation.md").read_text()

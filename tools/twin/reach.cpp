@@ -1,15 +1,17 @@
 // alacs-twin reach: what any scan strategy could see of each scan's target. The truth
 // (sim::laserLineTruth: the target's rows that the camera sees and the laser lights) at
-// every slide position over the stroke, `--step-mm` apart (or at `--slides`). A target that no position
-// lights on `--min-rows` rows or more is beyond every placement of the stops: leaves hide
-// it wherever the line crosses it, and only the rough position can stand in for it
-// (docs/evaluation.md, "What no scan strategy can see").
+// every slide position over the stroke, `--step-mm` apart (or at `--slides`). A target
+// that no position lights on `--min-rows` rows or more is beyond every placement of the
+// stops: leaves hide it wherever the line crosses it, and only the rough position can
+// stand in for it (docs/evaluation.md, "What any placement of the stops could see").
 #include <algorithm>
 #include <cstdio>
-#include <fstream>
+#include <mutex>
+#include <set>
 #include <utility>
 #include <vector>
 
+#include "replay/scan_dir.h"
 #include "sim/scene.h"
 #include "sim/truth.h"
 #include "twin.h"
@@ -18,40 +20,50 @@ namespace alacs::twin {
 
 namespace {
 
+// Positions closer than this (mm) belong to one run of the stroke: the sweep's step, with
+// room for the rounding of a position given in `--slides`.
+constexpr double kRunGapSlackMm = 1e-6;
+
 struct Reach {
-  int positions = 0;      // positions that light min-rows or more
-  double firstMm = -1.0;  // the first and last of them (-1: none)
-  double lastMm = -1.0;
-  int maxRows = 0;                          // the most visible lit rows at any position
-  std::vector<std::pair<double, int>> lit;  // each such position and its rows
+  std::vector<std::pair<double, int>> lit;  // each position that lights min-rows or more, and its rows
+  int maxRows = 0;                          // the most visible lit rows at any position tried
+  double widestRunMm = 0.0;                 // the widest run of consecutive lit positions, last − first
 };
 
-Result<int> targetId(const std::string& dir) {
-  std::ifstream in(dir + "/manifest.json");
-  if (!in) return Status(Error::kNotFound, dir + ": no manifest.json");
-  const tools::Json m = tools::Json::parse(in, nullptr, false);
-  if (m.is_discarded() || !m.contains("scan") || !m["scan"].contains("target_id") ||
-      !m["scan"]["target_id"].is_number_integer())
-    return Status(Error::kBadInput, dir + ": manifest.json has no scan.target_id");
-  return m["scan"]["target_id"].get<int>();
+// Visible, lit rows of the target at one slide position, one per image row (the truth can
+// list a row twice where the arc turns back near the limb; the evaluation counts it once,
+// tools/eval metrics.visible_rows).
+int visibleRows(const sim::SimScene& scene, const sim::SimApple& target, double slideMm) {
+  std::set<int> rows;
+  for (const sim::RowTruth& t : sim::laserLineTruth(scene, target, slideMm)) rows.insert(t.row);
+  return static_cast<int>(rows.size());
 }
 
-Result<Reach> reachOf(const std::string& dir, const std::vector<double>& slidesMm, int minRows) {
-  const Result<int> id = targetId(dir);
-  if (!id) return id.status();
-  const Result<sim::SimScene> scene = sim::loadScene(dir + "/truth/scene.json");
+Result<Reach> reachOf(const std::string& dir, const std::vector<double>& slidesMm, double stepMm, int minRows) {
+  const Result<replay::ScanManifest> m = replay::readManifest(dir);
+  if (!m) return Status(m.status().code(), dir + ": " + m.status().reason());
+  if (m->scan.truthFile.empty()) return Status(Error::kBadInput, dir + ": the scan has no truth (scan.truth)");
+  const Result<sim::SimScene> scene = sim::loadScene(dir + "/" + m->scan.truthFile);
   if (!scene) return Status(scene.status().code(), dir + ": " + scene.status().reason());
-  const sim::SimApple* target = scene->apple(*id);
-  if (target == nullptr) return Status(Error::kBadInput, dir + ": the scene has no apple " + std::to_string(*id));
+  const sim::SimApple* target = scene->apple(m->scan.targetId);
+  if (target == nullptr)
+    return Status(Error::kBadInput, dir + ": the scene has no apple " + std::to_string(m->scan.targetId));
   Reach r;
+  double runFirstMm = 0.0;
+  double previousMm = 0.0;
+  bool inRun = false;
   for (const double slideMm : slidesMm) {
-    const int rows = static_cast<int>(sim::laserLineTruth(*scene, *target, slideMm).size());
+    const int rows = visibleRows(*scene, *target, slideMm);
     r.maxRows = std::max(r.maxRows, rows);
-    if (rows < minRows) continue;
-    ++r.positions;
+    if (rows < minRows) {
+      inRun = false;
+      continue;
+    }
     r.lit.emplace_back(slideMm, rows);
-    if (r.firstMm < 0.0) r.firstMm = slideMm;
-    r.lastMm = slideMm;
+    if (!inRun || slideMm - previousMm > stepMm + kRunGapSlackMm) runFirstMm = slideMm;
+    inRun = true;
+    previousMm = slideMm;
+    r.widestRunMm = std::max(r.widestRunMm, slideMm - runFirstMm);
   }
   return r;
 }
@@ -67,36 +79,43 @@ int reachMain(const Args& args) {
     std::fprintf(stderr, "alacs-twin reach: --stroke-mm and --step-mm must be > 0 (step ≤ stroke), --min-rows ≥ 1\n");
     return 2;
   }
-  // The positions tried: those given, else the whole stroke at the step.
+  // The positions tried: those given (in order; a run is consecutive positions `--step-mm`
+  // apart), else the whole stroke at the step.
   std::vector<double> slidesMm = args.list("slides", {});
   if (slidesMm.empty()) {
     const int steps = static_cast<int>(strokeMm / stepMm + 1e-9);
     for (int i = 0; i <= steps; ++i) slidesMm.push_back(i * stepMm);
   }
-  std::vector<std::string> lines(dirs.size());
+  const bool listing = args.has("list");
+  std::mutex out;
   const Status st = parallelFor(
       static_cast<int>(dirs.size()), static_cast<int>(args.integer("jobs", 2)),
       [&](int i) -> Status {
         const std::string& dir = dirs[static_cast<size_t>(i)];
         tools::Json o;
         o["scan"] = dir;
-        const Result<Reach> r = reachOf(dir, slidesMm, minRows);
+        const Result<Reach> r = reachOf(dir, slidesMm, stepMm, minRows);
         if (!r) {
           o["error"] = r.status().reason();
         } else {
-          o["positions"] = r->positions;
-          o["lit_span_mm"] = r->positions > 0 ? tools::jsonNumber(r->lastMm - r->firstMm, "%.1f") : tools::Json(0);
+          o["positions"] = r->lit.size();
+          o["lit_mm"] = tools::jsonNumber(static_cast<double>(r->lit.size()) * stepMm, "%.1f");
+          o["widest_run_mm"] = tools::jsonNumber(r->widestRunMm, "%.1f");
+          o["first_mm"] = r->lit.empty() ? tools::Json(nullptr) : tools::jsonNumber(r->lit.front().first, "%.3f");
+          o["last_mm"] = r->lit.empty() ? tools::Json(nullptr) : tools::jsonNumber(r->lit.back().first, "%.3f");
           o["max_rows"] = r->maxRows;
-          if (args.has("list")) {
+          if (listing) {
             o["lit"] = tools::Json::array();
             for (const auto& [slideMm, rows] : r->lit) o["lit"].push_back({tools::jsonNumber(slideMm, "%.3f"), rows});
           }
         }
-        lines[static_cast<size_t>(i)] = tools::jsonText(o);
+        // One line as each scan is done (the evaluation's progress bar counts them).
+        const std::lock_guard<std::mutex> lock(out);
+        std::fputs(tools::jsonText(o).c_str(), stdout);
+        std::fflush(stdout);
         return Status::ok();
       },
       [](int) {});
-  for (const std::string& l : lines) std::fputs(l.c_str(), stdout);
   if (!st) {
     std::fprintf(stderr, "alacs-twin reach: %s\n", st.toString().c_str());
     return 1;

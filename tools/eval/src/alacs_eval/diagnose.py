@@ -347,7 +347,8 @@ def run_loc(cfg: Config, per_cell: int = 40) -> dict[str, Any]:
     why = worlds.explain_misses(cfg.twin, [by_case[x["case"]] for x in misses + none], cfg.jobs,
                                 f"{cfg.world}: the misses' rows", cfg.quiet, extra=both + cfg.process_args)
     reach = twin.reach(cfg.twin, [by_case[x["case"]] for x in misses + none], cfg.jobs,
-                       f"{cfg.world}: what any stop could light", cfg.quiet, listing=True) if misses + none else {}
+                       f"{cfg.world}: what any stop could light", worlds.MEASURABLE_ROWS, cfg.quiet,
+                       listing=True) if misses + none else {}
     for x in misses + none:
         x.update(why[by_case[x["case"]]])
         x["reach"] = worlds.reach_text(reach.get(by_case[x["case"]], {}))

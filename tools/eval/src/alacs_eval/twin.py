@@ -105,14 +105,17 @@ def process(twin: Path, dirs: list[str], jobs: int, desc: str, rows: bool = Fals
     return {r["scan"]: r for r in results}
 
 
-def reach(twin: Path, dirs: list[str], jobs: int, desc: str, quiet: bool = False,
+def reach(twin: Path, dirs: list[str], jobs: int, desc: str, min_rows: int, quiet: bool = False,
           listing: bool = False) -> dict[str, dict]:
     """`alacs-twin reach` on `dirs`: the slide positions (the stroke, 1 mm apart) that light
-    each scan's target on 8 visible rows or more, from the truth (`listing`: each of them,
-    with its rows)."""
-    cmd = [str(twin), "reach", "--jobs", str(jobs)] + (["--list"] if listing else [])
-    results = run_lines(cmd + dirs, len(dirs), desc, quiet)
-    return {r["scan"]: r for r in results}
+    each scan's target on `min_rows` visible rows or more, from the truth (`listing`: each
+    of them, with its rows). A scan it could not read raises, naming it."""
+    cmd = [str(twin), "reach", "--jobs", str(jobs), "--min-rows", str(min_rows)] + (["--list"] if listing else [])
+    results = {r["scan"]: r for r in run_lines(cmd + dirs, len(dirs), desc, quiet)}
+    bad = [f"{d}: {r['error']}" for d, r in results.items() if "error" in r]
+    if bad or len(results) != len(dirs):
+        raise RuntimeError("alacs-twin reach: " + ("; ".join(bad) or "scans without a line"))
+    return results
 
 
 def find_calibrate(twin_path: Path) -> Path | None:

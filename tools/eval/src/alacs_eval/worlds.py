@@ -176,28 +176,34 @@ MEASURABLE_ROWS = 8
 
 
 # What any placement of the stops could see (`alacs-twin reach`: the truth at every slide
-# position over the stroke, 1 mm apart): the millimetres of stroke whose line lights
-# MEASURABLE_ROWS or more visible rows of the target. None: leaves hide it wherever any line
-# crosses it, and only the rough position can stand in. Under REACH_NARROW_MM (the second
-# pass's spacing, a third of the paper's 20 mm, is 6.7 mm): its stops can fall either side.
-REACH_NARROW_MM = 7
-REACH_CLASSES = ("no position", "under 7 mm", "7 mm or more")
+# position over the stroke, 1 mm apart): the widest run of the stroke whose positions all
+# light MEASURABLE_ROWS or more visible rows of the target. None: leaves hide it wherever
+# any line crosses it, and only the rough position can stand in. Narrower than the second
+# pass's spacing (a third of the paper's 20 mm): its stops can fall either side of the run.
+REACH_SPACING_MM = 20.0 / 3.0
+REACH_CLASSES = ("no position", "narrower than 6.7 mm", "6.7 mm or wider")
 
 
-def reach_class(reach_mm: int) -> str:
-    return REACH_CLASSES[0] if reach_mm <= 0 else REACH_CLASSES[1] if reach_mm < REACH_NARROW_MM else REACH_CLASSES[2]
+def reach_class(reach: dict) -> str:
+    """The class of a scan by `alacs-twin reach`'s line for it."""
+    if not reach.get("positions"):
+        return REACH_CLASSES[0]
+    return REACH_CLASSES[1] if reach["widest_run_mm"] < REACH_SPACING_MM - 1e-9 else REACH_CLASSES[2]
 
 
 def reach_text(reach: dict) -> str:
-    """`alacs-twin reach --list`'s positions as runs of the stroke: "141-154 mm (70 rows)",
-    each with the most rows any of its positions lights."""
+    """`alacs-twin reach --list`'s positions (a sweep 1 mm apart) as runs of the stroke,
+    "141-154 mm (70 rows)", each with the most rows any of its positions lights."""
+    if "error" in reach:
+        return f"unknown ({reach['error']})"
     runs: list[list[float]] = []
     for pos, rows in reach.get("lit", []):
-        if runs and pos - runs[-1][1] <= 1.01:
+        if runs and pos - runs[-1][1] <= 1.0 + 1e-6:
             runs[-1][1], runs[-1][2] = pos, max(runs[-1][2], rows)
         else:
             runs.append([pos, pos, rows])
-    return ", ".join(f"{a:.0f}-{b:.0f} mm ({n:.0f} rows)" for a, b, n in runs) or "no position"
+    return ", ".join((f"{a:.0f}-{b:.0f} mm" if b > a else f"{a:.0f} mm") + f" ({n:.0f} rows)"
+                     for a, b, n in runs) or "no position"
 
 
 def _stop_truths(scan: Scan) -> dict[int, dict[int, float]]:
@@ -279,7 +285,8 @@ def _loc(cfg: Config, world: str, cases: list[dict]) -> tuple[dict[str, Any], li
     dirs = [c["dir"] for c in cases]
     ours = twin.process(cfg.twin, dirs, cfg.jobs, f"{world}: our localization", quiet=cfg.quiet,
                         other_object_prior=cfg.other_object_prior)
-    reach = twin.reach(cfg.twin, dirs, cfg.jobs, f"{world}: what any stop could light", quiet=cfg.quiet)
+    reach = twin.reach(cfg.twin, dirs, cfg.jobs, f"{world}: what any stop could light", MEASURABLE_ROWS,
+                       quiet=cfg.quiet)
     paper: dict[str, dict] = {}
     with multiprocessing.get_context("fork").Pool(cfg.jobs) as pool:
         for r in tqdm(pool.imap_unordered(evaluate._paper_loc_case, [(d, None) for d in dirs]), total=len(dirs),
@@ -298,7 +305,7 @@ def _loc(cfg: Config, world: str, cases: list[dict]) -> tuple[dict[str, Any], li
                "follow_up_stops": int(ours.get(d, {}).get("follow_up_stops", 0)),
                "follow_up_missing": int(ours.get(d, {}).get("follow_up_missing", 0)),
                "measurable": _lit_lines(scan) >= MEASURABLE_LINES,
-               "reach_mm": int(reach[d]["positions"]),
+               "reach": reach_class(reach[d]), "reach_widest_mm": float(reach[d]["widest_run_mm"]),
                "first_pass_approach": (float(np.linalg.norm(np.asarray(first["approach_mm"]) - approach))
                                        if first.get("ok") else math.nan)}
         if e.get("ok"):
@@ -347,7 +354,7 @@ def _loc_summary(rows: list[dict]) -> dict[str, Any]:
                       "occluded": sum(r["occluded"] for r in sel)}
     out["reach"] = {}
     for label in REACH_CLASSES:
-        sel = [r for r in rows if reach_class(r["reach_mm"]) == label]
+        sel = [r for r in rows if r["reach"] == label]
         out["reach"][label] = {"n": len(sel), "occluded": sum(r["occluded"] for r in sel),
                                "misses": sum(not r["approach"] <= metrics.TOLERANCE_MM for r in sel)}
     out["misses"] = {"n": sum("miss" in r for r in rows), **{c: sum(r.get("miss") == c for r in rows) for c in MISS_CAUSES}}
@@ -587,19 +594,18 @@ def markdown(res: dict[str, Any], figure: str | None, command: str) -> str:
             L.append(f"| {name} | {m['n'] + u['n']} | {u['n']} ({u['occluded']}) | {_pct(m['within20'])} | "
                      f"{_pct(u['within20'])} |")
     L += ["", "What any placement of the stops could see (`alacs-twin reach`: the truth at every slide position over "
-          f"the 200 mm stroke, 1 mm apart): the scans by how much of the stroke lights {MEASURABLE_ROWS} or more visible "
-          "rows of the target, and of them, those beyond 20 mm or without a result. Where no position does, only the "
-          f"rough position can stand in; under {REACH_NARROW_MM} mm, the second pass's stops (6.7 mm apart) can fall "
-          "either side:", "",
-          "| world | scans | " + " | ".join(REACH_CLASSES) + " | beyond 20 mm or none: " + " / ".join(REACH_CLASSES) + " |",
-          "| --- | --- |" + " --- |" * (len(REACH_CLASSES) + 1)]
+          f"the 200 mm stroke, 1 mm apart). The scans by the widest run of the stroke whose lines light "
+          f"{MEASURABLE_ROWS} or more visible rows of the target: where no position does, only the rough position can "
+          "stand in; a run narrower than the second pass's spacing (6.7 mm) can fall between its stops. Beside each, "
+          "how many of those scans are beyond 20 mm or without a result:", "",
+          "| world | scans | " + " | ".join(f"{c}: scans (occluded) | {c}: beyond 20 mm" for c in REACH_CLASSES)
+          + " |", "| --- | --- |" + " --- |" * (2 * len(REACH_CLASSES))]
     for name, w in ws:
         rc = w["loc"].get("reach")
         if rc:
             L.append(f"| {name} | {sum(v['n'] for v in rc.values())} | "
-                     + " | ".join(f"{rc[c]['n']} ({rc[c]['occluded']})" for c in REACH_CLASSES) + " | "
-                     + " / ".join(str(rc[c]["misses"]) for c in REACH_CLASSES) + " |")
-    L += ["", "(In brackets: of them, occluded.)"]
+                     + " | ".join(f"{rc[c]['n']} ({rc[c]['occluded']}) | {rc[c]['misses']}" for c in REACH_CLASSES)
+                     + " |")
     L += ["", f"Scans beyond 20 mm or without a result, by why ({MISS_CAUSES_TEXT}):", "",
           "| world | beyond 20 mm or none | " + " | ".join(MISS_CAUSES) + " |", "| --- | --- |" + " --- |" * len(MISS_CAUSES)]
     for name, w in ws:
