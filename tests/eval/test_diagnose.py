@@ -12,11 +12,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from alacs_eval import cli, diagnose, metrics, twin, worlds
-from alacs_eval.scans import Scan
+from alacs_eval import cli, diagnose, diameter, metrics, twin, worlds
+from alacs_eval.scans import Scan, target_truth
 
 
-@pytest.mark.parametrize("look", [["--count", "2"], ["--loc", "--per-cell", "1"]], ids=["lle", "localization"])
+@pytest.mark.parametrize("look", [["--count", "2"], ["--loc", "--per-cell", "1"], ["--loc", "--diameter", "--per-cell", "1"]],
+                         ids=["lle", "localization", "diameter"])
 def test_the_second_world_is_refused(tmp_path, capsys, look):
     assert cli.main(["diagnose", *look, "--world", "holdout", "--work", str(tmp_path),
                      "--twin", os.environ.get("ALACS_TWIN", "/bin/true")]) == 2
@@ -88,6 +89,7 @@ def test_a_few_hard_scans_are_diagnosed(tmp_path):
     assert 0.8 * why["lit_rows"] <= why["found_rows"] <= why["lit_rows"]
     assert why["kept_on"] >= 0.8 * why["lit_rows"]
     assert why["cause"] == "found, not taken"
+    _check_diameter_sources(scan, detail)
     # The aimed frame is no stop, and a frame served twice counts once.
     aimed = next(i for i, f in enumerate(scan.frames) if f.tag == "aimed")
     stops = [f for f in detail["frames"] if f["frame"] != aimed]
@@ -170,6 +172,44 @@ def test_a_few_hard_scans_are_diagnosed(tmp_path):
     broken = subprocess.run([str(cfg.twin), "reach", str(tmp_path / "broken")], capture_output=True, text=True)
     assert broken.returncode == 0 and "error" in json.loads(broken.stdout)
     assert subprocess.run([str(cfg.twin), "reach", "--step-mm", "0", clear], capture_output=True).returncode == 2
+
+
+def _check_diameter_sources(scan, detail):
+    """`diagnose --loc --diameter` on a clear scan: the kept samples it takes for the target's
+    lie where the truth's points are, and samples moved off the line are none of its."""
+    measured, exact = diameter.target_samples(scan, detail)
+    assert len(measured) == len(exact) >= 3 * worlds.MEASURABLE_ROWS
+    centre, radius, _ = target_truth(scan)
+    # The truth's points are the target's surface (a spheroid: within its aspect of the radius).
+    assert np.median(np.abs(np.linalg.norm(exact - centre, axis=1) - radius)) < 0.15 * radius
+    # Triangulated as the sensor does, a sample lies within a millimetre of its truth point.
+    assert np.median(np.linalg.norm(measured - exact, axis=1)) < 1.0
+    src = diameter.scan_sources(scan, detail)
+    assert src is not None and src["samples_n"] == len(measured)
+    assert abs(src["exact"]) < 10.0 and abs(src["samples"]) < 10.0
+    moved = dict(detail, frames=[dict(f, kept=[[r, c + 3.0 * diameter.BAND_PX] for r, c in f.get("kept", [])])
+                                 for f in detail["frames"]])
+    assert len(diameter.target_samples(scan, moved)[0]) < 0.1 * len(measured)
+    assert diameter.scan_sources(scan, dict(detail, multi={"ok": True, "lines_used": 2})) is None
+
+
+def test_the_sphere_fit_of_the_diameter_diagnosis_finds_a_known_cap():
+    rng = np.random.default_rng(7)
+    centre, radius = np.array([30.0, -20.0, 1200.0]), 36.0
+    # A cap 60 degrees wide on the side facing the camera, as occluded lines see it.
+    theta = rng.uniform(0.2, 1.0, 400)
+    phi = rng.uniform(-0.6, 0.6, 400)
+    normal = np.stack([np.sin(theta) * np.cos(phi), np.sin(theta) * np.sin(phi), -np.cos(theta)], axis=1)
+    cap = centre + radius * normal
+    c, r = diameter.fit_sphere(cap, centre + [5.0, 5.0, 10.0], 45.0, huber_mm=0.0)
+    assert abs(r - radius) < 1e-6 and np.linalg.norm(c - centre) < 1e-6
+    # Noise and a few far samples (a leaf's): the Huber fit stays near, least squares does not.
+    noisy = cap + rng.normal(0.0, 0.2, cap.shape)
+    noisy[:20] -= 8.0 * normal[:20]
+    _, r_huber = diameter.fit_sphere(noisy, centre, 40.0)
+    _, r_lsq = diameter.fit_sphere(noisy, centre, 40.0, huber_mm=0.0)
+    assert abs(r_huber - radius) < 0.5 * abs(r_lsq - radius)
+    assert abs(r_huber - radius) < 1.0
 
 
 def test_a_generator_option_reaches_the_render_and_the_processing(tmp_path, monkeypatch, capsys):

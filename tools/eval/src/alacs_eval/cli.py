@@ -18,7 +18,7 @@ import sys
 import time
 from pathlib import Path
 
-from alacs_eval import calibration, diagnose, evaluate, report, twin, worlds
+from alacs_eval import calibration, diagnose, diameter, evaluate, report, twin, worlds
 
 ROOT = twin.ROOT
 
@@ -99,6 +99,10 @@ def _diagnose(a: argparse.Namespace) -> int:
         if a.matched_filter:
             print(diagnose.text_matched_filter(diagnose.matched_filter(cfg)))
             return 0
+        if a.diameter:
+            cases, both, _ = diagnose.loc_cases(cfg, a.per_cell)
+            print(diameter.text(diameter.run(cfg, cases, both + cfg.process_args), a.worst))
+            return 0
         res = diagnose.run_loc(cfg, a.per_cell) if a.loc else diagnose.run(cfg)
     except ValueError as e:
         print(f"alacs-eval diagnose: {e}", file=sys.stderr)
@@ -153,6 +157,9 @@ def main(argv: list[str] | None = None) -> int:
     g.add_argument("--worst", type=int, default=10, help="how many of the worst frames (--loc: scans beyond 20 mm) to list")
     g.add_argument("--loc", action="store_true", help="localization: five-stop scans, the cases beyond 20 mm")
     g.add_argument("--per-cell", type=int, default=40, help="--loc: scans per distance and occlusion (default 40)")
+    g.add_argument("--diameter", action="store_true",
+                   help="the --loc scans' occluded plain spheres: the sensor's diameter error against a sphere on its "
+                        "samples that lie on the target (by the truth) and on the truth's points at those rows")
     g.add_argument("--matched-filter", action="store_true",
                    help="the LLE frames: a prototype matched filter on the laser-off-subtracted red against our "
                         "kept samples, rows found per light (docs/lle.md, \"The sunlit line through a matched filter\")")

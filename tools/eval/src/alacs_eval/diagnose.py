@@ -300,17 +300,23 @@ def _what_was_fitted(centre: np.ndarray, scene: dict, target_id: int) -> str:
     return "the target" if best["id"] == target_id else "a neighbour"
 
 
-def run_loc(cfg: Config, per_cell: int = 40) -> dict[str, Any]:
-    """A tuning world's five-stop scans (`per_cell` per distance and occlusion), processed as
-    `worlds` does; the cases beyond 20 mm with their scenes and what the fit took for the target."""
+def loc_cases(cfg: Config, per_cell: int) -> tuple[list[dict], tuple[str, ...], Path]:
+    """A tuning world's five-stop scans (generated, or reused from cfg.work), the options
+    their generation took that `process` must take too, and where they are."""
     _refuse_second_world(cfg.world)
     out = cfg.work / f"{cfg.world}-{cfg.seed}" / "loc"
     total = per_cell * len(evaluate.DISTANCES) * 2
     cases = twin.generate(cfg.twin, out, "loc", {"world": cfg.world, "count": per_cell, "seed": cfg.seed,
                                                  "jobs": cfg.jobs, **dict(cfg.generate_args)},
                           total, f"{cfg.world}: generating", cfg.quiet, sources=worlds.WORLD_SOURCES)
+    return cases, tuple(x for k, v in cfg.generate_args for x in (f"--{k}", v)), out
+
+
+def run_loc(cfg: Config, per_cell: int = 40) -> dict[str, Any]:
+    """A tuning world's five-stop scans (`per_cell` per distance and occlusion), processed as
+    `worlds` does; the cases beyond 20 mm with their scenes and what the fit took for the target."""
+    cases, both, out = loc_cases(cfg, per_cell)
     dirs = [c["dir"] for c in cases]
-    both = tuple(x for k, v in cfg.generate_args for x in (f"--{k}", v))
     raw = twin.process(cfg.twin, dirs, cfg.jobs, f"{cfg.world}: our localization", quiet=cfg.quiet,
                        extra=both + cfg.process_args)
     rows = []

@@ -491,8 +491,9 @@ RULES = [
     "beyond 20 mm: another object's fit, the rough position, or a poor fit of the target); "
     "`alacs-twin render --truth FILE` writes the truth at any other slide position, and `alacs-twin reach "
     "--list DIR` the positions over the whole stroke that light the target (the table \"What any placement of the "
-    "stops could see\" below), which `diagnose --loc` gives for each miss. "
-    "Both refuse `--world holdout`.",
+    "stops could see\" below), which `diagnose --loc` gives for each miss; `diagnose --loc --diameter` splits the "
+    "occluded round fruit's diameter error into the LLE's share and the fit's (docs/geometry.md, \"Where an "
+    "occluded round fruit's diameter error comes from\"). Both refuse `--world holdout`.",
 ]
 
 
