@@ -16,7 +16,7 @@ from alacs_eval import cli, diagnose, diameter, metrics, twin, worlds
 from alacs_eval.scans import Scan, target_truth
 
 
-@pytest.mark.parametrize("look", [["--count", "2"], ["--loc", "--per-cell", "1"], ["--loc", "--diameter", "--per-cell", "1"]],
+@pytest.mark.parametrize("look", [["--count", "2"], ["--loc", "--per-cell", "1"], ["--diameter", "--per-cell", "1"]],
                          ids=["lle", "localization", "diameter"])
 def test_the_second_world_is_refused(tmp_path, capsys, look):
     assert cli.main(["diagnose", *look, "--world", "holdout", "--work", str(tmp_path),
@@ -90,6 +90,15 @@ def test_a_few_hard_scans_are_diagnosed(tmp_path):
     assert why["kept_on"] >= 0.8 * why["lit_rows"]
     assert why["cause"] == "found, not taken"
     _check_diameter_sources(scan, detail)
+    # `--diameter` takes the occluded plain spheres among the cases (here the clear scan,
+    # marked as one), and refuses a set without any.
+    one = {"case": "one", "dir": clear, "occluded": True, "shape": "sphere", "distance_mm": 1000}
+    split = diameter.run(cfg, [one, dict(one, shape="oblate"), dict(one, occluded=False)], ())
+    assert split["scans"] == 1 and split["used"] == 1
+    assert split["rows"][0]["samples"] == pytest.approx(diameter.scan_sources(scan, detail)["samples"])
+    assert "of which 1 with 3 lines" in diameter.text(split) and "median absolute" in diameter.text(split)
+    with pytest.raises(ValueError, match="plain sphere"):
+        diameter.run(cfg, [dict(one, shape="oblate")], ())
     # The aimed frame is no stop, and a frame served twice counts once.
     aimed = next(i for i, f in enumerate(scan.frames) if f.tag == "aimed")
     stops = [f for f in detail["frames"] if f["frame"] != aimed]
@@ -190,13 +199,23 @@ def _check_diameter_sources(scan, detail):
     moved = dict(detail, frames=[dict(f, kept=[[r, c + 3.0 * diameter.BAND_PX] for r, c in f.get("kept", [])])
                                  for f in detail["frames"]])
     assert len(diameter.target_samples(scan, moved)[0]) < 0.1 * len(measured)
+    # The stops only: the aimed frame (which the five-line result does not use) adds nothing,
+    # and a frame served twice counts once.
+    aimed = [f for f in detail["frames"] if scan.frames[f["frame"]].tag == "aimed"]
+    assert aimed and any(f.get("kept") for f in aimed)
+    stops = [f for f in detail["frames"] if scan.frames[f["frame"]].tag != "aimed"]
+    assert np.array_equal(diameter.target_samples(scan, dict(detail, frames=stops + stops))[0], measured)
+    # Too few lines in the sensor's fit, or too few samples on the target: left out.
     assert diameter.scan_sources(scan, dict(detail, multi={"ok": True, "lines_used": 2})) is None
+    few = [dict(f, kept=f.get("kept", [])[:2]) for f in detail["frames"]]
+    assert diameter.scan_sources(scan, dict(detail, frames=few)) is None
 
 
 def test_the_sphere_fit_of_the_diameter_diagnosis_finds_a_known_cap():
     rng = np.random.default_rng(7)
     centre, radius = np.array([30.0, -20.0, 1200.0]), 36.0
-    # A cap 60 degrees wide on the side facing the camera, as occluded lines see it.
+    # An off-axis patch about 50 degrees across, facing the camera (z is away from it): the
+    # part of a fruit that lines past a leaf see.
     theta = rng.uniform(0.2, 1.0, 400)
     phi = rng.uniform(-0.6, 0.6, 400)
     normal = np.stack([np.sin(theta) * np.cos(phi), np.sin(theta) * np.sin(phi), -np.cos(theta)], axis=1)

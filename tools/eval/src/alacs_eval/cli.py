@@ -158,8 +158,9 @@ def main(argv: list[str] | None = None) -> int:
     g.add_argument("--loc", action="store_true", help="localization: five-stop scans, the cases beyond 20 mm")
     g.add_argument("--per-cell", type=int, default=40, help="--loc: scans per distance and occlusion (default 40)")
     g.add_argument("--diameter", action="store_true",
-                   help="the --loc scans' occluded plain spheres: the sensor's diameter error against a sphere on its "
-                        "samples that lie on the target (by the truth) and on the truth's points at those rows")
+                   help="the localization scans' occluded plain spheres (implies --loc): the sensor's diameter error "
+                        "against a sphere on its samples that lie on the target (by the truth) and on the truth's "
+                        "points at those rows")
     g.add_argument("--matched-filter", action="store_true",
                    help="the LLE frames: a prototype matched filter on the laser-off-subtracted red against our "
                         "kept samples, rows found per light (docs/lle.md, \"The sunlit line through a matched filter\")")

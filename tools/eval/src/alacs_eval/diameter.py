@@ -10,24 +10,29 @@ diameter error of three estimates:
   localizer kept that lie on the target by the truth (within BAND_PX of the target's true
   column in the same image row), triangulated as the sensor does: the sensor's own data
   with a perfect choice of which samples are the fruit's;
-- **exact points**: the same fit on the truth's 3D points at those rows: what the fit of
-  that part of the fruit gives with error-free samples (the shape of the visible part).
+- **exact points**: a sphere fitted (least squares: they have no outliers) to the truth's 3D
+  points at those rows: what that part of the fruit gives with error-free samples (the
+  shape of the visible part).
 
 The gap between the first two is the localizer's (which samples join the fit, its priors
 and the spheroid); between the last two, the LLE's sub-pixel errors through the
-triangulation. Only scans whose result used three lines or more and which have
+triangulation. The stops of both passes count, not the aimed frame (the five-line result
+does not use it). Only scans whose result used three lines or more and which have
 MIN_SAMPLES such samples enter (with fewer lines the diameter is mostly the prior's).
 """
 
 from __future__ import annotations
 
 import math
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from alacs_eval import twin
 from alacs_eval.scans import Scan, target_truth
+
+if TYPE_CHECKING:
+    from alacs_eval.diagnose import Config
 
 BAND_PX = 2.0      # a kept sample within this of the target's true column is the target's
 MIN_SAMPLES = 30   # fewer of the target's samples: the scan is left out
@@ -55,24 +60,28 @@ def fit_sphere(points: np.ndarray, centre: np.ndarray, radius: float, huber_mm: 
 
 
 def target_samples(scan: Scan, detail: dict) -> tuple[np.ndarray, np.ndarray]:
-    """The kept samples of every laser frame that lie on the target by the truth: (measured
-    3D points, triangulated at the frame's slide position; the truth's 3D points at those rows)."""
+    """The kept samples of the scan's stops (both passes; not the aimed frame, which the
+    five-line result does not use; a frame served twice counts once) that lie on the target by
+    the truth: (measured 3D points, triangulated at the frame's slide position with the scan's
+    calibration; the truth's 3D points at those rows)."""
     cal = scan.calibration()
-    frames = {f.index: f for f in scan.frames}
     measured, exact = [], []
+    seen = set()
     for fr in detail.get("frames", []):
+        i = int(fr.get("frame", -1))
         kept = fr.get("kept", [])
-        frame = frames.get(int(fr.get("frame", -1)))
-        if not kept or frame is None or not frame.laser_on:
+        if i in seen or not 0 <= i < len(scan.frames) or not kept:
+            continue
+        seen.add(i)
+        frame = scan.frames[i]  # `process` numbers frames by their place in the manifest
+        if not frame.laser_on or not frame.truth or frame.tag == "aimed":
             continue
         truth = scan.truth_rows(frame, scan.target_id)
-        truth = truth[truth["flags"] == 0]
         by_row: dict[int, list] = {}
-        for t in truth:
+        for t in truth[truth["flags"] == 0]:
             by_row.setdefault(int(t["row"]), []).append(t)
         px = np.asarray([[col, row] for row, col in kept], float)
-        pts = cal.triangulate(px, float(fr["slide_mm"]))
-        for (col, row), p in zip(px, pts):
+        for (col, row), p in zip(px, cal.triangulate(px, float(fr["slide_mm"]))):
             near = [t for t in by_row.get(int(round(row)), []) if abs(t["column"] - col) <= BAND_PX]
             if near:
                 t = min(near, key=lambda t: abs(t["column"] - col))
@@ -97,12 +106,16 @@ def scan_sources(scan: Scan, detail: dict) -> dict[str, Any] | None:
             "diameter_true": 2.0 * radius}
 
 
-def run(cfg: Any, cases: list[dict], extra: tuple[str, ...]) -> dict[str, Any]:
-    """The occluded plain spheres among `cases` (a tuning world's, from diagnose.loc_cases)."""
+def run(cfg: Config, cases: list[dict], extra: tuple[str, ...]) -> dict[str, Any]:
+    """The occluded plain spheres among `cases` (a tuning world's, from diagnose.loc_cases);
+    `extra`: the options `process` takes (as the scans were generated, then the user's)."""
     chosen = [c for c in cases if c["occluded"] and c.get("shape") == "sphere"]
+    if not chosen:
+        raise ValueError(f"{cfg.world}: no occluded scan of a plain sphere (the benchmark's fruit are all oblate; "
+                         "use --world benchmark-hard)")
     dirs = [c["dir"] for c in chosen]
     detail = twin.process(cfg.twin, dirs, cfg.jobs, f"{cfg.world}: the round fruit's samples", rows=True,
-                          quiet=cfg.quiet, extra=extra) if dirs else {}
+                          quiet=cfg.quiet, extra=extra)
     rows = []
     for c in chosen:
         r = scan_sources(Scan.load(c["dir"]), detail.get(c["dir"], {}))
@@ -111,10 +124,11 @@ def run(cfg: Any, cases: list[dict], extra: tuple[str, ...]) -> dict[str, Any]:
     summary = {}
     for key in ("sensor", "samples", "exact"):
         v = np.asarray([r[key] for r in rows], float)
-        summary[key] = {"bias": float(v.mean()) if len(v) else math.nan,
-                        "abs": float(np.abs(v).mean()) if len(v) else math.nan}
+        summary[key] = {"bias": float(v.mean()), "abs": float(np.abs(v).mean()),
+                        "median_abs": float(np.median(np.abs(v)))} if len(v) else \
+            {"bias": math.nan, "abs": math.nan, "median_abs": math.nan}
     return {"world": cfg.world, "seed": cfg.seed, "scans": len(chosen), "used": len(rows), "summary": summary,
-            "rows": sorted(rows, key=lambda r: -abs(r["sensor"]))}
+            "process_args": list(extra), "rows": sorted(rows, key=lambda r: -abs(r["sensor"]))}
 
 
 NAMES = {"sensor": "the sensor's result",
@@ -123,10 +137,12 @@ NAMES = {"sensor": "the sensor's result",
 
 
 def text(res: dict[str, Any], worst: int = 10) -> str:
-    L = [f"{res['world']}, seed {res['seed']}: occluded plain spheres {res['scans']}, of which {res['used']} with "
-         f"{MIN_LINES} lines or more in the fit and {MIN_SAMPLES} or more samples on the target",
-         "diameter error (mm), mean signed and mean absolute:"]
-    L += [f"  {NAMES[k]:<62} {v['bias']:+.2f}  {v['abs']:.2f}" for k, v in res["summary"].items()]
+    args = " ".join(res["process_args"]) or "defaults"
+    L = [f"{res['world']}, seed {res['seed']} ({args}): occluded plain spheres {res['scans']}, of which "
+         f"{res['used']} with {MIN_LINES} lines or more in the fit and {MIN_SAMPLES} or more samples on the target",
+         "diameter error (mm): mean signed, mean absolute, median absolute:"]
+    L += [f"  {NAMES[k]:<62} {v['bias']:+.2f}  {v['abs']:.2f}  {v['median_abs']:.2f}"
+          for k, v in res["summary"].items()]
     L += ["", "largest sensor errors (sensor / samples / exact, mm):"]
     L += [f"  {r['case']} true {r['diameter_true']:.1f}: {r['sensor']:+.1f} / {r['samples']:+.1f} / "
           f"{r['exact']:+.1f} ({r['lines']} lines, {r['samples_n']} samples)" for r in res["rows"][:worst]]
