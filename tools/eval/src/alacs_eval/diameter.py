@@ -28,7 +28,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from alacs_eval import twin
+from alacs_eval import twin, worlds
 from alacs_eval.scans import Scan, target_truth
 
 if TYPE_CHECKING:
@@ -66,17 +66,11 @@ def target_samples(scan: Scan, detail: dict) -> tuple[np.ndarray, np.ndarray]:
     calibration; the truth's 3D points at those rows)."""
     cal = scan.calibration()
     measured, exact = [], []
-    seen = set()
-    for fr in detail.get("frames", []):
-        i = int(fr.get("frame", -1))
+    for i, fr in worlds.stop_frames(scan, detail):
         kept = fr.get("kept", [])
-        if i in seen or not 0 <= i < len(scan.frames) or not kept:
+        if not kept:
             continue
-        seen.add(i)
-        frame = scan.frames[i]  # `process` numbers frames by their place in the manifest
-        if not frame.laser_on or not frame.truth or frame.tag == "aimed":
-            continue
-        truth = scan.truth_rows(frame, scan.target_id)
+        truth = scan.truth_rows(scan.frames[i], scan.target_id)
         by_row: dict[int, list] = {}
         for t in truth[truth["flags"] == 0]:
             by_row.setdefault(int(t["row"]), []).append(t)

@@ -16,13 +16,13 @@ import math
 import multiprocessing
 import time
 from pathlib import Path
-from typing import Any
+from typing import Any, Iterator
 
 import numpy as np
 from tqdm import tqdm
 
 from alacs_eval import evaluate, metrics, twin
-from alacs_eval.scans import Scan, target_truth
+from alacs_eval.scans import Frame, Scan, target_truth
 
 # Seeds: the benchmark world's localization set uses seed 1 in docs/evaluation.md; this
 # side-by-side draw of it uses 5 (another sample of the same world). Its hard cases
@@ -206,12 +206,30 @@ def reach_text(reach: dict) -> str:
                      for a, b, n in runs) or "no position"
 
 
+def _is_stop(frame: Frame) -> bool:
+    """A stop of either pass with its truth: laser on, not the aimed frame (the five-line
+    result does not use it)."""
+    return frame.laser_on and bool(frame.truth) and frame.tag != "aimed"
+
+
+def stop_frames(scan: Scan, processed: dict) -> Iterator[tuple[int, dict]]:
+    """The scan's stops in its `alacs-twin process --rows` line, each once (a frame served
+    twice, once): (frame index, its record); `process` numbers frames by their place in the
+    manifest."""
+    seen: set[int] = set()
+    for fr in processed.get("frames", []):
+        i = int(fr.get("frame", -1))
+        if 0 <= i < len(scan.frames) and i not in seen and _is_stop(scan.frames[i]):
+            seen.add(i)
+            yield i, fr
+
+
 def _stop_truths(scan: Scan) -> dict[int, dict[int, float]]:
     """The target's visible, laser-lit truth rows (row: column) at each of the scan's stops
     (both passes, not the aimed frame), by frame index."""
     out = {}
     for i, f in enumerate(scan.frames):
-        if f.laser_on and f.truth and f.tag != "aimed":
+        if _is_stop(f):
             vis = metrics.visible_rows(scan.truth_rows(f, scan.target_id))
             out[i] = {int(v["row"]): float(v["column"]) for v in vis}
     return out
@@ -247,12 +265,7 @@ def miss_cause(scan: Scan, processed: dict) -> dict[str, Any]:
     stops_lit = sum(len(t) >= MEASURABLE_ROWS for t in truth_at.values())
     lit = sum(len(t) for t in truth_at.values())
     found = kept = kept_off = 0
-    seen: set[int] = set()
-    for fr in processed.get("frames", []):
-        i = int(fr.get("frame", -1))
-        if i not in truth_at or i in seen:  # laser off, the aimed frame, or one served twice
-            continue
-        seen.add(i)
+    for i, fr in stop_frames(scan, processed):
         truth = truth_at[i]
 
         def on(row: float, col: float | None) -> bool:
