@@ -5,7 +5,9 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import math
 import os
+import shutil
 import subprocess
 from pathlib import Path
 
@@ -131,6 +133,7 @@ def test_a_few_hard_scans_are_diagnosed(tmp_path):
     listed = diagnose.text_loc(dict(res, misses=[miss], misses_by_cause={unseen["cause"]: 1}))
     assert f"the target's rows lit {why['lit_rows']} (stops lit {why['stops_lit']}), found 0" in listed
     assert "why (" in listed and "lit, not found 1" in listed and "any stop lights it at" in listed
+    assert "the rough position names it at " + miss.get("identity", "unknown") in listed
     # Its positions, as runs of the stroke with the most rows each lights.
     assert worlds.reach_text({"lit": [[10.0, 8], [11.0, 9], [12.0, 8], [20.0, 10]]}) == \
         "10-12 mm (9 rows), 20 mm (10 rows)"
@@ -181,6 +184,44 @@ def test_a_few_hard_scans_are_diagnosed(tmp_path):
     broken = subprocess.run([str(cfg.twin), "reach", str(tmp_path / "broken")], capture_output=True, text=True)
     assert broken.returncode == 0 and "error" in json.loads(broken.stdout)
     assert subprocess.run([str(cfg.twin), "reach", "--step-mm", "0", clear], capture_output=True).returncode == 2
+    _check_identity(cfg.twin, Path(clear), tmp_path / "identity")
+
+
+def _check_identity(twin_bin: Path, clear: Path, work: Path):
+    """`alacs-twin reach`'s identity_pct: how surely the rough position names the target for an
+    observer who knows every fruit's centre. A rough position on the target names it; one on
+    a fruit 300 mm away names that fruit, one halfway either; a scan without one says nothing."""
+    shutil.copytree(clear, work)
+    manifest, scene_file = work / "manifest.json", work / json.loads((work / "manifest.json").read_text())["scan"]["truth"]
+    m, scene = json.loads(manifest.read_text()), json.loads(scene_file.read_text())
+    target = next(a for a in scene["apples"] if a["id"] == m["scan"]["target_id"])
+    far = dict(target, id=max(a["id"] for a in scene["apples"]) + 1,
+               center_mm=[target["center_mm"][0] + 300.0, *target["center_mm"][1:]])
+    scene["apples"] = [target, far]  # (the neighbours out: they would weigh in between)
+    scene_file.write_text(json.dumps(scene))
+
+    def identity(rough):
+        m["scan"]["rough_mm"] = rough
+        if rough is None:
+            del m["scan"]["rough_mm"]
+        manifest.write_text(json.dumps(m))
+        line = json.loads(subprocess.run([str(twin_bin), "reach", str(work)], capture_output=True, text=True,
+                                         check=True).stdout)
+        assert "error" not in line, line
+        return line["identity_pct"]
+
+    assert identity(target["center_mm"]) == pytest.approx(100.0, abs=0.5)
+    assert identity(far["center_mm"]) < 0.01
+    halfway = [(a + b) / 2.0 for a, b in zip(target["center_mm"], far["center_mm"])]
+    assert identity(halfway) == pytest.approx(50.0, abs=0.01)
+    assert identity(None) is None
+    # The report's sum: the expected confusions, the best share within 20 mm they leave, and the
+    # misses whose target the rough position names surely.
+    rows = [{"identity_pct": 100.0, "approach": 1.0}, {"identity_pct": 50.0, "approach": 40.0},
+            {"identity_pct": 99.0, "approach": math.nan}, {"identity_pct": None, "approach": 2.0}]
+    assert worlds.identity_summary(rows) == {"n": 3, "expected_confusions": pytest.approx(0.51),
+                                             "best_within20": pytest.approx(1.0 - 0.51 / 3), "misses": 2,
+                                             "misses_named": 1}
 
 
 def _check_diameter_sources(scan, detail):

@@ -125,6 +125,12 @@ def test_what_any_stop_could_light_splits_the_scans(run):
         assert set(loc["reach"]) == set(worlds.REACH_CLASSES)
         n = loc["measurable"]["n"] + loc["unmeasurable"]["n"]
         assert sum(v["n"] for v in loc["reach"].values()) == n, world
+        # Every scan has a rough position, so the ideal observer weighs each; it cannot
+        # confuse more scans than there are, nor name more misses than there are.
+        idn = loc["identity"]
+        assert idn["n"] == n and 0.0 <= idn["expected_confusions"] <= n, world
+        assert idn["best_within20"] == 1.0 - idn["expected_confusions"] / n, world
+        assert 0 <= idn["misses_named"] <= idn["misses"] == loc["misses"]["n"], world
     for world in ("benchmark",):  # the second world's per-case results are not opened
         cases = [json.loads(line) for line in (run / world / "cases.jsonl").read_text().splitlines()]
         loc = [c for c in cases if "reach" in c]
@@ -133,4 +139,7 @@ def test_what_any_stop_could_light_splits_the_scans(run):
         assert all(c["reach"] != worlds.REACH_CLASSES[0] for c in loc if c["measurable"])
         assert all(c["reach"] == worlds.REACH_CLASSES[2] for c in loc if not c["occluded"])
         assert all(c["reach_widest_mm"] >= 0.0 for c in loc)
-    assert "What any placement of the stops could see" in (run / "evaluation.md").read_text()
+        assert all(0.0 <= c["identity_pct"] <= 100.0 for c in loc)
+    text = (run / "evaluation.md").read_text()
+    assert "What any placement of the stops could see" in text
+    assert "How surely the rough position names the target" in text

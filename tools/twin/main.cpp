@@ -318,8 +318,8 @@ int main(int argc, char** argv) {
                {"truth", Kind::kText,
                 "CSV: also the truth rows (at the exposure's middle), as a scan's truth/frame_NNNN.csv"}}),
       declare(app, "reach",
-              "the slide positions that light each scan's target on enough visible rows (the truth; one JSON line "
-              "each)",
+              "the slide positions that light each scan's target on enough visible rows (the truth), and how surely "
+              "its rough position names the target among the scene's fruit (one JSON line each)",
               reachMain,
               {{"stroke-mm", Kind::kNumber, "the slide's stroke (default 200)"},
                {"step-mm", Kind::kNumber, "between the positions tried (default 1)"},

@@ -4,14 +4,18 @@
 // that no position lights on `--min-rows` rows or more is beyond every placement of the
 // stops: leaves hide it wherever the line crosses it, and only the rough position can
 // stand in for it (docs/evaluation.md, "What any placement of the stops could see").
+// Beside it, how surely the rough position names the target at all (identityPct).
 #include <algorithm>
+#include <cmath>
 #include <cstdio>
 #include <mutex>
+#include <optional>
 #include <set>
 #include <utility>
 #include <vector>
 
 #include "replay/scan_dir.h"
+#include "sim/orchard.h"
 #include "sim/scene.h"
 #include "sim/truth.h"
 #include "twin.h"
@@ -24,11 +28,39 @@ namespace {
 // room for the rounding of a position given in `--slides`.
 constexpr double kRunGapSlackMm = 1e-6;
 
+// Fruit whose centres lie this close to the target's are as good as the target: a result
+// there is within the end effector's tolerance.
+constexpr double kSameFruitMm = 20.0;
+
 struct Reach {
   std::vector<std::pair<double, int>> lit;  // each position that lights min-rows or more, and its rows
   int maxRows = 0;                          // the most visible lit rows at any position tried
   double widestRunMm = 0.0;                 // the widest run of consecutive lit positions, last − first
+  std::optional<double> identityPct;        // identityPct() of the scan's rough position (none without one)
 };
+
+// How surely the rough position names the target: the chance (%) that an ideal observer,
+// who knows every fruit's centre in the scene and the rough position's error as the twin
+// draws it (sim::roughSigmaMm about the target's centre, the same on each axis), takes the
+// target (or a fruit within kSameFruitMm of it) for the fruit the rough position was made
+// for. What it leaves is the share of such scans that no sensor could tell from a
+// neighbour's by the rough position, however well it saw every fruit.
+double identityPct(const sim::SimScene& scene, const sim::SimApple& target, const Eigen::Vector3d& roughMm) {
+  const double sigmaMm = sim::roughSigmaMm(target.centerMm.norm());
+  const auto logLikelihood = [&](const sim::SimApple& a) {
+    return -0.5 * (a.centerMm - roughMm).squaredNorm() / (sigmaMm * sigmaMm);
+  };
+  double most = logLikelihood(target);
+  for (const sim::SimApple& a : scene.apples) most = std::max(most, logLikelihood(a));
+  double same = 0.0;
+  double all = 0.0;
+  for (const sim::SimApple& a : scene.apples) {
+    const double w = std::exp(logLikelihood(a) - most);  // relative, so that none underflows
+    all += w;
+    if ((a.centerMm - target.centerMm).norm() <= kSameFruitMm) same += w;
+  }
+  return all > 0.0 ? 100.0 * same / all : 100.0;
+}
 
 // Visible, lit rows of the target at one slide position, one per image row (the truth can
 // list a row twice where the arc turns back near the limb; the evaluation counts it once,
@@ -49,6 +81,7 @@ Result<Reach> reachOf(const std::string& dir, const std::vector<double>& slidesM
   if (target == nullptr)
     return Status(Error::kBadInput, dir + ": the scene has no apple " + std::to_string(m->scan.targetId));
   Reach r;
+  if (m->scan.roughMm) r.identityPct = identityPct(*scene, *target, *m->scan.roughMm);
   double runFirstMm = 0.0;
   double previousMm = 0.0;
   bool inRun = false;
@@ -104,6 +137,7 @@ int reachMain(const Args& args) {
           o["first_mm"] = r->lit.empty() ? tools::Json(nullptr) : tools::jsonNumber(r->lit.front().first, "%.3f");
           o["last_mm"] = r->lit.empty() ? tools::Json(nullptr) : tools::jsonNumber(r->lit.back().first, "%.3f");
           o["max_rows"] = r->maxRows;
+          o["identity_pct"] = r->identityPct ? tools::jsonNumber(*r->identityPct, "%.3f") : tools::Json(nullptr);
           if (listing) {
             o["lit"] = tools::Json::array();
             for (const auto& [slideMm, rows] : r->lit) o["lit"].push_back({tools::jsonNumber(slideMm, "%.3f"), rows});

@@ -191,6 +191,25 @@ def reach_class(reach: dict) -> str:
     return REACH_CLASSES[1] if reach["widest_run_mm"] < REACH_SPACING_MM - 1e-9 else REACH_CLASSES[2]
 
 
+# How surely the rough position names the target (`alacs-twin reach`'s identity_pct: an ideal
+# observer who knows every fruit's centre and the rough position's error as the twin draws
+# it). A miss whose target it names at IDENTITY_SURE_PCT or more is the sensor's to mend, not
+# the rough position's.
+IDENTITY_SURE_PCT = 95.0
+
+
+def identity_summary(rows: list[dict]) -> dict[str, Any]:
+    """The ideal observer's expected confusions over the scans (the sum of the chances that
+    it takes another fruit for the target), the best share within 20 mm that leaves, and
+    the misses whose target it names surely."""
+    known = [r for r in rows if r.get("identity_pct") is not None]
+    expected = float(sum(1.0 - r["identity_pct"] / 100.0 for r in known))
+    missed = [r for r in known if not r["approach"] <= metrics.TOLERANCE_MM]
+    return {"n": len(known), "expected_confusions": expected,
+            "best_within20": 1.0 - expected / len(known) if known else math.nan,
+            "misses": len(missed), "misses_named": sum(r["identity_pct"] >= IDENTITY_SURE_PCT for r in missed)}
+
+
 def reach_text(reach: dict) -> str:
     """`alacs-twin reach --list`'s positions (a sweep 1 mm apart) as runs of the stroke,
     "141-154 mm (70 rows)", each with the most rows any of its positions lights."""
@@ -319,6 +338,7 @@ def _loc(cfg: Config, world: str, cases: list[dict]) -> tuple[dict[str, Any], li
                "follow_up_missing": int(ours.get(d, {}).get("follow_up_missing", 0)),
                "measurable": _lit_lines(scan) >= MEASURABLE_LINES,
                "reach": reach_class(reach[d]), "reach_widest_mm": float(reach[d]["widest_run_mm"]),
+               "identity_pct": reach[d].get("identity_pct"),
                "first_pass_approach": (float(np.linalg.norm(np.asarray(first["approach_mm"]) - approach))
                                        if first.get("ok") else math.nan)}
         if e.get("ok"):
@@ -370,6 +390,7 @@ def _loc_summary(rows: list[dict]) -> dict[str, Any]:
         sel = [r for r in rows if r["reach"] == label]
         out["reach"][label] = {"n": len(sel), "occluded": sum(r["occluded"] for r in sel),
                                "misses": sum(not r["approach"] <= metrics.TOLERANCE_MM for r in sel)}
+    out["identity"] = identity_summary(rows)
     out["misses"] = {"n": sum("miss" in r for r in rows), **{c: sum(r.get("miss") == c for r in rows) for c in MISS_CAUSES}}
     out["second_pass"] = {"share": float(np.mean([r["follow_up_stops"] > 0 for r in rows])),
                           "stops_per_scan": float(np.mean([r["follow_up_stops"] for r in rows])),
@@ -504,7 +525,9 @@ RULES = [
     "beyond 20 mm: another object's fit, the rough position, or a poor fit of the target); "
     "`alacs-twin render --truth FILE` writes the truth at any other slide position, and `alacs-twin reach "
     "--list DIR` the positions over the whole stroke that light the target (the table \"What any placement of the "
-    "stops could see\" below), which `diagnose --loc` gives for each miss; `diagnose --loc --diameter` splits the "
+    "stops could see\" below), which `diagnose --loc` gives for each miss, with how surely the rough position "
+    "names its target (the table \"How surely the rough position names the target\"); `diagnose --loc --diameter` "
+    "splits the "
     "occluded round fruit's diameter error into the LLE's share and the fit's (docs/geometry.md, \"Where an "
     "occluded round fruit's diameter error comes from\"). Both refuse `--world holdout`.",
 ]
@@ -620,6 +643,21 @@ def markdown(res: dict[str, Any], figure: str | None, command: str) -> str:
             L.append(f"| {name} | {sum(v['n'] for v in rc.values())} | "
                      + " | ".join(f"{rc[c]['n']} ({rc[c]['occluded']}) | {rc[c]['misses']}" for c in REACH_CLASSES)
                      + " |")
+    L += ["", "How surely the rough position names the target (`alacs-twin reach`'s `identity_pct`): the chance that "
+          "an ideal observer, who knows every fruit's centre and the rough position's error as the twin draws it "
+          "(the same σ on each axis, 10–13.5 mm at 1.0–1.6 m), takes the target, or a fruit within 20 mm of it, for "
+          "the fruit the rough position was made for. Summed over the scans, what it leaves is the scans in which "
+          "no sensor could tell the target from a neighbour by the rough position, however well it saw every "
+          "fruit; a miss whose target it names at "
+          f"{IDENTITY_SURE_PCT:.0f} % or more is the sensor's own:", "",
+          "| world | scans | ideal observer: scans it would confuse (expected) | ideal observer: within 20 mm at best "
+          f"| ours: beyond 20 mm or none | of them, the target named at {IDENTITY_SURE_PCT:.0f} % or more |",
+          "| --- | --- | --- | --- | --- | --- |"]
+    for name, w in ws:
+        idn = w["loc"].get("identity")
+        if idn and idn["n"]:
+            L.append(f"| {name} | {idn['n']} | {idn['expected_confusions']:.1f} | {_pct(idn['best_within20'])} | "
+                     f"{idn['misses']} | {idn['misses_named']} |")
     L += ["", f"Scans beyond 20 mm or without a result, by why ({MISS_CAUSES_TEXT}):", "",
           "| world | beyond 20 mm or none | " + " | ".join(MISS_CAUSES) + " |", "| --- | --- |" + " --- |" * len(MISS_CAUSES)]
     for name, w in ws:
