@@ -130,15 +130,17 @@ def test_a_few_hard_scans_are_diagnosed(tmp_path):
         "lines": 0, "doubt": "FAR_FROM_ROUGH", "fitted": "nothing", "rival": "none", "note": "sun"}
     miss.update(unseen)
     miss.setdefault("reach", worlds.reach_text({}))
+    miss.setdefault("identity", worlds.identity_text({}))
     listed = diagnose.text_loc(dict(res, misses=[miss], misses_by_cause={unseen["cause"]: 1}))
     assert f"the target's rows lit {why['lit_rows']} (stops lit {why['stops_lit']}), found 0" in listed
     assert "why (" in listed and "lit, not found 1" in listed and "any stop lights it at" in listed
-    assert "the rough position names it at " + miss.get("identity", "unknown") in listed
+    assert "the rough position names it at " + miss["identity"] in listed
     # Its positions, as runs of the stroke with the most rows each lights.
     assert worlds.reach_text({"lit": [[10.0, 8], [11.0, 9], [12.0, 8], [20.0, 10]]}) == \
         "10-12 mm (9 rows), 20 mm (10 rows)"
     assert worlds.reach_text({"lit": []}) == "no position"
     assert worlds.reach_text({"error": "no truth"}) == "unknown (no truth)"
+    assert worlds.identity_text({"identity_pct": 96.6}) == "97 %" and worlds.identity_text({}) == "unknown"
     # The classes: a run narrower than the second pass's spacing can fall between its stops.
     assert worlds.reach_class({"positions": 0}) == worlds.REACH_CLASSES[0]
     assert worlds.reach_class({"positions": 7, "widest_run_mm": 6.0}) == worlds.REACH_CLASSES[1]

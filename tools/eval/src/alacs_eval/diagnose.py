@@ -357,9 +357,8 @@ def run_loc(cfg: Config, per_cell: int = 40) -> dict[str, Any]:
                        listing=True) if misses + none else {}
     for x in misses + none:
         x.update(why[by_case[x["case"]]])
-        x["reach"] = worlds.reach_text(reach.get(by_case[x["case"]], {}))
-        identity = reach.get(by_case[x["case"]], {}).get("identity_pct")
-        x["identity"] = "unknown" if identity is None else f"{identity:.0f} %"
+        scan_reach = reach.get(by_case[x["case"]], {})
+        x["reach"], x["identity"] = worlds.reach_text(scan_reach), worlds.identity_text(scan_reach)
     cells = {}
     for occ in (False, True):
         for dist in evaluate.DISTANCES:
@@ -404,10 +403,8 @@ def text_loc(res: dict[str, Any]) -> str:
             "{identity}: {note}")
     L += [f"  {x['case']} {x['approach']:.1f} mm (first pass {x['first']:.1f}, +{x['stops']} stops), "
           f"σ {x['sigma']:.1f}, confidence {x['confidence']:.0f} %, {x['lines']} lines, {x['doubt']}, "
-          f"fitted {x['fitted']}, rival {x['rival']}" + seen.format(**{"identity": "unknown", **x})
-          for x in res["misses"]]
+          f"fitted {x['fitted']}, rival {x['rival']}" + seen.format(**x) for x in res["misses"]]
     if res["no_result_cases"]:
         L += ["", f"no result ({res['no_result']} scans; counted above as not within 20 mm):"]
-        L += [f"  {x['case']} (+{x['stops']} stops): {x['doubt']}" + seen.format(**{"identity": "unknown", **x})
-              for x in res["no_result_cases"]]
+        L += [f"  {x['case']} (+{x['stops']} stops): {x['doubt']}" + seen.format(**x) for x in res["no_result_cases"]]
     return "\n".join(L)

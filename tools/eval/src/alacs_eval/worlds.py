@@ -210,6 +210,12 @@ def identity_summary(rows: list[dict]) -> dict[str, Any]:
             "misses": len(missed), "misses_named": sum(r["identity_pct"] >= IDENTITY_SURE_PCT for r in missed)}
 
 
+def identity_text(reach: dict) -> str:
+    """`alacs-twin reach`'s identity_pct for a scan, "97 %" (unknown without a rough position)."""
+    identity = reach.get("identity_pct")
+    return "unknown" if identity is None else f"{identity:.0f} %"
+
+
 def reach_text(reach: dict) -> str:
     """`alacs-twin reach --list`'s positions (a sweep 1 mm apart) as runs of the stroke,
     "141-154 mm (70 rows)", each with the most rows any of its positions lights."""
