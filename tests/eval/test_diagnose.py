@@ -61,6 +61,12 @@ def test_a_few_hard_frames_are_diagnosed(tmp_path):
     assert again["segments"] != res["segments"]
     text = diagnose.text(res)
     assert "worst frames:" in text and "not found, by reason:" in text and "lies on:" in text
+    # The other reading of a row kept twice is printed beside; asked for, the two swap.
+    assert "read by the sample nearest the rough position instead" in text
+    rough = diagnose.run(dataclasses.replace(cfg, read="rough"))
+    assert rough["segments"] == pytest.approx(res["other"], nan_ok=True)
+    assert rough["other"] == pytest.approx(res["segments"], nan_ok=True)
+    assert "a row kept twice read by the sample nearest the rough position" in diagnose.text(rough)
 
 
 def test_a_few_hard_scans_are_diagnosed(tmp_path):

@@ -160,3 +160,51 @@ def test_the_line_alone_reads_the_lle_line_not_the_gated_samples():
     assert alone_invalid["cover"][80] == pytest.approx(0.5)
     gated_invalid = evaluate._ours_lle({"d": raw_invalid}, {"d": t})["d"]
     assert gated_invalid["cover"][80] == pytest.approx(1.0)
+
+
+def test_a_row_kept_twice_reads_the_sample_nearest_the_rough_position():
+    """evaluate.kept_rows by the rough position: where the 3D gate keeps the line's sample and
+    another segment's in one row, the one nearer the rough position is read (the product's
+    prior, not the truth); by the line, the line's; a row kept once reads alike either way."""
+    from alacs_eval import evaluate, worlds
+
+    rows = np.arange(100, 140)
+    t = truth(rows, np.full(len(rows), 50.0))
+    # The line lies on a leaf (12 px off, 20 mm nearer the camera) in every row; in 100-109
+    # the target's own segment is kept too, nearer the rough position.
+    line = [[int(r), 62.0, 1, 0] for r in rows]
+    target = [[int(r), 50.0, 0, 2] for r in rows if r < 110]
+    kept = [[s[0], s[1]] for s in line + target]
+    raw = {"frames": [{"rows": line + target, "kept": kept,
+                       "kept_from_rough_mm": [55.0] * len(line) + [35.0] * len(target)}]}
+    by_line = evaluate.kept_rows(raw["frames"][0], evaluate.BY_LINE)
+    by_rough = evaluate.kept_rows(raw["frames"][0], evaluate.BY_ROUGH)
+    assert by_line[105] == (62.0, True)
+    assert by_rough[105] == (50.0, False)
+    assert by_line[120] == by_rough[120] == (62.0, True)
+    assert worlds._read_apart(raw)
+    # Without the distances (an older `process`), by the rough position falls back to the line.
+    plain = {"frames": [{"rows": line + target, "kept": kept}]}
+    assert evaluate.kept_rows(plain["frames"][0], evaluate.BY_ROUGH) == by_line
+    assert not worlds._read_apart(plain)
+    near = evaluate._ours_lle({"d": raw}, {"d": t}, evaluate.BY_ROUGH)["d"]
+    far = evaluate._ours_lle({"d": raw}, {"d": t})["d"]
+    assert near["disp"][80] < far["disp"][80] == pytest.approx(12.0)
+
+
+def test_the_measured_diameter_leaves_out_the_priors_echo():
+    """worlds: a result without a sphere fit (ROUGH_ONLY: the rough position or one line's
+    arc) carries the prior's diameter, never a measurement; the measured mean leaves it out
+    and the table counts it, while the mean of every result keeps it."""
+    from alacs_eval import worlds
+
+    fit = {"shape": "sphere", "occluded": True, "diameter": 2.0, "sphere": True, "lines": 4}
+    echo = {"shape": "sphere", "occluded": True, "diameter": 14.0, "sphere": False, "lines": 0}
+    one_line = {"shape": "sphere", "occluded": True, "diameter": 10.0, "sphere": False, "lines": 1}
+    none = {"shape": "sphere", "occluded": True, "diameter": math.nan, "sphere": False, "lines": 0}
+    assert [worlds._rough_only(r) for r in (fit, echo, one_line, none)] == [False, True, True, False]
+    assert [worlds._measured_diameter(r) for r in (fit, echo, one_line, none)] == [True, False, False, False]
+    cell = worlds.diameter_by_shape([fit, echo, one_line, none])["sphere"]
+    assert cell["occluded"] == pytest.approx(26.0 / 3) and cell["occluded_n"] == 3
+    assert cell["occluded_measured"] == pytest.approx(2.0) and cell["occluded_measured_n"] == 1
+    assert math.isnan(cell["clear_measured"]) and cell["clear_measured_n"] == 0

@@ -6,6 +6,7 @@
 // takes the adaptive second pass where it asks for one (twoPassScan). One JSON line per scan on stdout:
 //   {"scan", "kind", "roi", "frames": [{"slide_mm", "valid", "rows"?, "kept"?, "arc"?, "curve"?}],
 //    (--rows: "rows" [row, column, inlier 0|1, image::RowStatus], "kept" [row, column],
+//    "kept_from_rough_mm" [each kept sample's 3D distance from the rough position],
 //    "arc" [row, column]: the sunlit arcs' gated samples, used only where the lines leave
 //    the target unseen),
 //    "multi": estimate (both passes), "first_pass": estimate, "follow_up_stops",
@@ -250,6 +251,12 @@ int processMain(const Args& args) {
             // and the sunlit arcs' samples within the gate (ScanParams::gateMm; the search's bar
             // is ScanParams::weakArcMinZ).
             fo["kept"] = pixelsJson(ob->pixels);
+            // Each kept sample's distance from the rough position (same order): where a row
+            // keeps two, the evaluation can read the one nearer the target's prior.
+            tools::Json fromRough = tools::Json::array();
+            for (const Eigen::Vector3d& p : ob->pointsMm)
+              fromRough.push_back(tools::jsonNumber((p - plan->roughMm).norm()));
+            fo["kept_from_rough_mm"] = std::move(fromRough);
             fo["arc"] = pixelsJson(ob->arcPixels);
             if (line.valid) {
               fo["curve_first_row"] = plan->roi.y;

@@ -94,7 +94,8 @@ def _diagnose(a: argparse.Namespace) -> int:
     gen = (("follow-up-unseen-max-stops", str(a.follow_up_unseen_max_stops)),) \
         if a.follow_up_unseen_max_stops is not None else ()
     cfg = diagnose.Config(world=a.world, seed=a.seed, count=a.count, work=work, twin=twin.find_twin(a.twin),
-                          jobs=a.jobs, process_args=extra, generate_args=gen, worst=a.worst, quiet=a.quiet)
+                          jobs=a.jobs, process_args=extra, generate_args=gen, worst=a.worst, quiet=a.quiet,
+                          read=a.read)
     try:
         if a.matched_filter:
             print(diagnose.text_matched_filter(diagnose.matched_filter(cfg)))
@@ -155,6 +156,9 @@ def main(argv: list[str] | None = None) -> int:
     g.add_argument("--seed", type=int, default=3, help="the tuning seed (default 3)")
     g.add_argument("--count", type=int, default=160, help="LLE frames (default 160)")
     g.add_argument("--worst", type=int, default=10, help="how many of the worst frames (--loc: scans beyond 20 mm) to list")
+    g.add_argument("--read", choices=("line", "rough"), default="line",
+                   help="LLE frames: a row the localizer keeps two samples of is read by the LLE's line's (default) "
+                        "or by the one nearest the rough position")
     g.add_argument("--loc", action="store_true", help="localization: five-stop scans, the cases beyond 20 mm")
     g.add_argument("--per-cell", type=int, default=40, help="--loc: scans per distance and occlusion (default 40)")
     g.add_argument("--diameter", action="store_true",

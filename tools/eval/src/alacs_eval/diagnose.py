@@ -54,6 +54,13 @@ class Config:
     generate_args: tuple[tuple[str, str], ...] = ()
     worst: int = 10
     quiet: bool = False
+    # How a row the localizer keeps twice is read (evaluate.kept_rows): evaluate.BY_LINE or
+    # evaluate.BY_ROUGH; the other reading's means are printed beside.
+    read: str = "line"
+
+
+# The readings of a row the localizer keeps twice (evaluate.kept_rows), as the text names them.
+READINGS = {"line": "the LLE's line", "rough": "the sample nearest the rough position"}
 
 
 def _gap_distance(row: int, rows: set[int]) -> int:
@@ -192,7 +199,9 @@ def run(cfg: Config) -> dict[str, Any]:
         truths[d] = s.truth_rows(next(f for f in s.frames if f.laser_on), s.target_id)
         notes[d] = s.note
         line_on[_line_on(raw.get(d, {}), s, truths[d])] += 1
-    ours = evaluate._ours_lle(raw, truths)
+    ours = evaluate._ours_lle(raw, truths, cfg.read)
+    other_read = evaluate.BY_ROUGH if cfg.read == evaluate.BY_LINE else evaluate.BY_LINE
+    other = evaluate._ours_lle(raw, truths, other_read)
 
     frames, by_light = [], {}
     gap_err: dict[int, list[float]] = {b: [] for b in GAP_BINS}
@@ -210,7 +219,7 @@ def run(cfg: Config) -> dict[str, Any]:
         samples: dict[int, list] = {}
         for s in f.get("rows", []):
             samples.setdefault(int(s[0]), []).append(s)
-        per_row = evaluate.kept_rows(f)
+        per_row = evaluate.kept_rows(f, cfg.read)
         kept = {r: col for r, (col, _) in per_row.items()}
         source = {r: SOURCES[0] if line else SOURCES[1] for r, (_, line) in per_row.items()}
         vis = metrics.visible_rows(truths[d])
@@ -232,6 +241,9 @@ def run(cfg: Config) -> dict[str, Any]:
     return {
         "world": cfg.world, "seed": cfg.seed, "frames": len(frames), "process_args": list(cfg.process_args),
         "segments": {s: float(np.nanmean([ours[d]["disp"][s] for d in dirs])) for s in metrics.SEGMENTS},
+        "read": cfg.read, "other_read": other_read,
+        "other": {s: float(np.nanmean([other[d]["disp"][s] for d in dirs])) for s in metrics.SEGMENTS},
+        "other_worst": max((v for d in dirs for v in other[d]["disp"].values() if math.isfinite(v)), default=math.nan),
         "found80": metrics.mean_found(ours[d]["cover"][80] for d in dirs),
         "no_rows_to_find": sum(not metrics.has_rows_to_find(truths[d]) for d in dirs),
         "beyond": sum(1 for x in frames if math.isfinite(x["worst"]) and x["worst"] > WORST_PX),
@@ -251,12 +263,16 @@ def run(cfg: Config) -> dict[str, Any]:
 def text(res: dict[str, Any]) -> str:
     f2 = lambda x: "–" if not math.isfinite(x) else f"{x:.3f}"  # noqa: E731
     args = " ".join(res["process_args"]) or "defaults"
-    L = [f"{res['world']}, seed {res['seed']}: {res['frames']} LLE frames ({args})",
+    L = [f"{res['world']}, seed {res['seed']}: {res['frames']} LLE frames ({args}); a row kept twice read by "
+         f"{READINGS[res['read']]}",
          "mean per central segment (px): " + " ".join(f"{s}% {f2(v)}" for s, v in res["segments"].items()),
          f"rows found (central 80 %): {100 * res['found80']:.1f} % (frames with fewer than "
          f"{metrics.MIN_VISIBLE_ROWS} visible rows of the target, left out: {res['no_rows_to_find']}); "
          f"frames whose worst segment is beyond "
-         f"{WORST_PX} px: {res['beyond']}", "", "by light:"]
+         f"{WORST_PX} px: {res['beyond']}",
+         f"read by {READINGS[res['other_read']]} instead (px): "
+         + " ".join(f"{s}% {f2(v)}" for s, v in res["other"].items()) + f"; worst frame {f2(res['other_worst'])}",
+         "", "by light:"]
     L += [f"  {k}: n {v['n']}, mean at 50 % {f2(v['mean50'])} px, found {100 * v['found80']:.1f} %"
           for k, v in res["by_light"].items()]
     L += ["", "worst frames:"]

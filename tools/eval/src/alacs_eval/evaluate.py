@@ -121,27 +121,46 @@ def _paper_loc_case(task: tuple[str, str | None]) -> dict[str, Any]:
 
 # ---- the run -------------------------------------------------------------------------
 
-def kept_rows(frame: dict) -> dict[int, tuple[float, bool]]:
+# How a row the localizer keeps several samples of is read (kept_rows): the LLE's line's
+# sample (RowStatus kLine), or the sample nearest the rough position in 3D (the target's
+# prior, the only one the localizer has before its fit). Both use the product's output
+# alone, never the truth; the worlds' report gives both.
+BY_LINE = "line"
+BY_ROUGH = "rough"
+
+
+def kept_rows(frame: dict, by: str = BY_LINE) -> dict[int, tuple[float, bool]]:
     """Our line per row: the samples the localizer keeps of the frame (its LLE, gated in 3D
-    around the rough position); where a row has several, the LLE's line's (RowStatus kLine,
-    when `process --rows` gave the statuses), else the first. Each with whether it is the
-    line's (else another segment's)."""
+    around the rough position); where a row has several, the LLE's line's (by BY_LINE, when
+    `process --rows` gave the statuses) or the one nearest the rough position (by BY_ROUGH,
+    when it gave `kept_from_rough_mm`), else the first. Each with whether it is the line's
+    (else another segment's)."""
     on_line = {(int(round(s[0])), round(float(s[1]), 3)) for s in frame.get("rows", []) if len(s) > 3 and s[3] == 0}
+    samples = frame.get("kept", [])
+    from_rough = frame.get("kept_from_rough_mm") if by == BY_ROUGH else None
+    if from_rough is None or len(from_rough) != len(samples):
+        from_rough = [0.0] * len(samples)
     kept: dict[int, tuple[float, bool]] = {}
-    for row, col in frame.get("kept", []):
+    nearest: dict[int, float] = {}
+    for (row, col), dist in zip(samples, from_rough):
         key = int(round(row))
         line = (key, round(float(col), 3)) in on_line
-        if key not in kept or line:
+        if by == BY_ROUGH:
+            better = key not in kept or dist < nearest[key] or (dist == nearest[key] and line)
+        else:
+            better = key not in kept or line
+        if better:
             kept[key] = (float(col), line)
+            nearest[key] = float(dist)
     return kept
 
 
-def _ours_lle(results: dict[str, dict], truths: dict[str, np.ndarray]) -> dict[str, dict]:
-    """Our line per row (kept_rows), against the truth per central segment."""
+def _ours_lle(results: dict[str, dict], truths: dict[str, np.ndarray], by: str = BY_LINE) -> dict[str, dict]:
+    """Our line per row (kept_rows, read `by`), against the truth per central segment."""
     out = {}
     for d, r in results.items():
         frames = r.get("frames", [])
-        kept = {row: col for row, (col, _) in kept_rows(frames[0] if frames else {}).items()}
+        kept = {row: col for row, (col, _) in kept_rows(frames[0] if frames else {}, by).items()}
         predict = None
         if kept:
             def predict(rows: np.ndarray, kept=kept) -> np.ndarray:

@@ -16,7 +16,7 @@ import math
 import multiprocessing
 import time
 from pathlib import Path
-from typing import Any, Iterator
+from typing import Any, Callable, Iterator
 
 import numpy as np
 from tqdm import tqdm
@@ -112,6 +112,15 @@ def _as_line_alone(raw: dict) -> dict:
     return {**raw, "frames": [{**frames[0], "kept": [[r, c] for r, c in line_columns(raw).items()]}, *frames[1:]]}
 
 
+def _read_apart(raw: dict) -> bool:
+    """Whether the two readings of a processed frame's kept samples (evaluate.kept_rows by the
+    LLE's line, by the rough position) differ in any row."""
+    frames = raw.get("frames", [])
+    if not frames:
+        return False
+    return evaluate.kept_rows(frames[0], evaluate.BY_LINE) != evaluate.kept_rows(frames[0], evaluate.BY_ROUGH)
+
+
 def _lle(cfg: Config, world: str, cases: list[dict]) -> tuple[dict[str, Any], list[dict]]:
     dirs = [c["dir"] for c in cases]
     truths, saturated = {}, {}
@@ -145,6 +154,13 @@ def _lle(cfg: Config, world: str, cases: list[dict]) -> tuple[dict[str, Any], li
         out["alone"]["segments"][str(s)] = {"mean": disp.avg, "worst": disp.max,
                                             "found": metrics.mean_found(line_only[d]["cover"][s] for d in dirs)}
     out["no_rows_to_find"] = sum(not metrics.has_rows_to_find(truths[d]) for d in dirs)
+    # The same kept samples, a row with several read by the one nearest the rough position.
+    by_rough = evaluate._ours_lle(raw, truths, evaluate.BY_ROUGH)
+    out["by_rough"] = {"segments": {}, "frames_read_apart": sum(_read_apart(raw.get(d, {})) for d in dirs)}
+    for s in metrics.SEGMENTS:
+        disp = metrics.summarize(by_rough[d]["disp"][s] for d in dirs)
+        out["by_rough"]["segments"][str(s)] = {"mean": disp.avg, "worst": disp.max,
+                                               "found": metrics.mean_found(by_rough[d]["cover"][s] for d in dirs)}
     for s in metrics.SEGMENTS:
         o = metrics.summarize(ours[d]["disp"][s] for d in dirs)
         p = metrics.summarize(paper[d]["combos"][key]["disp"][str(s)] if str(s) in paper[d]["combos"][key]["disp"]
@@ -378,6 +394,8 @@ def _loc_summary(rows: list[dict]) -> dict[str, Any]:
                 "approach": dataclasses.asdict(metrics.loc_stats(r["approach"] for r in sel)),
                 "centre": float(np.nanmean([r["centre"] for r in sel])) if sel else math.nan,
                 "diameter": float(np.nanmean([r["diameter"] for r in sel])) if sel else math.nan,
+                "diameter_measured": _mean([r["diameter"] for r in sel if _measured_diameter(r)]),
+                "rough_only": sum(_rough_only(r) for r in sel),
                 "paper": dataclasses.asdict(metrics.loc_stats(r["paper_approach"] for r in sel)),
                 "first_pass": dataclasses.asdict(metrics.loc_stats(r["first_pass_approach"] for r in sel)),
                 "second_pass_share": float(np.mean([r["follow_up_stops"] > 0 for r in sel])) if sel else math.nan,
@@ -404,6 +422,22 @@ def _loc_summary(rows: list[dict]) -> dict[str, Any]:
     return out
 
 
+def _rough_only(row: dict) -> bool:
+    """A result without a sphere fit (ROUGH_ONLY on the bus: the rough position, or one line's
+    arc with the prior radius): its diameter is the prior's, never a measurement
+    (edge/app/result_status.h, docs/can-protocol.md)."""
+    return math.isfinite(row["diameter"]) and not row.get("sphere", False)
+
+
+def _measured_diameter(row: dict) -> bool:
+    """A result whose diameter a sphere fit measured (MEASURED or AMBIGUOUS on the bus)."""
+    return math.isfinite(row["diameter"]) and bool(row.get("sphere", False))
+
+
+def _mean(values: list[float]) -> float:
+    return float(np.mean(values)) if values else math.nan
+
+
 def diameter_by_shape(rows: list[dict]) -> dict[str, dict[str, Any]]:
     """The diameter error, mean over every distance, by the target's shape, clear and
     occluded apart (n: the results that enter it). The issue states its diameter target on
@@ -418,6 +452,10 @@ def diameter_by_shape(rows: list[dict]) -> dict[str, dict[str, Any]]:
             key = "occluded" if occ else "clear"
             cell[key] = float(np.mean(sel)) if sel else math.nan
             cell[f"{key}_n"] = len(sel)
+            measured = [r["diameter"] for r in rows if r["shape"] == shape and r["occluded"] == occ
+                        and _measured_diameter(r)]
+            cell[f"{key}_measured"] = _mean(measured)
+            cell[f"{key}_measured_n"] = len(measured)
         out[shape] = cell
     return out
 
@@ -519,7 +557,8 @@ RULES = [
     "**Looking closer, on tuning worlds only.** `tools/eval/run.sh diagnose --world benchmark-hard --seed 3` "
     "lists a tuning world's worst LLE frames with their scenes, the row error against the distance to the "
     "nearest gap in the line, why the target's visible rows were missed, and what the LLE's own line (what "
-    "`alacs_lle` reports) lies on in each frame; options after `--` go to "
+    "`alacs_lle` reports) lies on in each frame (`--read rough` reads a row the localizer keeps twice by the "
+    "sample nearest the rough position, as the second LLE table below does); options after `--` go to "
     "`alacs-twin process` (e.g. `-- --lle-subtracted-line-pct 20`) to compare settings on the same frames. "
     "`diagnose --loc` does the same for the five-stop scans: the approach error per distance and occlusion, and "
     "each scan beyond 20 mm with its scene, what the fit took for the target (the target, a neighbour, no "
@@ -545,6 +584,13 @@ def _f(x: float, fmt: str = "{:.1f}") -> str:
 
 def _pct(x: float) -> str:
     return _f(100.0 * x if x is not None and math.isfinite(x) else math.nan, "{:.1f} %")
+
+
+def _rows_by_distance(ws: list[tuple[str, dict]], cell: Callable[[dict], str]) -> list[str]:
+    """A table's rows, one per world and occlusion, one column per distance: `cell` of each
+    localization cell."""
+    return [f"| {name} | {occ} | " + " | ".join(cell(w["loc"]["cells"][f"{occ} {d}"]) for d in evaluate.DISTANCES) + " |"
+            for name, w in ws for occ in ("clear", "occluded")]
 
 
 def markdown(res: dict[str, Any], figure: str | None, command: str) -> str:
@@ -589,6 +635,21 @@ def markdown(res: dict[str, Any], figure: str | None, command: str) -> str:
           "rows counts the distance between the two: on the hard cases' seeds 3, 6, 7 and 8 one such frame a seed "
           "(a target with 3–11 visible rows) carries most of the mean at 50 % (docs/lle.md, \"Which line is the "
           "fruit's\")."]
+    L += ["", "Where the localizer keeps two samples of a row (the LLE's line and another segment, both within the "
+          "3D gate: a leaf in front, a touching neighbour), the table above reads the line's. Read instead by the "
+          "sample nearest the rough position (the target's prior, the product's output alone, never the truth), "
+          "the same frames give:", "",
+          "| | " + " | ".join(f"{s} %" for s in metrics.SEGMENTS) + " | frames read apart |",
+          "| --- |" + " --- |" * (len(metrics.SEGMENTS) + 1)]
+    for name, w in ws:
+        br = w["lle"].get("by_rough", {})
+        seg = br.get("segments", {})
+        apart = br.get("frames_read_apart", "–")
+        for key, label in (("mean", "mean"), ("worst", "worst"), ("found", "found")):
+            fmt = _pct if key == "found" else (lambda v: _f(v, "{:.2f}"))
+            L.append(f"| ours, {name}, {label} | " + " | ".join(fmt(seg.get(str(s), {}).get(key, math.nan))
+                                                           for s in metrics.SEGMENTS)
+                     + f" | {apart if key == 'mean' else ''} |")
     L += ["", "By light (ours: 50 % segment mean, rows found on the central 80 %, rows whose line reaches full scale in red):", "",
           "| world | light | n | mean (px) | found | at full scale |", "| --- | --- | --- | --- | --- | --- |"]
     for name, w in ws:
@@ -672,15 +733,22 @@ def markdown(res: dict[str, Any], figure: str | None, command: str) -> str:
             L.append(f"| {name} | {ms['n']} | " + " | ".join(str(ms[c]) for c in MISS_CAUSES) + " |")
     L += ["", "Ours, centre / diameter error, mean (mm):", "",
           "| world | occlusion | 1.0 m | 1.2 m | 1.4 m | 1.6 m |", "| --- | --- | --- | --- | --- | --- |"]
-    for name, w in ws:
-        for occ in ("clear", "occluded"):
-            cells = [w["loc"]["cells"][f"{occ} {d}"] for d in evaluate.DISTANCES]
-            L.append(f"| {name} | {occ} | " + " | ".join(f"{_f(c['centre'])} / {_f(c['diameter'])}" for c in cells) + " |")
-    L += ["", "Ours, diameter error by the target's shape, mean of the results at all four distances (mm; results in brackets):", "",
-          "| world | shape | clear | occluded |", "| --- | --- | --- | --- |"]
+    L += _rows_by_distance(ws, lambda c: f"{_f(c['centre'])} / {_f(c['diameter'])}")
+    L += ["", "The same diameter error over the results that measured it: a ROUGH_ONLY result (no sphere fit: the "
+          "rough position, or one line's arc) carries the prior's diameter, which the bus marks as never a "
+          "measurement (docs/can-protocol.md), and is left out here; how many there were in brackets (the table "
+          "above counts them):", "",
+          "| world | occlusion | 1.0 m | 1.2 m | 1.4 m | 1.6 m |", "| --- | --- | --- | --- | --- | --- |"]
+    L += _rows_by_distance(ws, lambda c: f"{_f(c.get('diameter_measured', math.nan))} ({c.get('rough_only', '–')})")
+    L += ["", "Ours, diameter error by the target's shape, mean of the results at all four distances (mm; results "
+          "in brackets), all results and those that measured it:", "",
+          "| world | shape | clear | occluded | clear, measured | occluded, measured |",
+          "| --- | --- | --- | --- | --- | --- |"]
     for name, w in ws:
         for shape, c in w["loc"].get("diameter_by_shape", {}).items():
-            L.append(f"| {name} | {shape} | {_f(c['clear'])} ({c['clear_n']}) | {_f(c['occluded'])} ({c['occluded_n']}) |")
+            L.append(f"| {name} | {shape} | {_f(c['clear'])} ({c['clear_n']}) | {_f(c['occluded'])} ({c['occluded_n']}) "
+                     f"| {_f(c.get('clear_measured', math.nan))} ({c.get('clear_measured_n', '–')}) "
+                     f"| {_f(c.get('occluded_measured', math.nan))} ({c.get('occluded_measured_n', '–')}) |")
     L += ["", "### Honest uncertainty", "",
           "| | " + " | ".join(n for n, _ in ws) + " |", "| --- |" + " --- |" * len(ws)]
     cov = [w["loc"]["coverage"] for _, w in ws]
