@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from alacs_eval import cli, diagnose, diameter, metrics, twin, worlds
+from alacs_eval import cli, diagnose, diameter, evaluate, metrics, twin, worlds
 from alacs_eval.scans import Scan, target_truth
 
 
@@ -61,6 +61,14 @@ def test_a_few_hard_frames_are_diagnosed(tmp_path):
     assert again["segments"] != res["segments"]
     text = diagnose.text(res)
     assert "worst frames:" in text and "not found, by reason:" in text and "lies on:" in text
+    # `process --rows` gives each kept sample's distance from the rough position, one each,
+    # all within the gate (ScanParams::gateMm, 90 mm).
+    dirs = sorted(str(p) for p in (tmp_path / "benchmark-hard-3" / "lle").glob("lle_*"))
+    frames = [f for r in twin.process(_twin(), dirs, 2, "rows", rows=True, quiet=True).values()
+              for f in r.get("frames", [])]
+    assert frames and all(evaluate.has_distances(f) for f in frames)
+    assert any(f["kept"] for f in frames)
+    assert all(0.0 <= d <= 90.0 + 1e-6 for f in frames for d in f["kept_from_rough_mm"])
     # The other reading of a row kept twice is printed beside; asked for, the two swap.
     assert "read by the sample nearest the rough position instead" in text
     rough = diagnose.run(dataclasses.replace(cfg, read="rough"))

@@ -182,6 +182,15 @@ def test_a_row_kept_twice_reads_the_sample_nearest_the_rough_position():
     assert by_line[105] == (62.0, True)
     assert by_rough[105] == (50.0, False)
     assert by_line[120] == by_rough[120] == (62.0, True)
+    # Nearest, not "another segment first": where the line's sample is the nearer, it is read;
+    # a tie goes to the line; a distance the JSON could not carry (null) is the farthest.
+    other = [[130, 40.0, 0, 2], [131, 40.0, 0, 2], [132, 40.0, 0, 2]]
+    near_line = {"rows": line + other, "kept": [[s[0], s[1]] for s in line + other],
+                 "kept_from_rough_mm": [55.0] * len(line) + [70.0, 55.0, None]}
+    read = evaluate.kept_rows(near_line, evaluate.BY_ROUGH)
+    assert read[130] == read[131] == read[132] == (62.0, True)
+    null_line = {**near_line, "kept_from_rough_mm": [None] * len(line) + [70.0, 55.0, 60.0]}
+    assert evaluate.kept_rows(null_line, evaluate.BY_ROUGH)[130] == (40.0, False)
     assert worlds._read_apart(raw)
     # Without the distances (an older `process`), by the rough position falls back to the line.
     plain = {"frames": [{"rows": line + target, "kept": kept}]}
@@ -192,9 +201,9 @@ def test_a_row_kept_twice_reads_the_sample_nearest_the_rough_position():
     assert near["disp"][80] < far["disp"][80] == pytest.approx(12.0)
 
 
-def test_the_measured_diameter_leaves_out_the_priors_echo():
+def test_the_fitted_diameter_leaves_out_the_priors_echo():
     """worlds: a result without a sphere fit (ROUGH_ONLY: the rough position or one line's
-    arc) carries the prior's diameter, never a measurement; the measured mean leaves it out
+    arc) carries the prior's diameter, never a measurement; the mean over sphere fits leaves it out
     and the table counts it, while the mean of every result keeps it."""
     from alacs_eval import worlds
 
@@ -203,8 +212,8 @@ def test_the_measured_diameter_leaves_out_the_priors_echo():
     one_line = {"shape": "sphere", "occluded": True, "diameter": 10.0, "sphere": False, "lines": 1}
     none = {"shape": "sphere", "occluded": True, "diameter": math.nan, "sphere": False, "lines": 0}
     assert [worlds._rough_only(r) for r in (fit, echo, one_line, none)] == [False, True, True, False]
-    assert [worlds._measured_diameter(r) for r in (fit, echo, one_line, none)] == [True, False, False, False]
+    assert [worlds._fitted_diameter(r) for r in (fit, echo, one_line, none)] == [True, False, False, False]
     cell = worlds.diameter_by_shape([fit, echo, one_line, none])["sphere"]
     assert cell["occluded"] == pytest.approx(26.0 / 3) and cell["occluded_n"] == 3
-    assert cell["occluded_measured"] == pytest.approx(2.0) and cell["occluded_measured_n"] == 1
-    assert math.isnan(cell["clear_measured"]) and cell["clear_measured_n"] == 0
+    assert cell["occluded_fitted"] == pytest.approx(2.0) and cell["occluded_fitted_n"] == 1
+    assert math.isnan(cell["clear_fitted"]) and cell["clear_fitted_n"] == 0

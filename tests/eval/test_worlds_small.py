@@ -58,7 +58,7 @@ def test_the_section_is_written_and_survives_the_report(run, tmp_path):
     assert "## The second world" in text
     # Both readings of a row kept twice, and the diameter without the prior's echoes.
     assert "| frames read apart |" in text
-    assert "| clear, measured | occluded, measured |" in text
+    assert "| clear, sphere fit | occluded, sphere fit |" in text
     png = run / "figures" / "eval_worlds_sigma.png"
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     # Writing the section again replaces it rather than appending a second one.

@@ -129,6 +129,14 @@ BY_LINE = "line"
 BY_ROUGH = "rough"
 
 
+def has_distances(frame: dict) -> bool:
+    """Whether a processed frame gives each kept sample's distance from the rough position
+    (`process --rows` since issue 17's second LLE reading); without them, reading by the
+    rough position falls back to the line's."""
+    d = frame.get("kept_from_rough_mm")
+    return d is not None and len(d) == len(frame.get("kept", []))
+
+
 def kept_rows(frame: dict, by: str = BY_LINE) -> dict[int, tuple[float, bool]]:
     """Our line per row: the samples the localizer keeps of the frame (its LLE, gated in 3D
     around the rough position); where a row has several, the LLE's line's (by BY_LINE, when
@@ -137,9 +145,11 @@ def kept_rows(frame: dict, by: str = BY_LINE) -> dict[int, tuple[float, bool]]:
     (else another segment's)."""
     on_line = {(int(round(s[0])), round(float(s[1]), 3)) for s in frame.get("rows", []) if len(s) > 3 and s[3] == 0}
     samples = frame.get("kept", [])
-    from_rough = frame.get("kept_from_rough_mm") if by == BY_ROUGH else None
-    if from_rough is None or len(from_rough) != len(samples):
-        from_rough = [0.0] * len(samples)
+    from_rough = [0.0] * len(samples)
+    if by == BY_ROUGH and has_distances(frame):
+        # A distance the JSON could not carry (null: not finite) is no nearer than any other.
+        from_rough = [math.inf if d is None or not math.isfinite(float(d)) else float(d)
+                      for d in frame["kept_from_rough_mm"]]
     kept: dict[int, tuple[float, bool]] = {}
     nearest: dict[int, float] = {}
     for (row, col), dist in zip(samples, from_rough):

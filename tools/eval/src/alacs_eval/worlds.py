@@ -156,7 +156,10 @@ def _lle(cfg: Config, world: str, cases: list[dict]) -> tuple[dict[str, Any], li
     out["no_rows_to_find"] = sum(not metrics.has_rows_to_find(truths[d]) for d in dirs)
     # The same kept samples, a row with several read by the one nearest the rough position.
     by_rough = evaluate._ours_lle(raw, truths, evaluate.BY_ROUGH)
-    out["by_rough"] = {"segments": {}, "frames_read_apart": sum(_read_apart(raw.get(d, {})) for d in dirs)}
+    firsts = [(raw.get(d, {}).get("frames") or [{}])[0] for d in dirs]
+    out["by_rough"] = {"segments": {}, "frames_read_apart": sum(_read_apart(raw.get(d, {})) for d in dirs),
+                       "frames_without_distances": sum(bool(f.get("kept")) and not evaluate.has_distances(f)
+                                                       for f in firsts)}
     for s in metrics.SEGMENTS:
         disp = metrics.summarize(by_rough[d]["disp"][s] for d in dirs)
         out["by_rough"]["segments"][str(s)] = {"mean": disp.avg, "worst": disp.max,
@@ -394,7 +397,7 @@ def _loc_summary(rows: list[dict]) -> dict[str, Any]:
                 "approach": dataclasses.asdict(metrics.loc_stats(r["approach"] for r in sel)),
                 "centre": float(np.nanmean([r["centre"] for r in sel])) if sel else math.nan,
                 "diameter": float(np.nanmean([r["diameter"] for r in sel])) if sel else math.nan,
-                "diameter_measured": _mean([r["diameter"] for r in sel if _measured_diameter(r)]),
+                "diameter_fitted": _mean([r["diameter"] for r in sel if _fitted_diameter(r)]),
                 "rough_only": sum(_rough_only(r) for r in sel),
                 "paper": dataclasses.asdict(metrics.loc_stats(r["paper_approach"] for r in sel)),
                 "first_pass": dataclasses.asdict(metrics.loc_stats(r["first_pass_approach"] for r in sel)),
@@ -424,13 +427,13 @@ def _loc_summary(rows: list[dict]) -> dict[str, Any]:
 
 def _rough_only(row: dict) -> bool:
     """A result without a sphere fit (ROUGH_ONLY on the bus: the rough position, or one line's
-    arc with the prior radius): its diameter is the prior's, never a measurement
+    arc): its diameter is the prior's, or one arc's pulled towards it, never a measurement
     (edge/app/result_status.h, docs/can-protocol.md)."""
     return math.isfinite(row["diameter"]) and not row.get("sphere", False)
 
 
-def _measured_diameter(row: dict) -> bool:
-    """A result whose diameter a sphere fit measured (MEASURED or AMBIGUOUS on the bus)."""
+def _fitted_diameter(row: dict) -> bool:
+    """A result with a sphere fit (MEASURED, or AMBIGUOUS: possibly another object's fit)."""
     return math.isfinite(row["diameter"]) and bool(row.get("sphere", False))
 
 
@@ -452,10 +455,10 @@ def diameter_by_shape(rows: list[dict]) -> dict[str, dict[str, Any]]:
             key = "occluded" if occ else "clear"
             cell[key] = float(np.mean(sel)) if sel else math.nan
             cell[f"{key}_n"] = len(sel)
-            measured = [r["diameter"] for r in rows if r["shape"] == shape and r["occluded"] == occ
-                        and _measured_diameter(r)]
-            cell[f"{key}_measured"] = _mean(measured)
-            cell[f"{key}_measured_n"] = len(measured)
+            fitted = [r["diameter"] for r in rows if r["shape"] == shape and r["occluded"] == occ
+                        and _fitted_diameter(r)]
+            cell[f"{key}_fitted"] = _mean(fitted)
+            cell[f"{key}_fitted_n"] = len(fitted)
         out[shape] = cell
     return out
 
@@ -558,7 +561,7 @@ RULES = [
     "lists a tuning world's worst LLE frames with their scenes, the row error against the distance to the "
     "nearest gap in the line, why the target's visible rows were missed, and what the LLE's own line (what "
     "`alacs_lle` reports) lies on in each frame (`--read rough` reads a row the localizer keeps twice by the "
-    "sample nearest the rough position, as the second LLE table below does); options after `--` go to "
+    "sample nearest the rough position, as the LLE table after \"The LLE alone\" below does); options after `--` go to "
     "`alacs-twin process` (e.g. `-- --lle-subtracted-line-pct 20`) to compare settings on the same frames. "
     "`diagnose --loc` does the same for the five-stop scans: the approach error per distance and occlusion, and "
     "each scan beyond 20 mm with its scene, what the fit took for the target (the target, a neighbour, no "
@@ -636,11 +639,16 @@ def markdown(res: dict[str, Any], figure: str | None, command: str) -> str:
           "(a target with 3–11 visible rows) carries most of the mean at 50 % (docs/lle.md, \"Which line is the "
           "fruit's\")."]
     L += ["", "Where the localizer keeps two samples of a row (the LLE's line and another segment, both within the "
-          "3D gate: a leaf in front, a touching neighbour), the table above reads the line's. Read instead by the "
+          "3D gate: a leaf in front, a touching neighbour), the first LLE table (ours) reads the line's. Read instead by the "
           "sample nearest the rough position (the target's prior, the product's output alone, never the truth), "
           "the same frames give:", "",
           "| | " + " | ".join(f"{s} %" for s in metrics.SEGMENTS) + " | frames read apart |",
           "| --- |" + " --- |" * (len(metrics.SEGMENTS) + 1)]
+    missing = [f"{name} {w['lle']['by_rough']['frames_without_distances']}" for name, w in ws
+               if w["lle"].get("by_rough", {}).get("frames_without_distances")]
+    if missing:
+        L += ["", "Frames processed without the kept samples' distances (read by the line either way): "
+              + ", ".join(missing) + ".", ""]
     for name, w in ws:
         br = w["lle"].get("by_rough", {})
         seg = br.get("segments", {})
@@ -734,21 +742,21 @@ def markdown(res: dict[str, Any], figure: str | None, command: str) -> str:
     L += ["", "Ours, centre / diameter error, mean (mm):", "",
           "| world | occlusion | 1.0 m | 1.2 m | 1.4 m | 1.6 m |", "| --- | --- | --- | --- | --- | --- |"]
     L += _rows_by_distance(ws, lambda c: f"{_f(c['centre'])} / {_f(c['diameter'])}")
-    L += ["", "The same diameter error over the results that measured it: a ROUGH_ONLY result (no sphere fit: the "
-          "rough position, or one line's arc) carries the prior's diameter, which the bus marks as never a "
-          "measurement (docs/can-protocol.md), and is left out here; how many there were in brackets (the table "
-          "above counts them):", "",
+    L += ["", "The same diameter error over the results with a sphere fit (MEASURED or AMBIGUOUS): a ROUGH_ONLY "
+          "result (no sphere fit: the rough position, or one line's arc) carries the prior's diameter or one arc's "
+          "pulled towards it, which the bus marks as never a measurement (docs/can-protocol.md), and is left out "
+          "here; how many there were in brackets (the table above counts them):", "",
           "| world | occlusion | 1.0 m | 1.2 m | 1.4 m | 1.6 m |", "| --- | --- | --- | --- | --- | --- |"]
-    L += _rows_by_distance(ws, lambda c: f"{_f(c.get('diameter_measured', math.nan))} ({c.get('rough_only', '–')})")
+    L += _rows_by_distance(ws, lambda c: f"{_f(c.get('diameter_fitted', math.nan))} ({c.get('rough_only', '–')})")
     L += ["", "Ours, diameter error by the target's shape, mean of the results at all four distances (mm; results "
-          "in brackets), all results and those that measured it:", "",
-          "| world | shape | clear | occluded | clear, measured | occluded, measured |",
+          "in brackets), all results and those with a sphere fit:", "",
+          "| world | shape | clear | occluded | clear, sphere fit | occluded, sphere fit |",
           "| --- | --- | --- | --- | --- | --- |"]
     for name, w in ws:
         for shape, c in w["loc"].get("diameter_by_shape", {}).items():
             L.append(f"| {name} | {shape} | {_f(c['clear'])} ({c['clear_n']}) | {_f(c['occluded'])} ({c['occluded_n']}) "
-                     f"| {_f(c.get('clear_measured', math.nan))} ({c.get('clear_measured_n', '–')}) "
-                     f"| {_f(c.get('occluded_measured', math.nan))} ({c.get('occluded_measured_n', '–')}) |")
+                     f"| {_f(c.get('clear_fitted', math.nan))} ({c.get('clear_fitted_n', '–')}) "
+                     f"| {_f(c.get('occluded_fitted', math.nan))} ({c.get('occluded_fitted_n', '–')}) |")
     L += ["", "### Honest uncertainty", "",
           "| | " + " | ".join(n for n, _ in ws) + " |", "| --- |" + " --- |" * len(ws)]
     cov = [w["loc"]["coverage"] for _, w in ws]
