@@ -191,11 +191,11 @@ def test_a_row_kept_twice_reads_the_sample_nearest_the_rough_position():
     assert read[130] == read[131] == read[132] == (62.0, True)
     null_line = {**near_line, "kept_from_rough_mm": [None] * len(line) + [70.0, 55.0, 60.0]}
     assert evaluate.kept_rows(null_line, evaluate.BY_ROUGH)[130] == (40.0, False)
-    assert worlds._read_apart(raw)
+    assert worlds._read_apart(raw["frames"][0])
     # Without the distances (an older `process`), by the rough position falls back to the line.
     plain = {"frames": [{"rows": line + target, "kept": kept}]}
     assert evaluate.kept_rows(plain["frames"][0], evaluate.BY_ROUGH) == by_line
-    assert not worlds._read_apart(plain)
+    assert not worlds._read_apart(plain["frames"][0])
     near = evaluate._ours_lle({"d": raw}, {"d": t}, evaluate.BY_ROUGH)["d"]
     far = evaluate._ours_lle({"d": raw}, {"d": t})["d"]
     assert near["disp"][80] < far["disp"][80] == pytest.approx(12.0)

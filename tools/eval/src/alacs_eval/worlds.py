@@ -112,13 +112,20 @@ def _as_line_alone(raw: dict) -> dict:
     return {**raw, "frames": [{**frames[0], "kept": [[r, c] for r, c in line_columns(raw).items()]}, *frames[1:]]}
 
 
-def _read_apart(raw: dict) -> bool:
+def _read_apart(frame: dict) -> bool:
     """Whether the two readings of a processed frame's kept samples (evaluate.kept_rows by the
     LLE's line, by the rough position) differ in any row."""
-    frames = raw.get("frames", [])
-    if not frames:
-        return False
-    return evaluate.kept_rows(frames[0], evaluate.BY_LINE) != evaluate.kept_rows(frames[0], evaluate.BY_ROUGH)
+    return evaluate.kept_rows(frame, evaluate.BY_LINE) != evaluate.kept_rows(frame, evaluate.BY_ROUGH)
+
+
+def _segments(per_dir: dict[str, dict], dirs: list[str], segments) -> dict[str, dict[str, float]]:
+    """One reading's (evaluate._ours_lle) mean, worst frame and rows found per central segment."""
+    out = {}
+    for s in segments:
+        disp = metrics.summarize(per_dir[d]["disp"][s] for d in dirs)
+        out[str(s)] = {"mean": disp.avg, "worst": disp.max,
+                       "found": metrics.mean_found(per_dir[d]["cover"][s] for d in dirs)}
+    return out
 
 
 def _lle(cfg: Config, world: str, cases: list[dict]) -> tuple[dict[str, Any], list[dict]]:
@@ -148,22 +155,15 @@ def _lle(cfg: Config, world: str, cases: list[dict]) -> tuple[dict[str, Any], li
                     "rows_matched": float(np.mean(alone)) if alone else math.nan}
     # ... and its `line` read as the displacement is read above, row by row against the truth.
     line_only = evaluate._ours_lle({d: _as_line_alone(raw.get(d, {})) for d in dirs}, truths)
-    out["alone"]["segments"] = {}
-    for s in (10, 50, 80):
-        disp = metrics.summarize(line_only[d]["disp"][s] for d in dirs)
-        out["alone"]["segments"][str(s)] = {"mean": disp.avg, "worst": disp.max,
-                                            "found": metrics.mean_found(line_only[d]["cover"][s] for d in dirs)}
+    out["alone"]["segments"] = _segments(line_only, dirs, (10, 50, 80))
     out["no_rows_to_find"] = sum(not metrics.has_rows_to_find(truths[d]) for d in dirs)
     # The same kept samples, a row with several read by the one nearest the rough position.
     by_rough = evaluate._ours_lle(raw, truths, evaluate.BY_ROUGH)
     firsts = [(raw.get(d, {}).get("frames") or [{}])[0] for d in dirs]
-    out["by_rough"] = {"segments": {}, "frames_read_apart": sum(_read_apart(raw.get(d, {})) for d in dirs),
+    out["by_rough"] = {"segments": _segments(by_rough, dirs, metrics.SEGMENTS),
+                       "frames_read_apart": sum(_read_apart(f) for f in firsts),
                        "frames_without_distances": sum(bool(f.get("kept")) and not evaluate.has_distances(f)
                                                        for f in firsts)}
-    for s in metrics.SEGMENTS:
-        disp = metrics.summarize(by_rough[d]["disp"][s] for d in dirs)
-        out["by_rough"]["segments"][str(s)] = {"mean": disp.avg, "worst": disp.max,
-                                               "found": metrics.mean_found(by_rough[d]["cover"][s] for d in dirs)}
     for s in metrics.SEGMENTS:
         o = metrics.summarize(ours[d]["disp"][s] for d in dirs)
         p = metrics.summarize(paper[d]["combos"][key]["disp"][str(s)] if str(s) in paper[d]["combos"][key]["disp"]
