@@ -358,7 +358,9 @@ void Renderer::shadeRegion(const FrameRequest& request, const cv::Rect& region, 
   const double fanRad = s.laser.fanDeg * kPi / 180.0;
   const double haloL = s.laser.haloLengthMm;
   const int looks = std::max(1, static_cast<int>(std::lround(1.0 / std::max(1e-3, s.laser.speckleContrast * s.laser.speckleContrast))));
-  const uint64_t speckleSalt = mix64(s.seed * 0x2545F4914F6CDD1DULL + request.frameIndex * 0x9E3779B97F4A7C15ULL + 77);
+  const uint64_t speckleIndex =
+      request.speckleFrameIndex >= 0 ? static_cast<uint64_t>(request.speckleFrameIndex) : request.frameIndex;
+  const uint64_t speckleSalt = mix64(s.seed * 0x2545F4914F6CDD1DULL + speckleIndex * 0x9E3779B97F4A7C15ULL + 77);
   const auto& bgd = s.background;
 
   for (int row = 0; row < region.height; ++row) {

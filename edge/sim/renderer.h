@@ -57,6 +57,10 @@ struct FrameRequest {
   double laserFraction = 1.0;  // share of the exposure the laser was on, 0..1
   int64_t exposureUs = 0;      // 0: the scene's sensor.exposureUs
   uint64_t frameIndex = 0;     // seeds noise and speckle, with the scene's seed
+  // The speckle's seed instead of frameIndex (-1: frameIndex, a new speckle each frame, as
+  // a moving slide sees). A laser at rest on a still scene keeps its speckle from frame to
+  // frame, so frames of one stop averaged (alacs-twin render --average) share one.
+  int64_t speckleFrameIndex = -1;
 };
 
 class Renderer {

@@ -13,13 +13,15 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from PIL import Image
 
-from alacs_eval import cli, diagnose, diameter, evaluate, metrics, twin, worlds
+from alacs_eval import cli, diagnose, diameter, evaluate, metrics, stack, twin, worlds
 from alacs_eval.scans import Scan, target_truth
 
 
-@pytest.mark.parametrize("look", [["--count", "2"], ["--loc", "--per-cell", "1"], ["--diameter", "--per-cell", "1"]],
-                         ids=["lle", "localization", "diameter"])
+@pytest.mark.parametrize("look", [["--count", "2"], ["--loc", "--per-cell", "1"], ["--diameter", "--per-cell", "1"],
+                                  ["--loc", "--stack", "2", "--per-cell", "1"]],
+                         ids=["lle", "localization", "diameter", "stack"])
 def test_the_second_world_is_refused(tmp_path, capsys, look):
     assert cli.main(["diagnose", *look, "--world", "holdout", "--work", str(tmp_path),
                      "--twin", os.environ.get("ALACS_TWIN", "/bin/true")]) == 2
@@ -148,6 +150,7 @@ def test_a_few_hard_scans_are_diagnosed(tmp_path):
     listed = diagnose.text_loc(dict(res, misses=[miss], misses_by_cause={unseen["cause"]: 1}))
     assert f"the target's rows lit {why['lit_rows']} (stops lit {why['stops_lit']}), found 0" in listed
     assert "why (" in listed and "lit, not found 1" in listed and "any stop lights it at" in listed
+    _check_stack(cfg, clear, tmp_path)
     assert "the rough position names it at " + miss["identity"] in listed
     # Its positions, as runs of the stroke with the most rows each lights.
     assert worlds.reach_text({"lit": [[10.0, 8], [11.0, 9], [12.0, 8], [20.0, 10]]}) == \
@@ -238,6 +241,77 @@ def _check_identity(twin_bin: Path, clear: Path, work: Path):
     assert worlds.identity_summary(rows) == {"n": 3, "expected_confusions": pytest.approx(0.51),
                                              "best_within20": pytest.approx(1.0 - 0.51 / 3), "misses": 2,
                                              "misses_named": 1}
+
+
+def _check_stack(cfg, clear, tmp_path):
+    """`diagnose --loc --stack`: every frame of a scan is rendered again from its scene at
+    the recorded slide, exposure, laser and crop, with fresh noise, and the copy replays."""
+    case = {"case": "one", "dir": clear, "occluded": True, "distance_mm": 1000}
+    assert stack.sunlit_occluded([case]) == ([case] if Scan.load(clear).note.startswith("sun ") else [])
+    manifest = json.loads((Path(clear) / "manifest.json").read_text())
+    jobs = stack.render_jobs(Path(clear), tmp_path / "x", 3, 0.0)
+    assert len(jobs) == len(manifest["frames"])
+    f0, j0 = manifest["frames"][0], jobs[0]
+    gain = json.loads((Path(clear) / "truth" / "scene.json").read_text())["sensor"]["gain_db"]
+    assert j0[j0.index("--exposure-us") + 1] == str(round(f0["exposure_us"] * 10 ** (gain / 20)))
+    assert j0[j0.index("--average") + 1] == "3" and j0[j0.index("--gain-db") + 1] == "0.0"
+    assert j0[j0.index("--roi") + 1] == ",".join(map(str, f0["crop_px"]))
+    dirs = stack.render_set(cfg.twin, [case], tmp_path / "stack2", 2, None, 2, True)
+    again = Scan.load(dirs[0])
+    assert [f.file for f in again.frames] == [f.file for f in Scan.load(clear).frames]
+    for f in again.frames[:3]:
+        new = np.asarray(Image.open(Path(dirs[0]) / f.file), dtype=np.float64)
+        old = np.asarray(Image.open(Path(clear) / f.file), dtype=np.float64)
+        assert new.shape == old.shape
+        assert np.any(new != old)  # fresh noise ...
+        assert abs(float(new.mean()) - float(old.mean())) < 1.0  # ... of the same scene
+    # Reused when asked again with the same arguments (the frames are not rendered anew).
+    stamp = (Path(dirs[0]) / again.frames[0].file).stat().st_mtime_ns
+    assert stack.render_set(cfg.twin, [case], tmp_path / "stack2", 2, None, 2, True) == dirs
+    assert (Path(dirs[0]) / again.frames[0].file).stat().st_mtime_ns == stamp
+    raw = twin.process(cfg.twin, dirs, 1, "stacked", quiet=True)
+    rows = stack._errors(raw, dirs, [case])
+    assert rows[0]["ok"] and rows[0]["approach"] < diagnose.LOC_MISS_MM
+    s = stack.summary(rows)
+    assert s["within20"] == 1 and s["scans"] == 1 and s["confident_misses"] == 0
+    with pytest.raises(ValueError, match="--stack wants"):
+        stack.run(cfg, 1, 1)
+
+
+def test_rendered_frames_averaged_have_less_noise(tmp_path):
+    """`alacs-twin render --average N` averages N frames of their own noise (without the
+    laser, the noise of the difference of two such renders falls by about the square root
+    of N, to the 8-bit rounding) and of one speckle (a laser at rest keeps its speckle:
+    averaging does not smooth it, as it would if each frame drew its own); `--gain-db` with
+    the exposure scaled keeps the level and lowers the noise; bad values are refused."""
+    tw = str(_twin())
+    common = ["render", "--roi", "900,600,256,256", "--exposure-us", "3000"]
+
+    def frame(*extra):
+        out = tmp_path / f"f{len(list(tmp_path.iterdir()))}.png"
+        subprocess.run([tw, *common, *extra, "--out", str(out)], check=True, capture_output=True)
+        return np.asarray(Image.open(out), dtype=np.float64)[:, :, 0]  # red
+
+    dark = ("--laser", "0")
+    one = frame(*dark, "--frame", "0") - frame(*dark, "--frame", "500")
+    four = frame(*dark, "--frame", "0", "--average", "4") - frame(*dark, "--frame", "500", "--average", "4")
+    assert 0.45 < four.std() / one.std() < 0.7, four.std() / one.std()
+    assert abs(four.mean()) < 0.2 and abs(one.mean()) < 0.2
+    long = str(round(3000 * 10 ** (6 / 20)))  # the scene's 6 dB
+    zero = frame(*dark, "--frame", "0", "--gain-db", "0", "--exposure-us", long)
+    assert abs(zero.mean() - frame(*dark, "--frame", "0").mean()) < 0.5
+    z = frame(*dark, "--frame", "7", "--gain-db", "0", "--exposure-us", long) - zero
+    assert z.std() < 0.8 * one.std()
+    # On the line: the averaged frames keep the first frame's speckle.
+    a, b = frame("--frame", "0", "--average", "4"), frame("--frame", "500", "--average", "4")
+    line = a - frame(*dark) > 30
+    redrawn = (np.mean([frame("--frame", str(i)) for i in range(4)], axis=0)
+               - np.mean([frame("--frame", str(i)) for i in range(500, 504)], axis=0))
+    assert line.sum() > 300
+    assert (a - b)[line].std() > 1.5 * redrawn[line].std()
+    for bad in (["--average", "0"], ["--average", "65"], ["--gain-db", "49"]):
+        r = subprocess.run([tw, *common, *bad, "--out", str(tmp_path / "bad.png")], capture_output=True, text=True)
+        assert r.returncode == 2 and "alacs-twin render" in r.stderr
 
 
 def _check_diameter_sources(scan, detail):

@@ -183,6 +183,31 @@ tools::Json jsonVec(const Eigen::Vector3d& v) {
   return {tools::jsonNumber(v.x()), tools::jsonNumber(v.y()), tools::jsonNumber(v.z())};
 }
 
+// `frames` frames of one request, each with its own noise (seeds frameIndex onwards) and
+// the first one's speckle, averaged and rounded to 8 bits (one frame: as rendered); the
+// region `roi` (x, y, w, h) only, when given.
+cv::Mat renderAveraged(const sim::SimScene& scene, sim::FrameRequest req, const std::vector<double>& roi,
+                       int64_t frames) {
+  if (frames > 1) req.speckleFrameIndex = static_cast<int64_t>(req.frameIndex);
+  sim::Renderer r(scene);
+  cv::Mat img;
+  cv::Mat sum;
+  for (int64_t i = 0; i < frames; ++i) {
+    if (roi.empty()) {
+      r.render(req, img);
+    } else {
+      const auto at = [&](size_t k) { return static_cast<int>(roi[k]); };
+      r.renderRegion(req, cv::Rect(at(0), at(1), at(2), at(3)), img);
+    }
+    if (frames == 1) return img;
+    if (sum.empty()) sum = cv::Mat::zeros(img.size(), CV_32SC3);
+    cv::add(sum, img, sum, cv::noArray(), CV_32SC3);
+    ++req.frameIndex;
+  }
+  sum.convertTo(img, CV_8UC3, 1.0 / static_cast<double>(frames));  // rounds to nearest
+  return img;
+}
+
 int renderMain(const Args& args) {
   sim::SimScene scene = sim::defaultScene();
   const std::string scenePath = args.str("scene");
@@ -206,13 +231,24 @@ int renderMain(const Args& args) {
     std::fprintf(stderr, "alacs-twin render: --roi wants x,y,w,h\n");
     return 2;
   }
-  sim::Renderer r(scene);
-  cv::Mat img;
-  if (roi.empty()) {
-    r.render(req, img);
-  } else {
-    r.renderRegion(req, cv::Rect(static_cast<int>(roi[0]), static_cast<int>(roi[1]), static_cast<int>(roi[2]), static_cast<int>(roi[3])), img);
+  // --gain-db: the sensor's analogue gain instead of the scene's (the caller scales the
+  // exposure to keep the same DN). --average: several frames of the same exposure, each
+  // with its own noise (seeds frame, frame + 1, ...) and the first one's speckle (a laser at
+  // rest on a still scene keeps its speckle), averaged and rounded to 8 bits, as a stop's
+  // frames stacked would be (tools/eval diagnose --stack).
+  if (args.has("gain-db")) {
+    scene.sensor.gainDb = args.num("gain-db", scene.sensor.gainDb);
+    if (Status s = scene.validate(); !s) {
+      std::fprintf(stderr, "alacs-twin render: --gain-db: %s\n", s.toString().c_str());
+      return 2;
+    }
   }
+  const int64_t average = args.integer("average", 1);
+  if (average < 1 || average > 64) {
+    std::fprintf(stderr, "alacs-twin render: --average wants 1..64 frames\n");
+    return 2;
+  }
+  const cv::Mat img = renderAveraged(scene, req, roi, average);
   if (!cv::imwrite(out, img)) {
     std::fprintf(stderr, "alacs-twin: cannot write '%s'\n", out.c_str());
     return 1;
@@ -314,6 +350,10 @@ int main(int argc, char** argv) {
                {"laser", Kind::kNumber, "laser on-fraction of the exposure, 0..1 (default 1)"},
                {"roi", Kind::kList, "x,y,w,h: render this region only"},
                {"frame", Kind::kInteger, "frame index (noise seed; default 0)"},
+               {"average", Kind::kInteger,
+                "N frames (noise seeds frame .. frame+N-1, the first one's speckle) averaged and rounded to 8 bits: a "
+                "stop's frames stacked (1..64, default 1)"},
+               {"gain-db", Kind::kNumber, "the sensor's analogue gain instead of the scene's, dB (0..48)"},
                {"out", Kind::kText, "PNG (required)"},
                {"truth", Kind::kText,
                 "CSV: also the truth rows (at the exposure's middle), as a scan's truth/frame_NNNN.csv"}}),

@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import json
 import re
-import shutil
 import statistics
 import subprocess
 from dataclasses import dataclass, field, replace
@@ -95,15 +94,11 @@ def scans(cfg: Config, s: CalibSet) -> Path:
     """The set's scan directories, generated once (args.json holds what made them)."""
     out = cfg.work / s.name()
     signature = {"args": s.args(), "generator": twin.generator_version()}
-    sig = out / "args.json"
-    if sig.exists() and json.loads(sig.read_text()) == signature:
+    if twin.reuse_or_clear(out, signature):
         return out
-    if out.exists():
-        shutil.rmtree(out)
-    out.mkdir(parents=True)
     twin.run_lines([str(cfg.twin), "calib", "--out", str(out), "--jobs", str(cfg.jobs), *s.args()], s.views + 5,
                    f"rendering {s.name()}", cfg.quiet)
-    sig.write_text(json.dumps(signature))
+    twin.sign(out, signature)
     return out
 
 

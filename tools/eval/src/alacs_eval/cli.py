@@ -18,7 +18,7 @@ import sys
 import time
 from pathlib import Path
 
-from alacs_eval import calibration, diagnose, diameter, evaluate, report, twin, worlds
+from alacs_eval import calibration, diagnose, diameter, evaluate, report, stack, twin, worlds
 
 ROOT = twin.ROOT
 
@@ -100,6 +100,11 @@ def _diagnose(a: argparse.Namespace) -> int:
         if a.matched_filter:
             print(diagnose.text_matched_filter(diagnose.matched_filter(cfg)))
             return 0
+        if a.stack is not None:
+            print(stack.text(stack.run(cfg, a.per_cell, a.stack, a.stack_gain_db)))
+            return 0
+        if a.stack_gain_db is not None:
+            raise ValueError("--stack-gain-db goes with --stack")
         if a.diameter:
             cases, both, _ = diagnose.loc_cases(cfg, a.per_cell)
             print(diameter.text(diameter.run(cfg, cases, both + cfg.process_args), a.worst))
@@ -168,6 +173,12 @@ def main(argv: list[str] | None = None) -> int:
     g.add_argument("--matched-filter", action="store_true",
                    help="the LLE frames: a prototype matched filter on the laser-off-subtracted red against our "
                         "kept samples, rows found per light (docs/lle.md, \"The sunlit line through a matched filter\")")
+    g.add_argument("--stack", type=int, metavar="N",
+                   help="the localization scans' occluded scans in sun rendered again, with one frame and with N "
+                        "frames averaged, and processed (a prototype, not the product: alacs_eval/stack.py)")
+    g.add_argument("--stack-gain-db", type=float, metavar="G",
+                   help="--stack: both renders with the sensor at G dB analogue gain, the exposure scaled to keep "
+                        "the same DN")
     g.add_argument("--work", help="default build/diagnose")
     g.add_argument("--twin", help="the alacs-twin binary (default $ALACS_TWIN or the newest build/*/tools/twin)")
     g.add_argument("--jobs", type=int, default=2)

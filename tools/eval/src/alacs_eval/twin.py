@@ -64,6 +64,23 @@ def generator_version(sources: tuple[str, ...] = GENERATOR_SOURCES) -> str:
     return h.hexdigest()[:16]
 
 
+def reuse_or_clear(out: Path, signature: dict, sig_name: str = "args.json") -> bool:
+    """True when `out` holds what `signature` made (its `sig_name` file says so); otherwise
+    `out` is emptied and made again, to be filled and then signed (`sign`)."""
+    sig = out / sig_name
+    if sig.exists() and json.loads(sig.read_text()) == signature:
+        return True
+    if out.exists():
+        shutil.rmtree(out)
+    out.mkdir(parents=True)
+    return False
+
+
+def sign(out: Path, signature: dict, sig_name: str = "args.json") -> None:
+    """Marks `out` as complete for `signature` (reuse_or_clear)."""
+    (out / sig_name).write_text(json.dumps(signature))
+
+
 def generate(twin: Path, out: Path, set_name: str, args: dict[str, str], total: int, desc: str,
              quiet: bool = False, sources: tuple[str, ...] = GENERATOR_SOURCES) -> list[dict]:
     """A benchmark set, regenerated only when its arguments or the generator's sources changed."""
