@@ -247,7 +247,6 @@ def _check_stack(cfg, clear, tmp_path):
     """`diagnose --loc --stack`: every frame of a scan is rendered again from its scene at
     the recorded slide, exposure, laser and crop, with fresh noise, and the copy replays."""
     case = {"case": "one", "dir": clear, "occluded": True, "distance_mm": 1000}
-    assert stack.sunlit_occluded([case]) == ([case] if Scan.load(clear).note.startswith("sun ") else [])
     manifest = json.loads((Path(clear) / "manifest.json").read_text())
     jobs = stack.render_jobs(Path(clear), tmp_path / "x", 3, 0.0)
     assert len(jobs) == len(manifest["frames"])
@@ -274,8 +273,45 @@ def _check_stack(cfg, clear, tmp_path):
     assert rows[0]["ok"] and rows[0]["approach"] < diagnose.LOC_MISS_MM
     s = stack.summary(rows)
     assert s["within20"] == 1 and s["scans"] == 1 and s["confident_misses"] == 0
-    with pytest.raises(ValueError, match="--stack wants"):
-        stack.run(cfg, 1, 1)
+    for frames in (1, stack.MAX_FRAMES + 1):
+        with pytest.raises(ValueError, match="--stack wants"):
+            stack.run(cfg, 1, frames)
+
+
+def test_the_stacking_summary_counts_what_it_says(tmp_path, capsys):
+    """`diagnose --stack`: the occluded sunlit cases are chosen by the set's light (else the
+    scan's note), a moving frame is refused, and the summary and text count misses,
+    confident misses and second-pass stops lacking as they are."""
+    cases = [{"dir": "a", "occluded": True, "lighting": "sun"}, {"dir": "b", "occluded": False, "lighting": "sun"},
+             {"dir": "c", "occluded": True, "lighting": "direct"}]
+    assert stack.sunlit_occluded(cases) == cases[:1]
+    scan = tmp_path / "moving"
+    (scan / "truth").mkdir(parents=True)
+    (scan / "truth" / "scene.json").write_text(json.dumps({"sensor": {"gain_db": 6.0}}))
+    frame = {"file": "frames/frame_0000.png", "slide_mm": 10.0, "exposure_us": 100, "laser_on": True}
+    (scan / "manifest.json").write_text(json.dumps({"scan": {}, "frames": [frame]}))
+    assert len(stack.render_jobs(scan, tmp_path / "out", 2, None)) == 1
+    (scan / "manifest.json").write_text(json.dumps(
+        {"scan": {}, "frames": [dict(frame, slide_start_mm=9.0, slide_end_mm=11.0)]}))
+    with pytest.raises(ValueError, match="moved"):
+        stack.render_jobs(scan, tmp_path / "out", 2, None)
+    row = {"case": "x", "distance": 1000, "ok": True, "approach": 1.0, "sigma": 1.0, "confidence": 90.0,
+           "lines": 5, "stops_missing": 0}
+    rows = [row, dict(row, case="y", approach=30.0, confidence=85.0, stops_missing=2),
+            dict(row, case="z", distance=1600, ok=False, approach=math.nan, confidence=0.0)]
+    s = stack.summary(rows)
+    assert (s["scans"], s["results"], s["within20"], s["confident_misses"], s["stops_missing"]) == (3, 2, 1, 1, 2)
+    assert s["within2sigma"] == 1 and s["cells"][1000] == pytest.approx(15.5) and math.isnan(s["cells"][1600])
+    res = {"world": "benchmark-hard", "seed": 3, "gain_db": 0.0, "sets": {"stored": s, "2 frames": s},
+           "rows": {"stored": rows, "2 frames": rows}}
+    text = stack.text(res)
+    assert "the sensor at 0 dB" in text and "within 20 mm 1 of 3" in text and "confident misses 1" in text
+    assert "  y: stored 30.0 mm, 5 lines, 85 %, 2" in text and "  x:" not in text
+    # The command line: --stack goes with --loc alone, and its gain with it.
+    for bad in (["--stack", "2"], ["--loc", "--diameter", "--stack", "2"], ["--loc", "--stack-gain-db", "0"]):
+        assert cli.main(["diagnose", *bad, "--work", str(tmp_path / "w"), "--twin", str(_twin())]) == 2
+        assert "--stack" in capsys.readouterr().err
+    assert not (tmp_path / "w").exists()
 
 
 def test_rendered_frames_averaged_have_less_noise(tmp_path):

@@ -97,14 +97,16 @@ def _diagnose(a: argparse.Namespace) -> int:
                           jobs=a.jobs, process_args=extra, generate_args=gen, worst=a.worst, quiet=a.quiet,
                           read=a.read)
     try:
+        if a.stack is not None and (not a.loc or a.diameter or a.matched_filter):
+            raise ValueError("--stack goes with --loc (and not with --diameter or --matched-filter)")
+        if a.stack_gain_db is not None and a.stack is None:
+            raise ValueError("--stack-gain-db goes with --stack")
         if a.matched_filter:
             print(diagnose.text_matched_filter(diagnose.matched_filter(cfg)))
             return 0
         if a.stack is not None:
             print(stack.text(stack.run(cfg, a.per_cell, a.stack, a.stack_gain_db)))
             return 0
-        if a.stack_gain_db is not None:
-            raise ValueError("--stack-gain-db goes with --stack")
         if a.diameter:
             cases, both, _ = diagnose.loc_cases(cfg, a.per_cell)
             print(diameter.text(diameter.run(cfg, cases, both + cfg.process_args), a.worst))
@@ -174,8 +176,9 @@ def main(argv: list[str] | None = None) -> int:
                    help="the LLE frames: a prototype matched filter on the laser-off-subtracted red against our "
                         "kept samples, rows found per light (docs/lle.md, \"The sunlit line through a matched filter\")")
     g.add_argument("--stack", type=int, metavar="N",
-                   help="the localization scans' occluded scans in sun rendered again, with one frame and with N "
-                        "frames averaged, and processed (a prototype, not the product: alacs_eval/stack.py)")
+                   help="--loc: the occluded scans in sun rendered again, once with one frame and once with N "
+                        "frames of each stop averaged, and processed (a prototype, not the product: "
+                        "alacs_eval/stack.py)")
     g.add_argument("--stack-gain-db", type=float, metavar="G",
                    help="--stack: both renders with the sensor at G dB analogue gain, the exposure scaled to keep "
                         "the same DN")

@@ -24,6 +24,7 @@ rest of `diagnose`.
 
 from __future__ import annotations
 
+import hashlib
 import json
 import math
 import shutil
@@ -41,12 +42,19 @@ from alacs_eval.scans import Scan, target_truth
 # Noise seeds of the renders: frame i of a scan takes SEED_BASE + 100 * i onwards, far from
 # the generator's own (its frame indices), so that no render repeats a stored frame's noise.
 SEED_BASE = 5000
-SEED_STRIDE = 100  # at most this many frames averaged
+SEED_STRIDE = 100
+MAX_FRAMES = 64  # `alacs-twin render --average`'s limit
+# What the renders depend on besides the source set and the arguments: this file's own
+# rules (seeds, the exposure's scaling), so that a change to them renders the sets again.
+VERSION = hashlib.sha256(Path(__file__).read_bytes()).hexdigest()[:16]
 
 
 def sunlit_occluded(cases: list[dict]) -> list[dict]:
-    """The occluded cases whose scene is in direct sun (the generator's note names the light first)."""
-    return [c for c in cases if c["occluded"] and Scan.load(c["dir"]).note.startswith("sun ")]
+    """The occluded cases whose scene is in direct sun (the set's `lighting`, else the
+    scan's note, which names the light first)."""
+    def sun(c: dict) -> bool:
+        return c["lighting"] == "sun" if "lighting" in c else Scan.load(c["dir"]).note.startswith("sun ")
+    return [c for c in cases if c["occluded"] and sun(c)]
 
 
 def render_jobs(src: Path, dst: Path, frames: int, gain_db: float | None) -> list[list[str]]:
@@ -61,6 +69,9 @@ def render_jobs(src: Path, dst: Path, frames: int, gain_db: float | None) -> lis
     for i, f in enumerate(manifest["frames"]):
         start = float(f.get("slide_start_mm", f["slide_mm"]))
         end = float(f.get("slide_end_mm", f["slide_mm"]))
+        if start != end:
+            # Frames of a moving slide are not a stop's: nothing to stack.
+            raise ValueError(f"{src.name}: frame {i} was exposed while the slide moved")
         args = ["render", "--scene", str(scene_file), "--slide", repr(start), "--slide-end", repr(end),
                 "--exposure-us", str(max(1, round(int(f["exposure_us"]) * scale))),
                 "--laser", "1" if f["laser_on"] else "0",
@@ -78,7 +89,7 @@ def render_set(tw: Path, cases: list[dict], out: Path, frames: int, gain_db: flo
                quiet: bool) -> list[str]:
     """The scans of `cases` rendered again into `out` (reused when rendered with the same
     arguments from the same source set); their directories, in the cases' order."""
-    signature = {"frames": frames, "gain_db": gain_db, "seed_base": SEED_BASE,
+    signature = {"frames": frames, "gain_db": gain_db, "version": VERSION,
                  "cases": [c["dir"] for c in cases],
                  "source": json.loads((Path(cases[0]["dir"]).parent / "args.json").read_text()) if cases else {}}
     dirs = [str(out / Path(c["dir"]).name) for c in cases]
@@ -137,8 +148,8 @@ def summary(rows: list[dict]) -> dict[str, Any]:
 def run(cfg: diagnose.Config, per_cell: int, frames: int, gain_db: float | None = None) -> dict[str, Any]:
     """The tuning world's occluded sunlit scans: stored, rendered again with one frame, and
     with `frames` frames averaged (at `gain_db` when given)."""
-    if not 2 <= frames <= SEED_STRIDE:
-        raise ValueError(f"--stack wants 2..{SEED_STRIDE} frames")
+    if not 2 <= frames <= MAX_FRAMES:
+        raise ValueError(f"--stack wants 2..{MAX_FRAMES} frames")
     if gain_db is not None and not 0.0 <= gain_db <= 48.0:
         raise ValueError("--stack-gain-db wants 0..48 dB")
     cases, both, loc_dir = diagnose.loc_cases(cfg, per_cell)
@@ -177,9 +188,10 @@ def text(res: dict[str, Any]) -> str:
     worse = [i for i, _ in enumerate(cases)
              if any(not res["rows"][l][i]["ok"] or res["rows"][l][i]["approach"] > 10.0 for l in labels)]
     if worse:
-        L += ["", "scans beyond 10 mm in any set (approach mm, lines, confidence %):"]
+        L += ["", "scans beyond 10 mm in any set (approach mm, lines, confidence %, second-pass stops lacking):"]
         for i in worse:
             cols = "; ".join(f"{l} {res['rows'][l][i]['approach']:.1f} mm, {res['rows'][l][i]['lines']} lines, "
-                             f"{res['rows'][l][i]['confidence']:.0f} %" for l in labels)
+                             f"{res['rows'][l][i]['confidence']:.0f} %, {res['rows'][l][i]['stops_missing']}"
+                             for l in labels)
             L.append(f"  {cases[i]['case']}: {cols}")
     return "\n".join(L)

@@ -144,15 +144,11 @@ def find_calibrate(twin_path: Path) -> Path | None:
 def calibration_scans(twin: Path, out: Path, seed: int, jobs: int, quiet: bool = False) -> None:
     """The twin's calibration scans (checkerboard views, laser-plane placements), cached."""
     signature = {"seed": seed, "generator": generator_version()}
-    sig_file = out / "args.json"
-    if sig_file.exists() and json.loads(sig_file.read_text()) == signature:
+    if reuse_or_clear(out, signature):
         return
-    if out.exists():
-        shutil.rmtree(out)
-    out.mkdir(parents=True)
     run_lines([str(twin), "calib", "--out", str(out), "--seed", str(seed), "--jobs", str(jobs)], 29,
               "generating calibration scans", quiet)
-    sig_file.write_text(json.dumps(signature))
+    sign(out, signature)
 
 
 def calibrate(tool: Path, scans: Path, out: Path) -> tuple[bool, str]:
