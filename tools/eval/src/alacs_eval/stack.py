@@ -10,16 +10,18 @@ decision more light, neither of them built into the sensor:
   electrons a frame for no more frames, while the full well allows).
 
 `alacs-eval diagnose --loc --stack N [--stack-gain-db G]` takes a tuning world's occluded
-scans in sun (the generator's note begins with "sun"), renders every frame of each again
-from its scene (`alacs-twin render --average N [--gain-db G]`, fresh noise seeds), once
-with one frame and once with N frames averaged and rounded to 8 bits, and runs
-`alacs-twin process` on the stored scans and on both sets. The one-frame set is the
-control: it differs from the stored scans by its noise alone (and by the gain, when given).
-The manifests are kept: the replay serves the same frames at the same exposures, and the
-localizer sees the DN it saw. The second pass's stops are those the stored scans were
-rendered with; where a set's first pass asks for others, the replay serves the nearest
-recorded frame, and the text counts those stops. The second world is refused, as by the
-rest of `diagnose`.
+scans in sun (the set's `lighting`), renders every frame of each again from its scene
+(`alacs-twin render --average N [--gain-db G]`), once with one frame and once with N frames
+averaged and rounded to 8 bits, and runs `alacs-twin process` on the stored scans and on
+both sets. The two sets share their seeds (frame i takes noise seeds SEED_BASE +
+SEED_STRIDE·i onwards and the first one's speckle), so the one-frame set is the control:
+the N-frame set is it plus N - 1 more frames. The control differs from the stored scans in
+its draw of noise and speckle (and in the gain, when given). The manifests are kept: the
+replay serves the same frames at the same exposures, and the localizer sees the DN it saw.
+The second pass's stops are those the stored scans were rendered with; where a set's first
+pass asks for others, the replay serves the nearest recorded frame, and the text counts
+those stops (per set and per scan). The second world is refused, as by the rest of
+`diagnose`.
 """
 
 from __future__ import annotations
@@ -185,7 +187,7 @@ def text(res: dict[str, Any]) -> str:
                  f"{s['confident_misses']}; stops lacking {s['stops_missing']}")
     labels = list(res["rows"])
     cases = res["rows"][labels[0]]
-    worse = [i for i, _ in enumerate(cases)
+    worse = [i for i in range(len(cases))
              if any(not res["rows"][l][i]["ok"] or res["rows"][l][i]["approach"] > 10.0 for l in labels)]
     if worse:
         L += ["", "scans beyond 10 mm in any set (approach mm, lines, confidence %, second-pass stops lacking):"]
