@@ -37,6 +37,8 @@ Status validateConfig(const DaemonConfig& c) {
     return bad("camera.frame_timeout_ms", "(" + std::to_string(c.frameTimeoutMs) +
                                               ") must exceed two frames of camera.frame_duration_us (" +
                                               std::to_string(c.frameDurationUs) + " us) plus camera.exposure_us");
+  if (c.analogueGain != 0.0 && c.analogueGain < 1.0)
+    return bad("camera.analogue_gain", "must be 0 (the camera's own) or in 1..64 (1: the sensor's least)");
   if (c.globalShutter && c.lineTimeUs > 0)
     return bad("camera.global_shutter", "a global shutter has no line time: camera.line_time_us must be 0");
   if (c.scan.stops > 1 && (c.scan.stops - 1) * c.scan.stopSpacingMm > c.motion.strokeMm)
@@ -123,10 +125,12 @@ Status configFromJson(const Json& json, DaemonConfig& c) {
     m->integer("max_frames", c.metering.maxFrames, Need::kOptional, 1, 8);
     m->integer("subtract_above_dn", c.metering.subtractAboveDn, Need::kOptional, 0, 255);
     m->integer("min_exposure_us", c.metering.minExposureUs, Need::kOptional, 1, 1000000);
+    m->number("bright_analogue_gain", c.metering.brightAnalogueGain, Need::kOptional, 0, 64);
     m->finish();
   }
   if (auto cam = root.object("camera")) {
     cam->integer("exposure_us", c.exposureUs, Need::kOptional, 10, 500000);
+    cam->number("analogue_gain", c.analogueGain, Need::kOptional, 0, 64);
     cam->integer("frame_timeout_ms", c.frameTimeoutMs, Need::kOptional, 10, 60000);
     cam->integer("retries", c.frameRetries, Need::kOptional, 0, 10);
     cam->number("line_time_us", c.lineTimeUs, Need::kOptional, 0, 1000);
@@ -209,8 +213,10 @@ OrderedJson configToJson(const DaemonConfig& c) {
                    {"step_down", c.metering.stepDown},
                    {"max_frames", c.metering.maxFrames},
                    {"subtract_above_dn", c.metering.subtractAboveDn},
-                   {"min_exposure_us", c.metering.minExposureUs}};
+                   {"min_exposure_us", c.metering.minExposureUs},
+                   {"bright_analogue_gain", c.metering.brightAnalogueGain}};
   j["camera"] = {{"exposure_us", c.exposureUs},
+                 {"analogue_gain", c.analogueGain},
                  {"frame_timeout_ms", c.frameTimeoutMs},
                  {"retries", c.frameRetries},
                  {"line_time_us", c.lineTimeUs},

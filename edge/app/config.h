@@ -30,6 +30,11 @@ struct DaemonConfig {
   localize::MeteringParams metering;    // the laser frames' exposure from laser-off frames
   int realtimePriority = 0;             // SCHED_FIFO priority of the step-timing thread; 0: none
   int exposureUs = 3000;
+  // The sensor's analogue gain for every frame (libcamera's AnalogueGain, linear: 1 is the
+  // sensor's least), fixed so that no pipeline's AGC moves it between the metering frames
+  // and the laser frames; 0: the camera's own. Metering may lower it in sun
+  // (metering.bright_analogue_gain).
+  double analogueGain = 0.0;
   int laserMaxOnMs = 250;               // the laser is forced off (and a fault raised) beyond this
   int frameTimeoutMs = 150;             // plus the exposure, must stay below laserMaxOnMs
   int frameRetries = 2;

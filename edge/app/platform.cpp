@@ -244,6 +244,7 @@ WorkerDeps workerDepsFor(const DaemonConfig& cfg, Platform& platform, const Cloc
   deps.timestampAtExposureEnd = cfg.timestampAtExposureEnd;
   deps.realtimePriority = cfg.realtimePriority;
   deps.capture.exposureUs = cfg.exposureUs;
+  deps.capture.analogueGain = cfg.analogueGain;
   deps.capture.timeoutMs = cfg.frameTimeoutMs;
   deps.metering = cfg.metering;
   deps.debugDir = debugDir;

@@ -56,6 +56,7 @@ struct WorkerEvent {
   // and used for the laser frames (0: not metered), the laser-off frames it took (the
   // metering frames and the subtracted one), and whether the LLE subtracted a laser-off frame.
   int64_t exposureUs = 0;
+  double analogueGain = 0.0;  // the laser frames' analogue gain when metering changed it (linear); 0: unchanged
   int laserOffFrames = 0;
   bool laserOffSubtracted = false;
   bool brightAmbient = false;  // the metering found the ambient bright (MeteringDecision::bright)

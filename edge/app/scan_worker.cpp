@@ -569,18 +569,19 @@ void ScanWorker::meterExposure(const localize::ScanPlan& plan, ports::CaptureReq
   // off, and these captures never switch it on).
   setPhase(protocol::ProgressPhase::kExposing);
   const TimeNs startNs = deps_.clock->now();
-  const localize::TakeLaserOffFrame take = [&](int64_t exposureUs,
+  const localize::TakeLaserOffFrame take = [&](int64_t exposureUs, double analogueGain,
                                                localize::LaserOffUse) -> Result<localize::LaserOffFrame> {
     if (cancel_.load()) return Status(Error::kFault, "scan stopped by command");
     ports::CaptureRequest req = capture;
     req.exposureUs = exposureUs;
+    if (analogueGain > 0.0) req.analogueGain = analogueGain;
     frameReadSinceNs_.store(deps_.clock->now());
     Result<ports::CapturedFrame> f = deps_.camera->capture(req, {});
     frameReadSinceNs_.store(0);
     markProgress();
     if (!f) return f.status();
     ++ev.laserOffFrames;
-    return localize::LaserOffFrame{f->view, f->info.exposureUs};
+    return localize::LaserOffFrame{f->view, f->info.exposureUs, f->info.analogueGain};
   };
   const localize::MeteringRun run = localize::runMetering(deps_.metering, capture.exposureUs, 0, plan.roi, take);
   if (cancel_.load()) return;
@@ -592,16 +593,20 @@ void ScanWorker::meterExposure(const localize::ScanPlan& plan, ports::CaptureReq
                    static_cast<long long>(run.decision.exposureUs));
   const localize::MeteringDecision& d = run.decision;
   capture.exposureUs = d.exposureUs;
+  if (d.analogueGain > 0.0) capture.analogueGain = d.analogueGain;
   ev.exposureUs = d.exposureUs;
+  ev.analogueGain = d.analogueGain;
   ev.brightAmbient = d.bright;
   if (run.hasLaserOff) {
     pipeline_.setLaserOff(run.laserOff.view, plan.roi, d.bright);
     ev.laserOffSubtracted = true;
   }
   ALACS_LOG_INFO("scan",
-                 "metering: red p%.0f %d DN at %lld us%s -> exposure %lld us (red ~%d DN), %s, %d laser-off frames",
-                 deps_.metering.percentile, d.meteredDn, static_cast<long long>(d.meteredUs),
-                 d.saturated ? " (saturated)" : "", static_cast<long long>(d.exposureUs), d.ambientDn,
+                 "metering: red p%.0f %d DN at %lld us gain %.2f%s -> exposure %lld us gain %.2f (red ~%d DN), %s, "
+                 "%d laser-off frames",
+                 deps_.metering.percentile, d.meteredDn, static_cast<long long>(d.meteredUs), d.meteredGain,
+                 d.saturated ? " (saturated)" : "", static_cast<long long>(d.exposureUs),
+                 d.analogueGain > 0.0 ? d.analogueGain : d.meteredGain, d.ambientDn,
                  ev.laserOffSubtracted ? "laser-off subtracted" : "no subtraction", ev.laserOffFrames);
 }
 

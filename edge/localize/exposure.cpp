@@ -25,6 +25,8 @@ Status MeteringParams::validate() const {
     return {Error::kInvalidArgument, "metering.subtract_above_dn must be in 0..255"};
   if (minExposureUs < 1 || minExposureUs > 1000000)
     return {Error::kInvalidArgument, "metering.min_exposure_us must be in 1..1000000"};
+  if (!(brightAnalogueGain == 0.0 || (brightAnalogueGain >= 1.0 && brightAnalogueGain <= 64.0)))
+    return {Error::kInvalidArgument, "metering.bright_analogue_gain must be 0 (never changed) or in 1..64"};
   return Status::ok();
 }
 
@@ -60,9 +62,12 @@ ExposureMeter::ExposureMeter(const MeteringParams& params, int64_t startExposure
   p_.minExposureUs = std::min(p_.minExposureUs, maxUs_);
 }
 
-Status ExposureMeter::add(const image::ImageView& frame, const image::Roi& roi, int64_t exposureUs) {
+Status ExposureMeter::add(const image::ImageView& frame, const image::Roi& roi, int64_t exposureUs,
+                          double analogueGain) {
   if (nextUs_ == 0) return {Error::kInvalidArgument, "metering is over"};
   if (exposureUs <= 0) return {Error::kBadInput, "metering: the frame's exposure must be positive"};
+  if (!(analogueGain >= 0.0) || !std::isfinite(analogueGain))
+    return {Error::kBadInput, "metering: the frame's analogue gain must be 0 (not known) or positive"};
   Result<int> level = redPercentileDn(frame, roi, p_.percentile);
   if (!level) return level.status();
   MeteringDecision& d = decision_;
@@ -70,6 +75,7 @@ Status ExposureMeter::add(const image::ImageView& frame, const image::Roi& roi, 
   ++d.frames;
   d.meteredDn = *level;
   d.meteredUs = exposureUs;
+  d.meteredGain = analogueGain;
   const auto us = static_cast<double>(exposureUs);
   // (Clipped, the rate is a lower bound.)
   d.bright = *level * 1000.0 / us >= p_.brightDnPerMs;
@@ -78,7 +84,7 @@ Status ExposureMeter::add(const image::ImageView& frame, const image::Roi& roi, 
     // the shortest exposure allow; else guess it one step further down and say so.
     const int64_t shorter = std::max(p_.minExposureUs, roundUs(us / p_.stepDown));
     d.saturated = true;
-    d.exposureUs = std::clamp(roundUs(us * p_.targetDn / (*level * p_.stepDown)), p_.minExposureUs, maxUs_);
+    choose(us * p_.targetDn / (*level * p_.stepDown), p_.minExposureUs, maxUs_);
     d.ambientDn = p_.targetDn;
     d.subtract = d.ambientDn > p_.subtractAboveDn;
     nextUs_ = d.frames < p_.maxFrames && shorter < exposureUs ? shorter : 0;
@@ -88,16 +94,32 @@ Status ExposureMeter::add(const image::ImageView& frame, const image::Roi& roi, 
   // Not bright: never longer than the first metering frame as taken (the start; a replayed
   // camera reports the exposure it recorded, so a replay decides as the scan did).
   const int64_t longest = d.bright ? maxUs_ : std::min(maxUs_, firstUs_);
-  int64_t chosen =
-      std::clamp(roundUs(us * p_.targetDn / std::max(1, *level)), std::min(p_.minExposureUs, longest), longest);
-  // Within 10 % of the metered exposure: keep it, so that the metering frame can serve as
-  // the laser-off frame (one exposure less).
-  if (std::abs(static_cast<double>(chosen) - us) <= 0.1 * us && exposureUs <= longest) chosen = exposureUs;
-  d.exposureUs = chosen;
-  d.ambientDn = static_cast<int>(std::lround(*level * static_cast<double>(chosen) / us));
+  choose(us * p_.targetDn / std::max(1, *level), std::min(p_.minExposureUs, longest), longest);
+  // Within 10 % of the metered exposure at its gain: keep it, so that the metering frame
+  // can serve as the laser-off frame (one exposure less).
+  if (d.analogueGain == 0.0 && std::abs(static_cast<double>(d.exposureUs) - us) <= 0.1 * us && exposureUs <= longest)
+    d.exposureUs = exposureUs;
+  const double gainRatio = d.analogueGain > 0.0 ? d.analogueGain / analogueGain : 1.0;
+  d.ambientDn = static_cast<int>(std::lround(*level * static_cast<double>(d.exposureUs) / us * gainRatio));
   d.subtract = d.ambientDn > p_.subtractAboveDn;
   nextUs_ = 0;
   return Status::ok();
+}
+
+void ExposureMeter::choose(double wantedUs, int64_t shortestUs, int64_t longestUs) {
+  MeteringDecision& d = decision_;
+  d.analogueGain = 0.0;
+  const double gain = d.meteredGain;
+  if (d.bright && p_.brightAnalogueGain > 0.0 && gain > p_.brightAnalogueGain) {
+    // The same level at a lower gain: the exposure longer by the ratio, the gain lowered
+    // only as far as the longest exposure allows.
+    const double lowest = std::max(p_.brightAnalogueGain, gain * wantedUs / static_cast<double>(longestUs));
+    if (lowest < gain * 0.95) {
+      d.analogueGain = lowest;
+      wantedUs *= gain / lowest;
+    }
+  }
+  d.exposureUs = std::clamp(roundUs(wantedUs), shortestUs, longestUs);
 }
 
 MeteringRun runMetering(const MeteringParams& params, int64_t startExposureUs, int64_t maxExposureUs,
@@ -112,10 +134,10 @@ MeteringRun runMetering(const MeteringParams& params, int64_t startExposureUs, i
     return out;
   };
   while (const int64_t us = meter.nextMeteringUs()) {
-    Result<LaserOffFrame> f = take(us, LaserOffUse::kMetering);
+    Result<LaserOffFrame> f = take(us, 0.0, LaserOffUse::kMetering);
     if (!f) return fail(f.status());
     ++out.frames;
-    if (Status s = meter.add(f->view, roi, f->exposureUs); !s) return fail(s);
+    if (Status s = meter.add(f->view, roi, f->exposureUs, f->analogueGain); !s) return fail(s);
     out.laserOff = *f;
   }
   out.decision = meter.decision();
@@ -124,7 +146,7 @@ MeteringRun runMetering(const MeteringParams& params, int64_t startExposureUs, i
     out.hasLaserOff = true;
     return out;
   }
-  Result<LaserOffFrame> f = take(out.decision.exposureUs, LaserOffUse::kSubtraction);
+  Result<LaserOffFrame> f = take(out.decision.exposureUs, out.decision.analogueGain, LaserOffUse::kSubtraction);
   if (!f) {
     // Metered, but nothing to subtract: the exposure stands, without subtraction.
     out.status = f.status();

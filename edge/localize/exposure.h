@@ -47,6 +47,15 @@ struct MeteringParams {
   // 24 at 75 %) and a subtraction would only add its noise (0..255; 255: never).
   int subtractAboveDn = 16;
   int64_t minExposureUs = 20;  // the shortest exposure chosen or metered at (1..1e6)
+  // When the ambient is bright, the laser frames (and the frame subtracted) are taken at
+  // this analogue gain (linear, as libcamera's AnalogueGain: 1 is the sensor's least) and
+  // the exposure lengthened by the metered gain over it, so that the skin reaches the same
+  // level with more light collected: the shot noise of line and ambient falls by the
+  // square root of the ratio (docs/lle.md, "A lower gain in sun"). Where the longest
+  // exposure would be passed, the gain is lowered only as far as the longest allows. Only
+  // ever lowers: a metering frame at or below it keeps its gain, and one whose gain the
+  // source does not report (0) keeps it too. 0: never changed (0, or 1..64).
+  double brightAnalogueGain = 1.0;
   Status validate() const;
 };
 
@@ -55,10 +64,13 @@ struct MeteringParams {
 // (the daemon: its configured exposure).
 struct MeteringDecision {
   int64_t exposureUs = 0;  // for the laser frames
+  // Their analogue gain (linear); 0: the metering frames' (the source's own, not asked for).
+  double analogueGain = 0.0;
   bool subtract = false;   // take a laser-off frame at exposureUs and subtract it
   int ambientDn = 0;       // metered red (the percentile) at exposureUs, DN (estimated)
   int meteredDn = 0;       // metered red of the last metering frame, DN
   int64_t meteredUs = 0;   // that frame's exposure
+  double meteredGain = 0;  // and its analogue gain as the source reported it (0: not known)
   int frames = 0;          // metering frames used
   bool saturated = false;  // every metering frame was saturated (the level is a bound)
   // The ambient's red grows by MeteringParams::brightDnPerMs or more (direct sun on the
@@ -82,20 +94,26 @@ class ExposureMeter {
   int64_t nextMeteringUs() const { return nextUs_; }
 
   // Adds the laser-off frame taken for nextMeteringUs(), of which only `roi` is read,
-  // exposed for `exposureUs` (as applied: a replayed or real camera may report another
-  // exposure than the one asked for; the level is scaled by the one reported).
-  // Errors: kBadInput (ROI outside the frame, exposure not positive), kInvalidArgument
-  // when metering is over.
-  Status add(const image::ImageView& frame, const image::Roi& roi, int64_t exposureUs);
+  // exposed for `exposureUs` at `analogueGain` (both as applied: a replayed or real camera
+  // may report another exposure than the one asked for; the level is scaled by the one
+  // reported. A gain of 0: not known, and not changed). Errors: kBadInput (ROI outside the
+  // frame, exposure not positive, gain negative), kInvalidArgument when metering is over.
+  Status add(const image::ImageView& frame, const image::Roi& roi, int64_t exposureUs, double analogueGain = 0.0);
 
   // Without any add(): the start exposure, no subtraction.
   const MeteringDecision& decision() const { return decision_; }
 
-  // Whether the last metering frame was taken at decision().exposureUs, so that it can
-  // serve as the subtracted laser-off frame without another exposure.
-  bool lastFrameAtDecision() const { return decision_.frames > 0 && decision_.meteredUs == decision_.exposureUs; }
+  // Whether the last metering frame was taken at decision().exposureUs and gain, so that
+  // it can serve as the subtracted laser-off frame without another exposure.
+  bool lastFrameAtDecision() const {
+    return decision_.frames > 0 && decision_.meteredUs == decision_.exposureUs && decision_.analogueGain == 0.0;
+  }
 
  private:
+  // Sets decision_'s exposure (and gain) for an ambient that reaches the target at
+  // `wantedUs` at the metered gain, clamped to [shortestUs, longestUs].
+  void choose(double wantedUs, int64_t shortestUs, int64_t longestUs);
+
   MeteringParams p_;
   int64_t startUs_;
   int64_t maxUs_;
@@ -109,14 +127,18 @@ class ExposureMeter {
 enum class LaserOffUse { kMetering, kSubtraction };
 
 // A laser-off frame as the caller's camera, replay or renderer took it: its pixels (valid
-// until the caller's next frame) and the exposure it reports, us.
+// until the caller's next frame), the exposure it reports, us, and the analogue gain it
+// reports (linear; 0: not known).
 struct LaserOffFrame {
   image::ImageView view;
   int64_t exposureUs = 0;
+  double analogueGain = 0.0;
 };
 
-// Takes a laser-off frame at `exposureUs` (the laser stays off). An error ends the run.
-using TakeLaserOffFrame = std::function<Result<LaserOffFrame>(int64_t exposureUs, LaserOffUse use)>;
+// Takes a laser-off frame at `exposureUs` and `analogueGain` (linear; 0: the source's
+// own, as the metering frames are taken), the laser off. An error ends the run.
+using TakeLaserOffFrame =
+    std::function<Result<LaserOffFrame>(int64_t exposureUs, double analogueGain, LaserOffUse use)>;
 
 struct MeteringRun {
   // ok, or the first failed frame or add(): a failed metering frame leaves the start's
@@ -133,7 +155,7 @@ struct MeteringRun {
 // The whole metering of one scan, the same for the scan worker, the twin's generator and
 // alacs-twin process: laser-off frames of `roi` from `startExposureUs` on, read by an
 // ExposureMeter, then, when it asks for subtraction and its last frame was not taken at
-// the exposure chosen, one more at that exposure. Metering off: no frame, the start's
+// the exposure and gain chosen, one more at them. Metering off: no frame, the start's
 // exposure, no subtraction.
 MeteringRun runMetering(const MeteringParams& params, int64_t startExposureUs, int64_t maxExposureUs,
                         const image::Roi& roi, const TakeLaserOffFrame& take);

@@ -15,6 +15,9 @@ namespace alacs::ports {
 
 struct CaptureRequest {
   int64_t exposureUs = 2000;
+  // The sensor's analogue gain, linear (libcamera's AnalogueGain: 1 is the sensor's
+  // least); 0: the source's own, left as it is.
+  double analogueGain = 0.0;
   int64_t timeoutMs = 1000;
   // The part of the frame the caller will read (full-frame pixels); empty: all of it.
   // Sources may deliver only this window valid (the view keeps full-frame geometry), as
@@ -27,6 +30,7 @@ struct FrameInfo {
   uint64_t sequence = 0;
   TimeNs exposureStartNs = 0;  // the sensor's time base (CLOCK_MONOTONIC on Linux)
   int64_t exposureUs = 0;      // as applied, when the source can tell; else as requested
+  double analogueGain = 0.0;   // likewise (linear); 0: not known
 };
 
 struct CapturedFrame {

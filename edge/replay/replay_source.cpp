@@ -24,8 +24,8 @@ ReplaySource::ReplaySource(std::string dir, ScanManifest m, const Clock& clock, 
       slideMm_(std::move(slideMm)),
       lastSlideMm_(std::numeric_limits<double>::quiet_NaN()) {}
 
-int ReplaySource::nearestFrame(double slideMm, bool laserOn, int64_t exposureUs) const {
-  return replay::nearestFrame(manifest_, slideMm, laserOn, exposureUs);
+int ReplaySource::nearestFrame(double slideMm, bool laserOn, int64_t exposureUs, double analogueGain) const {
+  return replay::nearestFrame(manifest_, slideMm, laserOn, exposureUs, analogueGain);
 }
 
 Result<ports::CapturedFrame> ReplaySource::doCapture(const ports::CaptureRequest& request,
@@ -38,7 +38,7 @@ Result<ports::CapturedFrame> ReplaySource::doCapture(const ports::CaptureRequest
   const double position = slideMm_();
   // The recorded exposure is over at once: the laser goes off before the PNG is decoded.
   hooks.endNow();
-  const int index = nearestFrame(position, laserOn, request.exposureUs);
+  const int index = nearestFrame(position, laserOn, request.exposureUs, request.analogueGain);
   if (index < 0)
     return Status(Error::kNotFound, std::string("scan '") + dir_ + "' has no frame with the laser " + (laserOn ? "on" : "off"));
   const FrameRecord& rec = manifest_.frames[static_cast<size_t>(index)];
@@ -52,6 +52,7 @@ Result<ports::CapturedFrame> ReplaySource::doCapture(const ports::CaptureRequest
   out.info.sequence = sequence_++;
   out.info.exposureStartNs = start;
   out.info.exposureUs = rec.exposureUs;
+  out.info.analogueGain = rec.analogueGain;
   return out;
 }
 

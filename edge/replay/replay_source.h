@@ -36,7 +36,7 @@ class ReplaySource final : public ports::FrameSource {
 
   // The frame a capture at `slideMm` with the laser `laserOn` would serve; -1: none
   // (replay::nearestFrame).
-  int nearestFrame(double slideMm, bool laserOn, int64_t exposureUs = 0) const;
+  int nearestFrame(double slideMm, bool laserOn, int64_t exposureUs = 0, double analogueGain = 0.0) const;
 
  private:
   ReplaySource(std::string dir, ScanManifest m, const Clock& clock, std::function<bool()> laserLevel,

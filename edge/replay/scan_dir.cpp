@@ -51,6 +51,7 @@ void readFrame(JsonObjectReader& f, const ScanInfo& s, size_t i, FrameRecord& r)
   f.number("slide_end_mm", r.slideEndMm);
   f.number("timestamp_s", r.timestampS, Need::kRequired);
   f.integer("exposure_us", r.exposureUs, Need::kRequired, 1, 100000000);
+  f.number("analogue_gain", r.analogueGain, Need::kOptional, 1.0, 1000.0);
   f.flag("laser_on", r.laserOn, Need::kRequired);
   if (f.has("crop_px")) {
     r.cropPx = readRoi(f, "crop_px");
@@ -154,6 +155,7 @@ OrderedJson manifestToJson(const ScanManifest& m) {
     if (std::isfinite(f.slideEndMm)) o["slide_end_mm"] = f.slideEndMm;
     o["timestamp_s"] = f.timestampS;
     o["exposure_us"] = f.exposureUs;
+    if (f.analogueGain > 0.0) o["analogue_gain"] = f.analogueGain;
     o["laser_on"] = f.laserOn;
     if (f.cropPx) o["crop_px"] = roiJson(*f.cropPx);
     if (!f.truthFile.empty()) o["truth"] = f.truthFile;
@@ -196,17 +198,20 @@ Result<cv::Mat> loadFrame(const std::string& dir, const ScanManifest& m, const F
   return img;
 }
 
-int nearestFrame(const ScanManifest& m, double slideMm, bool laserOn, int64_t exposureUs) {
+int nearestFrame(const ScanManifest& m, double slideMm, bool laserOn, int64_t exposureUs, double analogueGain) {
   int best = -1;
   double bestExposureErr = std::numeric_limits<double>::infinity();
   double bestErr = std::numeric_limits<double>::infinity();
   for (size_t i = 0; i < m.frames.size(); ++i) {
     const FrameRecord& f = m.frames[i];
     if (f.laserOn != laserOn) continue;
+    const double gainErr = !laserOn && analogueGain > 0.0 && f.analogueGain > 0.0
+                               ? std::abs(std::log(f.analogueGain / analogueGain))
+                               : 0.0;
     const double exposureErr =
-        !laserOn && exposureUs > 0 && f.exposureUs > 0
-            ? std::abs(std::log(static_cast<double>(f.exposureUs) / static_cast<double>(exposureUs)))
-            : 0.0;
+        gainErr + (!laserOn && exposureUs > 0 && f.exposureUs > 0
+                       ? std::abs(std::log(static_cast<double>(f.exposureUs) / static_cast<double>(exposureUs)))
+                       : 0.0);
     const double err = std::abs(f.slideMm - slideMm);
     if (exposureErr < bestExposureErr - 1e-9 || (exposureErr <= bestExposureErr + 1e-9 && err < bestErr)) {
       bestExposureErr = exposureErr;

@@ -28,6 +28,7 @@ struct FrameRecord {
   double slideEndMm = std::numeric_limits<double>::quiet_NaN();    // optional: at exposure end
   double timestampS = 0.0;          // exposure start, s (the recorder's monotonic clock, or scene time)
   int64_t exposureUs = 0;
+  double analogueGain = 0.0;  // optional: the sensor's analogue gain, linear; 0: not recorded
   bool laserOn = true;
   std::optional<image::Roi> cropPx; // the PNG holds only this part of the frame; the rest is zero
   std::string truthFile;            // optional: truth rows of this frame (CSV), relative
@@ -74,9 +75,11 @@ Result<cv::Mat> loadFrame(const std::string& dir, const ScanManifest& manifest, 
 Status loadFrameInto(const std::string& dir, const ScanManifest& manifest, const FrameRecord& frame, cv::Mat& out);
 // The index of the frame a capture at `slideMm` with the laser `laserOn` is served in
 // replay; -1: none. Laser-off frames (the ambient, the same at every slide position) are
-// matched by exposure first (the recorded one nearest `exposureUs` in ratio; 0: any), then
-// by position; laser-on frames by position only.
-int nearestFrame(const ScanManifest& manifest, double slideMm, bool laserOn, int64_t exposureUs = 0);
+// matched by exposure and gain first (the recorded one nearest `exposureUs` and
+// `analogueGain` in ratio, the two ratios' logarithms added; 0: any, or a gain not
+// recorded), then by position; laser-on frames by position only.
+int nearestFrame(const ScanManifest& manifest, double slideMm, bool laserOn, int64_t exposureUs = 0,
+                 double analogueGain = 0.0);
 // The calibration stored with the scan.
 Result<geometry::Calibration> loadScanCalibration(const std::string& dir, const ScanManifest& manifest);
 

@@ -121,7 +121,7 @@ Status ScanRecorder::begin(int targetId, const Eigen::Vector3d& roughMm, const s
 }
 
 Status ScanRecorder::frame(const image::ImageView& view, double slideMm, TimeNs exposureStartNs, int64_t exposureUs,
-                           bool laserOn, const image::Roi& window) {
+                           bool laserOn, const image::Roi& window, double analogueGain) {
   std::lock_guard<std::mutex> lock(mu_);
   if (!writer_) return {Error::kInvalidArgument, "no scan is being recorded"};
   // At most a full frame's PNG: room for it first, dropping old scans.
@@ -135,6 +135,7 @@ Status ScanRecorder::frame(const image::ImageView& view, double slideMm, TimeNs 
   r.slideMm = slideMm;
   r.timestampS = static_cast<double>(exposureStartNs) / static_cast<double>(kNsPerS);
   r.exposureUs = exposureUs;
+  r.analogueGain = analogueGain;
   r.laserOn = laserOn;
   const Status s = window.empty() ? writer_->addFrame(view, r) : writer_->addFrame(view, r, window);
   recountNewest();
@@ -185,7 +186,7 @@ Result<ports::CapturedFrame> RecordingSource::doCapture(const ports::CaptureRequ
   if (f && recorder_.recording()) {
     // A windowed readout is valid only inside its window: record that part.
     if (Status s = recorder_.frame(f->view, position, f->info.exposureStartNs, f->info.exposureUs, laser,
-                                   request.window);
+                                   request.window, f->info.analogueGain);
         !s)
       ALACS_LOG_WARN("record", "frame not recorded: %s", s.toString().c_str());
   }

@@ -40,8 +40,9 @@ class ScanRecorder {
   // Writes one frame into the open scan: the full frame, or only `window` when the camera
   // delivered only that (a windowed readout). Errors: kInvalidArgument when no scan is
   // open; kIo.
-  Status frame(const image::ImageView& view, double slideMm, TimeNs exposureStartNs, int64_t exposureUs,
-               bool laserOn, const image::Roi& window = {});
+  // `analogueGain`: as the camera reports it (0: not known, not recorded).
+  Status frame(const image::ImageView& view, double slideMm, TimeNs exposureStartNs, int64_t exposureUs, bool laserOn,
+               const image::Roi& window = {}, double analogueGain = 0.0);
   // Writes the manifest and closes the scan; returns its directory. Errors: kInvalidArgument
   // when no scan is open; kIo.
   Result<std::string> end();

@@ -464,7 +464,8 @@ void Renderer::sensorRegion(const FrameRequest& request, const cv::Rect& region,
     const int k = 2 * static_cast<int>(std::ceil(3.0 * sen.psfSigmaPx)) + 1;
     cv::GaussianBlur(electrons, electrons, cv::Size(k, k), sen.psfSigmaPx, sen.psfSigmaPx, cv::BORDER_REFLECT_101);
   }
-  const double eDn = sen.fullWellE / 4095.0 / std::pow(10.0, sen.gainDb / 20.0);  // electrons per 12-bit DN
+  const double gain = request.analogueGain > 0.0 ? request.analogueGain : sen.analogueGain();
+  const double eDn = sen.fullWellE / 4095.0 / gain;  // electrons per 12-bit DN
   const uint64_t frameKey = mix64(scene_.seed * 0x100000001B3ULL) ^ mix64(request.frameIndex + 0x632BE59BD9B4E019ULL);
   const int width = scene_.truth.camera.widthPx;
   auto digitise = [&](double meanE, int u, int v, int c) -> uint16_t {

@@ -56,6 +56,9 @@ struct FrameRequest {
   double slideMmPerRow = 0.0;
   double laserFraction = 1.0;  // share of the exposure the laser was on, 0..1
   int64_t exposureUs = 0;      // 0: the scene's sensor.exposureUs
+  // The sensor's analogue gain, linear (1: 0 dB, the full well at the ADC's full scale;
+  // 2: the twin's usual 6 dB). 0: the scene's sensor.gainDb.
+  double analogueGain = 0.0;
   uint64_t frameIndex = 0;     // seeds noise and speckle, with the scene's seed
   // The speckle's seed instead of frameIndex (-1: frameIndex, a new speckle each frame, as
   // a moving slide sees). A laser at rest on a still scene keeps its speckle from frame to

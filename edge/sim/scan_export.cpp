@@ -75,6 +75,7 @@ Status exportScan(const SimScene& scene, const std::shared_ptr<const RayTable>& 
     req.slideEndMm = f.slideEndMm;
     req.laserFraction = f.laserOn ? 1.0 : 0.0;
     req.exposureUs = f.exposureUs > 0 ? f.exposureUs : scene.sensor.exposureUs;
+    req.analogueGain = f.analogueGain > 0.0 ? f.analogueGain : scene.sensor.analogueGain();
     req.frameIndex = options.frameIndices.empty() ? options.firstFrameIndex + i : options.frameIndices[i];
     const cv::Mat* rendered = options.rendered.empty() || options.rendered[i].empty() ? nullptr : &options.rendered[i];
     if (rendered == nullptr) {
@@ -92,6 +93,7 @@ Status exportScan(const SimScene& scene, const std::shared_ptr<const RayTable>& 
     }
     rec.timestampS = f.timestampS;
     rec.exposureUs = req.exposureUs;
+    rec.analogueGain = req.analogueGain;
     rec.laserOn = f.laserOn;
     rec.tag = f.tag;
     if (options.writeTruth && f.laserOn) {

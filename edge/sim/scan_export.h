@@ -21,6 +21,7 @@ struct ExportFrame {
   int64_t exposureUs = 0;     // 0: the scene's
   double timestampS = 0.0;
   std::string tag;            // the frame's role in the manifest ("stop", "aimed"), optional
+  double analogueGain = 0.0;  // linear; 0: the scene's (sensor.gainDb)
 };
 
 struct ExportOptions {

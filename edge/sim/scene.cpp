@@ -91,6 +91,8 @@ double SimSensor::laserFilter(double sin2Theta) const {
   return bandpassPeak * std::clamp(1.0 - 0.5 * d, 0.0, 1.0);  // peak inside, 1/2 at FWHM/2, 0 beyond FWHM/2 + 1 nm
 }
 
+double SimSensor::analogueGain() const { return std::pow(10.0, gainDb / 20.0); }
+
 Eigen::Vector3d SimSensor::ambientFilterRgb() const {
   if (bandpassFwhmNm <= 0.0) return Eigen::Vector3d::Ones();
   // A flat-topped pass band of FWHM nm at 635 nm over a daylight spectrum that is flat

@@ -169,6 +169,8 @@ struct SimSensor {
   // All 1 without a filter.
   Eigen::Vector3d ambientFilterRgb() const;
   double laserFilter(double sin2Theta) const;
+  // gainDb as the linear gain a camera reports (libcamera's AnalogueGain): 10^(dB/20).
+  double analogueGain() const;
 };
 
 struct SimScene {

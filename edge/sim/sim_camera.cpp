@@ -12,6 +12,8 @@ Result<ports::CapturedFrame> SimCamera::doCapture(const ports::CaptureRequest& r
                                                   const ports::ExposureHooks& hooks) {
   if (request.exposureUs <= 0 || request.exposureUs > 1000000)
     return Status(Error::kInvalidArgument, "exposure must be in 1..1000000 us");
+  if (!(request.analogueGain == 0.0 || (request.analogueGain >= 1.0 && request.analogueGain <= 251.0)))
+    return Status(Error::kInvalidArgument, "analogue gain must be 0 (the scene's) or in 1..251 (0..48 dB)");
   // Exposes on request: the laser goes on now.
   if (Status s = hooks.beginNow(); !s) return s;
   const TimeNs start = clock_.now();
@@ -39,6 +41,7 @@ Result<ports::CapturedFrame> SimCamera::doCapture(const ports::CaptureRequest& r
   r.slideMmPerRow = slideMmPerRow;
   r.laserFraction = laserFraction;
   r.exposureUs = request.exposureUs;
+  r.analogueGain = request.analogueGain;
   r.frameIndex = sequence_;
   if (request.window.empty()) {
     renderer_.render(r, frame_);
@@ -59,6 +62,7 @@ Result<ports::CapturedFrame> SimCamera::doCapture(const ports::CaptureRequest& r
   out.info.sequence = sequence_++;
   out.info.exposureStartNs = start + (timestampAtExposureEnd_ ? request.exposureUs * kNsPerUs : 0);
   out.info.exposureUs = request.exposureUs;
+  out.info.analogueGain = request.analogueGain > 0.0 ? request.analogueGain : renderer_.scene().sensor.analogueGain();
   return out;
 }
 

@@ -38,6 +38,8 @@ class DarkCamera final : public ports::FrameSource {
   const char* name() const override { return "dark"; }
   std::function<void()> onCapture;   // called on the worker thread as each exposure begins
   std::vector<int64_t> requestedUs;  // the exposure of each capture asked for
+  std::vector<double> requestedGain;  // and its analogue gain (0: the camera's own)
+  double ownGain = 0.0;               // the gain reported when none is asked for (0: none reported)
   // The red of every pixel from now on (BGR888: the third byte), whatever the exposure.
   void setRed(uint8_t red) {
     for (size_t i = 2; i < frame_.size(); i += 3) frame_[i] = red;
@@ -48,6 +50,7 @@ class DarkCamera final : public ports::FrameSource {
     if (Status s = hooks.beginNow(); !s) return s;
     if (onCapture) onCapture();
     requestedUs.push_back(r.exposureUs);
+    requestedGain.push_back(r.analogueGain);
     const TimeNs startNs = clock_.now();
     sleeper_.sleepUntil(startNs + r.exposureUs * kNsPerUs);
     hooks.endNow();
@@ -55,6 +58,7 @@ class DarkCamera final : public ports::FrameSource {
     f.view = view_;
     f.info.exposureStartNs = startNs;
     f.info.exposureUs = r.exposureUs;
+    f.info.analogueGain = r.analogueGain > 0.0 ? r.analogueGain : ownGain;
     return f;
   }
   const Clock& clock_;
@@ -382,6 +386,44 @@ TEST_CASE("No stop finds a line: NOT_FOUND, named BRIGHT_AMBIENT when the meteri
       CHECK(ev->brightAmbient == bright);
       CHECK(ev->resultReason ==
             (bright ? protocol::ResultReason::kBrightAmbient : protocol::ResultReason::kNoLinesInGate));
+    }
+  }
+}
+
+TEST_CASE("In sun the frame subtracted and the laser frames are taken at the least gain, exposed longer",
+          "[app][worker]") {
+  Rig rig(2.0);
+  rig.meterHalving(1000);  // red 200 DN at 1000 us: 200 DN/ms, bright above 150
+  rig.deps.metering.brightDnPerMs = 150.0;
+  const localize::Localizer loc(sim::defaultScene().truth, image::LleParams{}, localize::ScanParams{});
+  // A camera at gain 2 that reports it: the target's 100 DN takes 500 us at gain 2, so
+  // 1000 us (the longest) at gain 1. One that does not report its gain keeps it.
+  for (const double ownGain : {2.0, 0.0}) {
+    INFO("the camera reports gain " << ownGain);
+    rig.camera.ownGain = ownGain;
+    rig.camera.requestedUs.clear();
+    rig.camera.requestedGain.clear();
+    app::ScanWorker worker(rig.deps, loc, rig.efd);
+    rig.home(worker);
+    rig.camera.requestedUs.clear();
+    rig.camera.requestedGain.clear();
+    worker.submit(twoStopScan());
+    std::optional<app::WorkerEvent> ev = rig.next(worker);
+    REQUIRE(ev);
+    CHECK(ev->brightAmbient);
+    CHECK(ev->laserOffSubtracted);
+    if (ownGain > 0.0) {
+      CHECK(ev->analogueGain == 1.0);
+      CHECK(ev->exposureUs == 1000);
+      // The metering frame at the camera's own gain, then the one to subtract and the two
+      // stops' at gain 1.
+      CHECK(rig.camera.requestedUs == std::vector<int64_t>{1000, 1000, 1000, 1000});
+      CHECK(rig.camera.requestedGain == std::vector<double>{0.0, 1.0, 1.0, 1.0});
+    } else {
+      CHECK(ev->analogueGain == 0.0);
+      CHECK(ev->exposureUs == 500);
+      CHECK(rig.camera.requestedUs == std::vector<int64_t>{1000, 500, 500, 500});
+      CHECK(rig.camera.requestedGain == std::vector<double>{0.0, 0.0, 0.0, 0.0});
     }
   }
 }

@@ -159,3 +159,24 @@ TEST_CASE("Config: the sensor's frame duration, the camera's own unless asked", 
   CHECK(slow.status().reason().find("camera.frame_duration_us") != std::string::npos);
   CHECK(app::loadConfig(write(R"({"camera": {"frame_duration_us": 66667}})")).isOk());
 }
+
+TEST_CASE("Config: the analogue gain, the camera's own unless asked, and the least gain in sun", "[config]") {
+  auto defaults = app::loadConfig(write("{}"));
+  REQUIRE(defaults.isOk());
+  CHECK(defaults->analogueGain == 0.0);
+  CHECK(defaults->metering.brightAnalogueGain == 1.0);
+  auto fixed = app::loadConfig(write(R"({"camera": {"analogue_gain": 2.0}, "metering": {"bright_analogue_gain": 0}})"));
+  REQUIRE(fixed.isOk());
+  CHECK(fixed->analogueGain == 2.0);
+  CHECK(fixed->metering.brightAnalogueGain == 0.0);
+  CHECK(app::configToJson(*fixed)["camera"]["analogue_gain"] == 2.0);
+  CHECK(app::configToJson(*fixed)["metering"]["bright_analogue_gain"] == 0.0);
+  // Below the sensor's least (a dB value or a fraction slipped in), or beyond any sensor's.
+  for (const char* text : {R"({"camera": {"analogue_gain": 0.5}})", R"({"metering": {"bright_analogue_gain": 0.5}})",
+                           R"({"camera": {"analogue_gain": 100}})"}) {
+    INFO(text);
+    auto bad = app::loadConfig(write(text));
+    CHECK(bad.status().code() == Error::kBadInput);
+    CHECK(bad.status().reason().find("analogue_gain") != std::string::npos);
+  }
+}

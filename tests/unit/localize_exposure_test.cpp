@@ -193,28 +193,88 @@ TEST_CASE("Metering parameters are range-checked", "[exposure]") {
   p = {};
   p.percentile = 20.0;
   CHECK_FALSE(p.validate());
+  p = {};
+  p.brightAnalogueGain = 0.0;  // never changed
+  CHECK(p.validate());
+  p.brightAnalogueGain = 0.5;  // below the sensor's least
+  CHECK_FALSE(p.validate());
+  p.brightAnalogueGain = 65.0;
+  CHECK_FALSE(p.validate());
+}
+
+TEST_CASE("In sun the laser frames take the least gain, the exposure longer by the ratio", "[exposure]") {
+  localize::MeteringParams p;
+  p.targetDn = 220;
+  p.brightDnPerMs = 250.0;
+  p.brightAnalogueGain = 1.0;
+  Frame f(64, 32, kRoi, 100);  // 100 DN in 100 us: sun
+  // Metered at gain 2: the target's 220 DN would take 220 us there; at gain 1, 440 us.
+  localize::ExposureMeter sun(p, 100, 3000);
+  REQUIRE(sun.add(f.view, kRoi, 100, 2.0));
+  CHECK(sun.decision().bright);
+  CHECK(sun.decision().meteredGain == 2.0);
+  CHECK(sun.decision().analogueGain == 1.0);
+  CHECK(sun.decision().exposureUs == 440);
+  CHECK(sun.decision().ambientDn == 220);  // the same level, at half the gain
+  CHECK_FALSE(sun.lastFrameAtDecision());  // the frame to subtract is another one
+  // The longest exposure (300 us) caps it: the gain falls only as far as that allows.
+  localize::ExposureMeter capped(p, 100, 300);
+  REQUIRE(capped.add(f.view, kRoi, 100, 2.0));
+  CHECK(capped.decision().exposureUs == 300);
+  CHECK(capped.decision().analogueGain == Approx(2.0 * 220.0 / 300.0));
+  CHECK(capped.decision().ambientDn == 220);
+  // Already at the least gain, a gain the camera does not report, the lever off, or an
+  // ambient that is not bright: the gain stays, as before.
+  for (const double gain : {1.0, 0.0}) {
+    localize::ExposureMeter kept(p, 100, 3000);
+    REQUIRE(kept.add(f.view, kRoi, 100, gain));
+    CHECK(kept.decision().analogueGain == 0.0);
+    CHECK(kept.decision().exposureUs == 220);
+  }
+  localize::MeteringParams off = p;
+  off.brightAnalogueGain = 0.0;
+  localize::ExposureMeter never(off, 100, 3000);
+  REQUIRE(never.add(f.view, kRoi, 100, 2.0));
+  CHECK(never.decision().analogueGain == 0.0);
+  CHECK(never.decision().exposureUs == 220);
+  localize::ExposureMeter lab(p, 1000, 3000);  // 100 DN/ms
+  REQUIRE(lab.add(f.view, kRoi, 1000, 2.0));
+  CHECK_FALSE(lab.decision().bright);
+  CHECK(lab.decision().analogueGain == 0.0);
+  CHECK(lab.lastFrameAtDecision());
+  // A gain that is not a gain is refused.
+  localize::ExposureMeter bad(p, 100, 3000);
+  CHECK_FALSE(bad.add(f.view, kRoi, 100, -1.0));
 }
 
 namespace {
 
-// A recording fake of the caller's camera: the exposures and uses asked for, and a frame
-// whose red (in the ROI) follows the exposure at `dnPerMs`, clipped at 255; it fails from
+// A recording fake of the caller's camera: the exposures, gains and uses asked for, and a
+// frame whose red (in the ROI) follows the exposure at `dnPerMs` at the camera's own gain
+// `ownGain` (and in proportion at a gain asked for), clipped at 255; it reports the gain
+// it took the frame at (0 when `ownGain` is 0: a camera that does not tell); it fails from
 // the `failFrom`-th frame on (0: never).
 struct RecordingCamera {
-  explicit RecordingCamera(double dnPerMsIn, int failFromIn = 0) : dnPerMs(dnPerMsIn), failFrom(failFromIn) {}
+  explicit RecordingCamera(double dnPerMsIn, int failFromIn = 0, double ownGainIn = 0.0)
+      : dnPerMs(dnPerMsIn), failFrom(failFromIn), ownGain(ownGainIn) {}
   double dnPerMs;
   int failFrom;
+  double ownGain;
   std::vector<int64_t> asked;
+  std::vector<double> gains;
   std::vector<localize::LaserOffUse> uses;
   std::vector<std::unique_ptr<Frame>> frames;
   localize::TakeLaserOffFrame take() {
-    return [this](int64_t us, localize::LaserOffUse use) -> Result<localize::LaserOffFrame> {
+    return [this](int64_t us, double gain, localize::LaserOffUse use) -> Result<localize::LaserOffFrame> {
       asked.push_back(us);
+      gains.push_back(gain);
       uses.push_back(use);
       if (failFrom > 0 && static_cast<int>(asked.size()) >= failFrom) return Status(Error::kTimeout, "frame timed out");
-      const double dn = std::min(255.0, dnPerMs * static_cast<double>(us) / 1000.0);
-      frames.push_back(std::make_unique<Frame>(64, 32, kRoi, static_cast<uint8_t>(dn)));
-      return localize::LaserOffFrame{frames.back()->view, us};
+      const double applied = gain > 0.0 ? gain : ownGain;
+      const double scale = gain > 0.0 && ownGain > 0.0 ? gain / ownGain : 1.0;
+      const double dn = std::min(255.0, dnPerMs * static_cast<double>(us) / 1000.0 * scale);
+      frames.push_back(std::make_unique<Frame>(64, 32, kRoi, static_cast<uint8_t>(std::lround(dn))));
+      return localize::LaserOffFrame{frames.back()->view, us, applied};
     };
   }
 };
@@ -279,4 +339,23 @@ TEST_CASE("A failed metering frame leaves the configured exposure; a failed one 
   CHECK_FALSE(metered.decision.subtract);
   CHECK_FALSE(metered.hasLaserOff);
   CHECK(metered.frames == 2);
+}
+
+TEST_CASE("A metering run in sun takes the frame to subtract at the gain chosen", "[exposure]") {
+  localize::MeteringParams p;
+  p.targetDn = 220;
+  p.stepDown = 4.0;
+  // 1000 DN/ms at the camera's gain 2: clipped at 3000 and 750 us, 188 DN at 188 us, so
+  // 220 us at gain 2, 440 us at gain 1; then the laser-off frame at 440 us and gain 1.
+  RecordingCamera cam(1000.0, 0, 2.0);
+  const localize::MeteringRun run = localize::runMetering(p, 3000, 0, kRoi, cam.take());
+  REQUIRE(run.status);
+  CHECK(cam.asked == std::vector<int64_t>{3000, 750, 188, 440});
+  CHECK(cam.gains == std::vector<double>{0.0, 0.0, 0.0, 1.0});  // metered at the camera's own
+  CHECK(cam.uses.back() == localize::LaserOffUse::kSubtraction);
+  CHECK(run.decision.analogueGain == 1.0);
+  CHECK(run.decision.exposureUs == 440);
+  REQUIRE(run.hasLaserOff);
+  CHECK(run.laserOff.analogueGain == 1.0);
+  CHECK(*localize::redPercentileDn(run.laserOff.view, kRoi, 99.0) == 220);
 }

@@ -78,6 +78,7 @@ TEST_CASE("A manifest reads back as written", "[replay]") {
   f.slideEndMm = 62.0;
   f.timestampS = 12345.000001234;
   f.exposureUs = 2500;
+  f.analogueGain = 1.5;
   f.laserOn = false;
   f.cropPx = image::Roi{10, 20, 30, 40};
   f.truthFile = "truth/frame_0000.csv";
@@ -87,6 +88,7 @@ TEST_CASE("A manifest reads back as written", "[replay]") {
   f.file = "frames/frame_0001.png";
   f.laserOn = true;
   f.cropPx.reset();
+  f.analogueGain = 0.0;  // not recorded
   f.slideStartMm = f.slideEndMm = std::nan("");
   m.frames.push_back(f);
   REQUIRE(replay::writeManifest(dir, m).isOk());
@@ -106,6 +108,8 @@ TEST_CASE("A manifest reads back as written", "[replay]") {
   CHECK(r->frames[0].slideStartMm == 60.5);
   CHECK(std::abs(r->frames[0].timestampS - 12345.000001234) < 1e-9);
   CHECK(r->frames[0].exposureUs == 2500);
+  CHECK(r->frames[0].analogueGain == 1.5);
+  CHECK(r->frames[1].analogueGain == 0.0);
   CHECK_FALSE(r->frames[0].laserOn);
   REQUIRE(r->frames[0].cropPx);
   CHECK(r->frames[0].cropPx->height == 40);
@@ -175,6 +179,25 @@ TEST_CASE("The frame replay serves: laser-off frames by exposure first, then pos
   CHECK(replay::nearestFrame(m, 49.0, false) == 6);
   CHECK(replay::nearestFrame(m, 18.0, true, 99999) == 4);
   CHECK(replay::nearestFrame(m, 11.0, true) == 0);
+  // With gains recorded, a frame at the gain asked for: the metering frame at gain 2 and
+  // 500 us, the one subtracted at gain 1 and 1000 us. A frame without a gain recorded
+  // matches on exposure alone.
+  replay::ScanManifest g;
+  const auto addGain = [&](int64_t exposureUs, double gain) {
+    replay::FrameRecord f;
+    f.laserOn = false;
+    f.exposureUs = exposureUs;
+    f.analogueGain = gain;
+    g.frames.push_back(f);
+  };
+  addGain(500, 2.0);   // 0
+  addGain(1000, 1.0);  // 1
+  CHECK(replay::nearestFrame(g, 0.0, false, 1000, 1.0) == 1);
+  CHECK(replay::nearestFrame(g, 0.0, false, 500, 2.0) == 0);
+  CHECK(replay::nearestFrame(g, 0.0, false, 800, 2.0) == 0);  // 800 us alone is nearer 1000
+  CHECK(replay::nearestFrame(g, 0.0, false, 800) == 1);
+  addGain(600, 0.0);  // 2: no gain recorded
+  CHECK(replay::nearestFrame(g, 0.0, false, 600, 1.0) == 2);
 }
 
 TEST_CASE("The replay source serves the nearest frame with the laser's state and reports its position", "[replay]") {

@@ -228,6 +228,16 @@ TEST_CASE("Ambient signal scales with exposure and clips at 255; laser light is 
   CHECK(std::abs(two[2] / one[2] - 2.0) < 0.1);
   const cv::Scalar lots = meanRed(200000, 0.0, 0.0);
   CHECK(lots[2] == 255.0);
+  // The analogue gain: the default scene's 6 dB is twice 0 dB; half the gain at twice the
+  // exposure gives the same level (and, with twice the light, less noise).
+  {
+    sim::FrameRequest req;
+    req.exposureUs = 2000;
+    req.analogueGain = s.sensor.analogueGain() / 2.0;
+    cv::Mat m;
+    r.renderRegion(req, patch, m);
+    CHECK(std::abs(cv::mean(m)[2] / one[2] - 1.0) < 0.05);
+  }
 
   // Laser only (difference of on and off, same noise seed): mostly red.
   const double slide = s.truth.laser.slideForPoint(s.apples[0].centerMm);

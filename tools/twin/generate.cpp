@@ -77,17 +77,19 @@ Metered meterScene(const sim::SimScene& scene, const std::shared_ptr<const sim::
   sim::Renderer renderer(scene, rays);
   // The meter reads the render region as a frame of its own: the ROI moves with it.
   const image::Roi local{roi.x - region.x, roi.y - region.y, roi.width, roi.height};
-  const auto render = [&](int64_t exposureUs, const char* tag) {
+  const auto render = [&](int64_t exposureUs, double analogueGain, const char* tag) {
     sim::ExportFrame f;
     f.slideStartMm = f.slideEndMm = slideMm;
     f.laserOn = false;
     f.exposureUs = exposureUs;
+    f.analogueGain = analogueGain > 0.0 ? analogueGain : scene.sensor.analogueGain();
     f.timestampS = kFrameIntervalS * static_cast<double>(out.laserOff.size());
     f.tag = tag;
     sim::FrameRequest req;
     req.slideStartMm = req.slideEndMm = slideMm;
     req.laserFraction = 0.0;
     req.exposureUs = exposureUs;
+    req.analogueGain = f.analogueGain;
     req.frameIndex = kLaserOffFrameIndex + out.laserOff.size();
     out.laserOff.push_back(f);
     out.frameIndices.push_back(req.frameIndex);
@@ -98,8 +100,9 @@ Metered meterScene(const sim::SimScene& scene, const std::shared_ptr<const sim::
   };
   const localize::MeteringRun run = localize::runMetering(
       params, scene.sensor.exposureUs, maxExposureUs, local,
-      [&](int64_t us, localize::LaserOffUse use) -> Result<localize::LaserOffFrame> {
-        return localize::LaserOffFrame{render(us, use == localize::LaserOffUse::kMetering ? "meter" : "ambient"), us};
+      [&](int64_t us, double gain, localize::LaserOffUse use) -> Result<localize::LaserOffFrame> {
+        const image::ImageView v = render(us, gain, use == localize::LaserOffUse::kMetering ? "meter" : "ambient");
+        return localize::LaserOffFrame{v, us, out.laserOff.back().analogueGain};
       });
   out.decision = run.decision;  // (a render cannot fail, nor can add(): the ROI is inside the region)
   if (run.hasLaserOff) out.subtract = out.rendered.back();  // the last frame taken (MeteringRun)
@@ -150,6 +153,7 @@ std::vector<cv::Mat> scanTwoPasses(const sim::SimScene& scene, const std::shared
     req.slideEndMm = f.frame.slideEndMm;
     req.laserFraction = 1.0;
     req.exposureUs = f.frame.exposureUs > 0 ? f.frame.exposureUs : scene.sensor.exposureUs;
+    req.analogueGain = f.frame.analogueGain;
     req.frameIndex = f.frameIndex;
     renders.emplace_back();
     renderer.renderRegion(req, rp.region, renders.back());
@@ -389,6 +393,7 @@ int generateMain(const Args& args) {
           f.slideEndMm = endMm;
           f.laserOn = true;
           f.exposureUs = exposureUs;
+          f.analogueGain = metered.decision.analogueGain;  // 0: the scene's, as metered
           f.timestampS = t;
           f.tag = tag;
           frames.push_back(f);
@@ -440,6 +445,10 @@ int generateMain(const Args& args) {
             {"occlusion_share", tools::jsonNumber(oc->occlusionShare, "%.4f")},
             {"exposure_us", static_cast<long long>(scene.sensor.exposureUs)},
             {"laser_exposure_us", static_cast<long long>(exposureUs)},
+            {"laser_analogue_gain",
+             tools::jsonNumber(
+                 metered.decision.analogueGain > 0.0 ? metered.decision.analogueGain : scene.sensor.analogueGain(),
+                 "%.3f")},
             {"laser_off_frames", metered.laserOff.size()},
             {"laser_off_subtracted", metered.decision.subtract},
             {"follow_up_frames", followUpFrames},

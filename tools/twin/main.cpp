@@ -155,6 +155,7 @@ Result<MeteringArgs> meteringArgs(const Args& args) {
   m.params.enabled = args.integer("metering", 1) != 0;
   m.params.targetDn = static_cast<int>(args.integer("meter-target-dn", m.params.targetDn));
   m.params.subtractAboveDn = static_cast<int>(args.integer("meter-subtract-above-dn", m.params.subtractAboveDn));
+  m.params.brightAnalogueGain = args.num("meter-bright-gain", m.params.brightAnalogueGain);
   m.maxExposureUs = args.integer("max-exposure-us", m.maxExposureUs);
   if (Status s = m.params.validate(); !s) return s;
   if (m.maxExposureUs < 1) return Status(Error::kInvalidArgument, "--max-exposure-us must be positive");
@@ -291,6 +292,8 @@ int main(int argc, char** argv) {
             "1: laser-off frames meter the laser frames' exposure, as alacsd (default); 0: off"},
            {"meter-target-dn", Kind::kInteger, "metering.target_dn (default: the daemon's)"},
            {"meter-subtract-above-dn", Kind::kInteger, "metering.subtract_above_dn (default: the daemon's)"},
+           {"meter-bright-gain", Kind::kNumber,
+            "metering.bright_analogue_gain (default: the daemon's; 0: never changed)"},
            {"max-exposure-us", Kind::kInteger, "the longest exposure metering may choose: camera.exposure_us (3000)"},
            {"follow-up-unseen-max-stops", Kind::kInteger,
             "ScanParams::followUpUnseenMaxStops for the second pass rendered (default ScanParams')"},
@@ -338,6 +341,8 @@ int main(int argc, char** argv) {
                {"metering", Kind::kInteger, "1: meter on the scan's laser-off frames and subtract as alacsd (default)"},
                {"meter-target-dn", Kind::kInteger, "metering.target_dn (default: the daemon's)"},
                {"meter-subtract-above-dn", Kind::kInteger, "metering.subtract_above_dn (default: the daemon's)"},
+               {"meter-bright-gain", Kind::kNumber,
+                "metering.bright_analogue_gain (default: the daemon's; 0: never changed)"},
                {"max-exposure-us", Kind::kInteger, "the longest exposure metering may choose (3000, as generate)"},
                {"jobs", Kind::kInteger, "threads (default 2)"}}),
       declare(app, "examples", "example frames of the conditions, for docs/simulation.md", examplesMain,

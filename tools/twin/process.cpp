@@ -84,12 +84,13 @@ Metering meterReplay(replay::ReplaySource& src, bool& laser, const image::Roi& r
   laser = false;
   const localize::MeteringRun run =
       localize::runMetering(params, firstOff->exposureUs, maxExposureUs, roi,
-                            [&](int64_t us, localize::LaserOffUse) -> Result<localize::LaserOffFrame> {
+                            [&](int64_t us, double gain, localize::LaserOffUse) -> Result<localize::LaserOffFrame> {
                               ports::CaptureRequest req;
                               req.exposureUs = us;
+                              req.analogueGain = gain;
                               Result<ports::CapturedFrame> f = src.capture(req, {});
                               if (!f) return f.status();
-                              return localize::LaserOffFrame{f->view, f->info.exposureUs};
+                              return localize::LaserOffFrame{f->view, f->info.exposureUs, f->info.analogueGain};
                             });
   out.decision = run.decision;
   out.laserOffFrames = run.frames;
@@ -204,6 +205,8 @@ int processMain(const Args& args) {
         o["roi"] = {plan->roi.x, plan->roi.y, plan->roi.width, plan->roi.height};
         const Metering metered = meterReplay(**src, laser, plan->roi, metering, maxExposureUs);
         o["exposure_us"] = metered.decision.exposureUs;
+        if (metered.decision.analogueGain > 0.0)
+          o["analogue_gain"] = tools::jsonNumber(metered.decision.analogueGain, "%.3f");
         o["laser_off_frames"] = metered.laserOffFrames;
         o["laser_off_subtracted"] = !metered.laserOff.empty();
         o["bright_ambient"] = metered.decision.bright;  // what names a scan with no line BRIGHT_AMBIENT
@@ -219,6 +222,7 @@ int processMain(const Args& args) {
           slide = at;
           ports::CaptureRequest req;
           if (metered.decision.exposureUs > 0) req.exposureUs = metered.decision.exposureUs;
+          req.analogueGain = metered.decision.analogueGain;
           Result<ports::CapturedFrame> f = (*src)->capture(req, {});
           if (!f) {
             frameJson.push_back({{"slide_mm", tools::jsonNumber(at)}, {"valid", false}, {"error", f.status().reason()}});

@@ -47,6 +47,9 @@ TimeNs monotonicNowNs() {
 // A frame whose applied exposure (metadata) differs from the one asked for by more than
 // this or 5 % is one of the frames queued before the change, not this capture's.
 constexpr int64_t kExposureToleranceUs = 50;
+// Likewise for the analogue gain, as a share of the one asked for (a sensor's gain steps
+// are coarse: 1/16 dB to a few %).
+constexpr double kGainTolerance = 0.05;
 // After a timeout, how long to wait for libcamera to report the camera removed.
 constexpr int kRemovalWaitMs = 300;
 
@@ -184,6 +187,7 @@ class Impl final : public LibcameraSource {
       copy_.reset(new uint8_t[copySize_]);
     }
     exposureControl_ = advertises(*camera_, lc::controls::ExposureTime);
+    gainControl_ = advertises(*camera_, lc::controls::AnalogueGain);
     camera_->requestCompleted.connect(this, &Impl::onComplete);
     if (Status s = startStreaming(); !s) return s;
     std::lock_guard<std::mutex> lock(mu_);
@@ -194,7 +198,7 @@ class Impl final : public LibcameraSource {
     stats_.strideBytes = static_cast<int>(stride_);
     stats_.buffers = static_cast<int>(requests_.size());
     stats_.exposureControl = exposureControl_;
-    stats_.gainControl = advertises(*camera_, lc::controls::AnalogueGain);
+    stats_.gainControl = gainControl_;
     stats_.frameDurationControl = advertises(*camera_, lc::controls::FrameDurationLimits);
     stats_.frameDurationAskedUs = stats_.frameDurationControl ? cfg_.frameDurationNs / kNsPerUs : 0;
     return Status::ok();
@@ -241,13 +245,14 @@ class Impl final : public LibcameraSource {
     if (camera_->start(askDuration ? &startControls : nullptr) != 0) return {Error::kIo, "camera start failed"};
     started_ = true;
     for (const std::unique_ptr<lc::Request>& req : requests_)
-      if (Status s = requeue(req.get(), 0); !s) return s;
+      if (Status s = requeue(req.get(), nullptr); !s) return s;
     return Status::ok();
   }
 
-  Status requeue(lc::Request* req, int64_t exposureUs) {
+  // `r`: the capture whose exposure and gain the request carries; null: none set.
+  Status requeue(lc::Request* req, const ports::CaptureRequest* r) {
     req->reuse(lc::Request::ReuseBuffers);
-    if (exposureUs > 0) setControls(*req, exposureUs);
+    if (r != nullptr && r->exposureUs > 0) setControls(*req, *r);
     if (camera_->queueRequest(req) != 0) return {Error::kIo, "queueRequest failed (camera gone?)"};
     return Status::ok();
   }
@@ -275,16 +280,23 @@ class Impl final : public LibcameraSource {
     interrupted_ = false;
   }
 
-  void setControls(lc::Request& req, int64_t exposureUs) {
+  // The capture's exposure, and its analogue gain when it asks for one and the camera
+  // has the control (a camera without it keeps its own: FrameInfo reports the gain only
+  // from the metadata).
+  void setControls(lc::Request& req, const ports::CaptureRequest& r) {
     if (!exposureControl_) return;
     lc::ControlList& c = req.controls();
+    const bool gain = r.analogueGain > 0.0 && gainControl_;
 #if ALACS_LIBCAMERA_HAS_EXPOSURE_MODE
     if (advertises(*camera_, lc::controls::ExposureTimeMode))
       c.set(lc::controls::ExposureTimeMode, lc::controls::ExposureTimeModeManual);
+    if (gain && advertises(*camera_, lc::controls::AnalogueGainMode))
+      c.set(lc::controls::AnalogueGainMode, lc::controls::AnalogueGainModeManual);
 #else
     if (advertises(*camera_, lc::controls::AeEnable)) c.set(lc::controls::AeEnable, false);
 #endif
-    c.set(lc::controls::ExposureTime, static_cast<int32_t>(exposureUs));
+    c.set(lc::controls::ExposureTime, static_cast<int32_t>(r.exposureUs));
+    if (gain) c.set(lc::controls::AnalogueGain, static_cast<float>(r.analogueGain));
   }
 
   // The next completed request; or kTimeout at `deadlineNs`, or kFault when interrupted,
@@ -409,7 +421,7 @@ class Impl final : public LibcameraSource {
 
   // Frames completed before this capture: back to the camera at once (so that a buffer is
   // queued for the frame the laser will light), their timestamps taught to the clock.
-  Status drainCompleted(int64_t exposureUs) {
+  Status drainCompleted(const ports::CaptureRequest& r) {
     while (true) {
       lc::Request* req = nullptr;
       {
@@ -421,7 +433,7 @@ class Impl final : public LibcameraSource {
         ++stats_.staleFramesSkipped;
       }
       learn(req);
-      if (Status s = requeue(req, exposureUs); !s) {
+      if (Status s = requeue(req, &r); !s) {
         needReopen_ = true;
         return s;
       }
@@ -467,7 +479,7 @@ class Impl final : public LibcameraSource {
       // queued for the frame to catch); the clock they refine says when that frame starts.
       while (monotonicNowNs() < span.startNs - leadNs) {
         if (!waitUntil(span.startNs - leadNs, true)) return Status::ok();  // interrupted: the caller sees it
-        if (Status s = drainCompleted(r.exposureUs); !s) return s;
+        if (Status s = drainCompleted(r); !s) return s;
         const std::optional<TimeNs> refined = frameClock_.periodNs();
         next = refined ? frameClock_.nextStart(*next - *refined / 2) : std::nullopt;
         if (!next) break;
@@ -524,7 +536,7 @@ class Impl final : public LibcameraSource {
       stats_.framePeriodNs = 0;  // learnt again from the new stream
       stats_.frameJitterNs = 0;
     }
-    if (Status s = drainCompleted(r.exposureUs); !s) return s;
+    if (Status s = drainCompleted(r); !s) return s;
     const TimeNs deadlineNs = monotonicNowNs() + r.timeoutMs * kNsPerMs;
     TimeNs offAtNs = 0;   // when the laser goes off; 0: at the delivery
     TimeNs periodNs = 0;  // the period the laser's window was reckoned with
@@ -567,8 +579,11 @@ class Impl final : public LibcameraSource {
     // of exposure, the first frames may still have the old one.
     const std::optional<int32_t> appliedUs = req->metadata().get(lc::controls::ExposureTime);
     const int64_t exposureUs = appliedUs ? *appliedUs : r.exposureUs;
-    const bool otherExposure =
-        appliedUs && std::abs(*appliedUs - r.exposureUs) > std::max<int64_t>(kExposureToleranceUs, r.exposureUs / 20);
+    const std::optional<float> appliedGain = req->metadata().get(lc::controls::AnalogueGain);
+    const bool otherExposure = (appliedUs && std::abs(*appliedUs - r.exposureUs) >
+                                                 std::max<int64_t>(kExposureToleranceUs, r.exposureUs / 20)) ||
+                               (appliedGain && r.analogueGain > 0.0 && exposureControl_ && gainControl_ &&
+                                std::abs(*appliedGain - r.analogueGain) > kGainTolerance * r.analogueGain);
     // The laser lit the frame's window from its first row's start to its last row's end.
     const ExposureSpan span = spanOf(stampNs, exposureUs, r, periodNs);
     const bool begunUnder = laser.onNs > 0 && span.startNs >= laser.onNs;
@@ -583,7 +598,7 @@ class Impl final : public LibcameraSource {
         ++(failed ? stats_.failedFrames : stats_.staleFramesSkipped);
         if (!failed && begunUnder && !lit) ++stats_.frameClockMisses;
       }
-      if (Status s = requeue(req, r.exposureUs); !s) {
+      if (Status s = requeue(req, &r); !s) {
         needReopen_ = true;
         return Result<ports::CapturedFrame>(s);
       }
@@ -604,7 +619,8 @@ class Impl final : public LibcameraSource {
     out.info.sequence = meta.sequence;
     out.info.exposureStartNs = stampNs;
     out.info.exposureUs = exposureUs;
-    if (Status s = requeue(req, r.exposureUs); !s) needReopen_ = true;  // the frame is copied: still good
+    out.info.analogueGain = appliedGain ? static_cast<double>(*appliedGain) : 0.0;
+    if (Status s = requeue(req, &r); !s) needReopen_ = true;  // the frame is copied: still good
     std::lock_guard<std::mutex> lock(mu_);
     ++stats_.framesDelivered;
     stats_.sensorTimestamp = sensorNs.has_value();
@@ -624,6 +640,7 @@ class Impl final : public LibcameraSource {
   bool started_ = false;
   bool needReopen_ = false;
   bool exposureControl_ = false;
+  bool gainControl_ = false;  // the camera advertises AnalogueGain
   std::unique_ptr<lc::CameraConfiguration> config_;
   lc::Stream* stream_ = nullptr;
   std::unique_ptr<lc::FrameBufferAllocator> allocator_;

@@ -577,7 +577,10 @@ RULES = [
     "names its target (the table \"How surely the rough position names the target\"); `diagnose --loc --diameter` "
     "splits the "
     "occluded round fruit's diameter error into the LLE's share and the fit's (docs/geometry.md, \"Where an "
-    "occluded round fruit's diameter error comes from\"). Both refuse `--world holdout`.",
+    "occluded round fruit's diameter error comes from\"); `diagnose --loc --stack N [--stack-gain-db G]` "
+    "renders the occluded scans in sun again with N frames of each stop averaged (and the sensor at G dB), beside a "
+    "one-frame control, to measure what more light per decision would recover (docs/lle.md, \"Stacked frames and a "
+    "lower gain\"). All of them refuse `--world holdout`.",
 ]
 
 
