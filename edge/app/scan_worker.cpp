@@ -13,6 +13,7 @@
 #include <cstring>
 #include <limits>
 #include <opencv2/imgproc.hpp>
+#include <string>
 
 #include "common/log.h"
 #include "replay/png_io.h"
@@ -560,6 +561,15 @@ WorkerEvent ScanWorker::doLocalize(const WorkerJob& job) {
   return ev;
 }
 
+namespace {
+// A gain as the log shows it: "?" where the camera does not report one.
+std::string gainText(double gain) {
+  char buf[32];
+  std::snprintf(buf, sizeof buf, "%.2f", gain);
+  return gain > 0.0 ? std::string(buf) : std::string("?");
+}
+}  // namespace
+
 void ScanWorker::meterExposure(const localize::ScanPlan& plan, ports::CaptureRequest& capture, WorkerEvent& ev) {
   pipeline_.clearLaserOff();
   if (!deps_.metering.enabled) return;
@@ -602,11 +612,12 @@ void ScanWorker::meterExposure(const localize::ScanPlan& plan, ports::CaptureReq
     ev.laserOffSubtracted = true;
   }
   ALACS_LOG_INFO("scan",
-                 "metering: red p%.0f %d DN at %lld us gain %.2f%s -> exposure %lld us gain %.2f (red ~%d DN), %s, "
+                 "metering: red p%.0f %d DN at %lld us gain %s%s -> exposure %lld us gain %s (red ~%d DN), %s, "
                  "%d laser-off frames",
-                 deps_.metering.percentile, d.meteredDn, static_cast<long long>(d.meteredUs), d.meteredGain,
-                 d.saturated ? " (saturated)" : "", static_cast<long long>(d.exposureUs),
-                 d.analogueGain > 0.0 ? d.analogueGain : d.meteredGain, d.ambientDn,
+                 deps_.metering.percentile, d.meteredDn, static_cast<long long>(d.meteredUs),
+                 gainText(d.meteredGain).c_str(), d.saturated ? " (saturated)" : "",
+                 static_cast<long long>(d.exposureUs),
+                 gainText(d.analogueGain > 0.0 ? d.analogueGain : d.meteredGain).c_str(), d.ambientDn,
                  ev.laserOffSubtracted ? "laser-off subtracted" : "no subtraction", ev.laserOffFrames);
 }
 

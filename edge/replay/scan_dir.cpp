@@ -51,7 +51,7 @@ void readFrame(JsonObjectReader& f, const ScanInfo& s, size_t i, FrameRecord& r)
   f.number("slide_end_mm", r.slideEndMm);
   f.number("timestamp_s", r.timestampS, Need::kRequired);
   f.integer("exposure_us", r.exposureUs, Need::kRequired, 1, 100000000);
-  f.number("analogue_gain", r.analogueGain, Need::kOptional, 1.0, 1000.0);
+  f.number("analogue_gain", r.analogueGain, Need::kOptional, 0.01, 1000.0);
   f.flag("laser_on", r.laserOn, Need::kRequired);
   if (f.has("crop_px")) {
     r.cropPx = readRoi(f, "crop_px");

@@ -82,8 +82,17 @@ Metering meterReplay(replay::ReplaySource& src, bool& laser, const image::Roi& r
     return out;
   }
   laser = false;
+  // A scan recorded at one gain throughout (before the lower gain in sun, or with it off)
+  // holds no frame at a lowered one: it replays as it was taken, at its gain.
+  localize::MeteringParams meter = params;
+  const bool lowered = std::any_of(frames.begin(), frames.end(), [&](const replay::FrameRecord& f) {
+    return f.laserOn && f.analogueGain > 0.0 && firstOff->analogueGain > 0.0 &&
+           f.analogueGain < 0.95 * firstOff->analogueGain;
+  });
+  const bool oneGain = !lowered && meter.brightAnalogueGain > 0.0;
+  if (oneGain) meter.brightAnalogueGain = 0.0;
   const localize::MeteringRun run =
-      localize::runMetering(params, firstOff->exposureUs, maxExposureUs, roi,
+      localize::runMetering(meter, firstOff->exposureUs, maxExposureUs, roi,
                             [&](int64_t us, double gain, localize::LaserOffUse) -> Result<localize::LaserOffFrame> {
                               ports::CaptureRequest req;
                               req.exposureUs = us;
@@ -95,6 +104,9 @@ Metering meterReplay(replay::ReplaySource& src, bool& laser, const image::Roi& r
   out.decision = run.decision;
   out.laserOffFrames = run.frames;
   if (!run.status) out.note = "metering: " + run.status.reason();
+  if (run.status && oneGain && run.decision.bright) out.note = "bright, recorded at one gain: replayed at it";
+  if (run.status && lowered && run.decision.analogueGain == 0.0)
+    out.note = "recorded at a lowered gain, replayed without it";
   if (run.hasLaserOff) {
     const image::ImageView& v = run.laserOff.view;
     out.laserOff = cv::Mat(v.height, v.width, CV_8UC3, const_cast<uint8_t*>(v.data), v.strideBytes).clone();

@@ -188,6 +188,14 @@ class Impl final : public LibcameraSource {
     }
     exposureControl_ = advertises(*camera_, lc::controls::ExposureTime);
     gainControl_ = advertises(*camera_, lc::controls::AnalogueGain);
+    gainMin_ = gainMax_ = 0.0;
+    if (gainControl_) {
+      const lc::ControlInfo& range = camera_->controls().find(&lc::controls::AnalogueGain)->second;
+      if (range.min().type() == lc::ControlTypeFloat && range.max().type() == lc::ControlTypeFloat) {
+        gainMin_ = range.min().get<float>();
+        gainMax_ = range.max().get<float>();
+      }
+    }
     camera_->requestCompleted.connect(this, &Impl::onComplete);
     if (Status s = startStreaming(); !s) return s;
     std::lock_guard<std::mutex> lock(mu_);
@@ -280,23 +288,38 @@ class Impl final : public LibcameraSource {
     interrupted_ = false;
   }
 
-  // The capture's exposure, and its analogue gain when it asks for one and the camera
-  // has the control (a camera without it keeps its own: FrameInfo reports the gain only
-  // from the metadata).
+  // The analogue gain a request carries to the camera (0: none, the camera's own). One
+  // asked for, clamped to the range the camera advertises (a sensor's least may be above
+  // 1); none asked for, once a gain was set: the camera's own gain as it reported it before
+  // (libcamera keeps a control once set, so a gain lowered for a sunlit scan would stay
+  // for the next scan's metering otherwise).
+  double gainFor(const ports::CaptureRequest& r) const {
+    if (!exposureControl_ || !gainControl_) return 0.0;
+    double g = r.analogueGain > 0.0 ? r.analogueGain : (gainSet_ ? ownGain_ : 0.0);
+    if (g > 0.0 && gainMin_ > 0.0 && gainMax_ > gainMin_) g = std::clamp(g, gainMin_, gainMax_);
+    return g;
+  }
+
+  // The capture's exposure, and its analogue gain (gainFor). A camera without the control
+  // keeps its own: FrameInfo reports a gain only where the camera has the control.
   void setControls(lc::Request& req, const ports::CaptureRequest& r) {
     if (!exposureControl_) return;
     lc::ControlList& c = req.controls();
-    const bool gain = r.analogueGain > 0.0 && gainControl_;
+    const double gain = gainFor(r);
 #if ALACS_LIBCAMERA_HAS_EXPOSURE_MODE
     if (advertises(*camera_, lc::controls::ExposureTimeMode))
       c.set(lc::controls::ExposureTimeMode, lc::controls::ExposureTimeModeManual);
-    if (gain && advertises(*camera_, lc::controls::AnalogueGainMode))
-      c.set(lc::controls::AnalogueGainMode, lc::controls::AnalogueGainModeManual);
+    if (advertises(*camera_, lc::controls::AnalogueGainMode) && (gain > 0.0 || gainSet_))
+      c.set(lc::controls::AnalogueGainMode,
+            gain > 0.0 ? lc::controls::AnalogueGainModeManual : lc::controls::AnalogueGainModeAuto);
 #else
     if (advertises(*camera_, lc::controls::AeEnable)) c.set(lc::controls::AeEnable, false);
 #endif
     c.set(lc::controls::ExposureTime, static_cast<int32_t>(r.exposureUs));
-    if (gain) c.set(lc::controls::AnalogueGain, static_cast<float>(r.analogueGain));
+    if (gain > 0.0) {
+      c.set(lc::controls::AnalogueGain, static_cast<float>(gain));
+      gainSet_ = true;
+    }
   }
 
   // The next completed request; or kTimeout at `deadlineNs`, or kFault when interrupted,
@@ -414,6 +437,9 @@ class Impl final : public LibcameraSource {
     if (meta.status != lc::FrameMetadata::FrameSuccess) return;
     const std::optional<int64_t> sensorNs = req->metadata().get(lc::controls::SensorTimestamp);
     frameClock_.observe(meta.sequence, sensorNs ? static_cast<TimeNs>(*sensorNs) : static_cast<TimeNs>(meta.timestamp));
+    // The camera's own gain, until the daemon first sets one (gainFor restores it).
+    if (!gainSet_)
+      if (const std::optional<float> g = req->metadata().get(lc::controls::AnalogueGain)) ownGain_ = *g;
     std::lock_guard<std::mutex> lock(mu_);
     stats_.framePeriodNs = frameClock_.periodNs().value_or(0);
     stats_.frameJitterNs = frameClock_.jitterNs();
@@ -580,10 +606,11 @@ class Impl final : public LibcameraSource {
     const std::optional<int32_t> appliedUs = req->metadata().get(lc::controls::ExposureTime);
     const int64_t exposureUs = appliedUs ? *appliedUs : r.exposureUs;
     const std::optional<float> appliedGain = req->metadata().get(lc::controls::AnalogueGain);
-    const bool otherExposure = (appliedUs && std::abs(*appliedUs - r.exposureUs) >
-                                                 std::max<int64_t>(kExposureToleranceUs, r.exposureUs / 20)) ||
-                               (appliedGain && r.analogueGain > 0.0 && exposureControl_ && gainControl_ &&
-                                std::abs(*appliedGain - r.analogueGain) > kGainTolerance * r.analogueGain);
+    const double askedGain = gainFor(r);
+    const bool otherExposure =
+        (appliedUs &&
+         std::abs(*appliedUs - r.exposureUs) > std::max<int64_t>(kExposureToleranceUs, r.exposureUs / 20)) ||
+        (appliedGain && askedGain > 0.0 && std::abs(*appliedGain - askedGain) > kGainTolerance * askedGain);
     // The laser lit the frame's window from its first row's start to its last row's end.
     const ExposureSpan span = spanOf(stampNs, exposureUs, r, periodNs);
     const bool begunUnder = laser.onNs > 0 && span.startNs >= laser.onNs;
@@ -619,7 +646,7 @@ class Impl final : public LibcameraSource {
     out.info.sequence = meta.sequence;
     out.info.exposureStartNs = stampNs;
     out.info.exposureUs = exposureUs;
-    out.info.analogueGain = appliedGain ? static_cast<double>(*appliedGain) : 0.0;
+    out.info.analogueGain = appliedGain && gainControl_ ? static_cast<double>(*appliedGain) : 0.0;
     if (Status s = requeue(req, &r); !s) needReopen_ = true;  // the frame is copied: still good
     std::lock_guard<std::mutex> lock(mu_);
     ++stats_.framesDelivered;
@@ -641,6 +668,10 @@ class Impl final : public LibcameraSource {
   bool needReopen_ = false;
   bool exposureControl_ = false;
   bool gainControl_ = false;  // the camera advertises AnalogueGain
+  double gainMin_ = 0.0;      // ... over this range (0: not advertised as floats)
+  double gainMax_ = 0.0;
+  double ownGain_ = 0.0;  // the camera's own gain, reported before the daemon set one (0: not known)
+  bool gainSet_ = false;  // the daemon has set a gain (kept by libcamera until changed)
   std::unique_ptr<lc::CameraConfiguration> config_;
   lc::Stream* stream_ = nullptr;
   std::unique_ptr<lc::FrameBufferAllocator> allocator_;
