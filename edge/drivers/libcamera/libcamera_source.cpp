@@ -192,8 +192,8 @@ class Impl final : public LibcameraSource {
     if (gainControl_) {
       const lc::ControlInfo& range = camera_->controls().find(&lc::controls::AnalogueGain)->second;
       if (range.min().type() == lc::ControlTypeFloat && range.max().type() == lc::ControlTypeFloat) {
-        gainMin_ = range.min().get<float>();
-        gainMax_ = range.max().get<float>();
+        gainMin_ = static_cast<double>(range.min().get<float>());
+        gainMax_ = static_cast<double>(range.max().get<float>());
       }
     }
     camera_->requestCompleted.connect(this, &Impl::onComplete);
@@ -439,7 +439,8 @@ class Impl final : public LibcameraSource {
     frameClock_.observe(meta.sequence, sensorNs ? static_cast<TimeNs>(*sensorNs) : static_cast<TimeNs>(meta.timestamp));
     // The camera's own gain, until the daemon first sets one (gainFor restores it).
     if (!gainSet_)
-      if (const std::optional<float> g = req->metadata().get(lc::controls::AnalogueGain)) ownGain_ = *g;
+      if (const std::optional<float> g = req->metadata().get(lc::controls::AnalogueGain))
+        ownGain_ = static_cast<double>(*g);
     std::lock_guard<std::mutex> lock(mu_);
     stats_.framePeriodNs = frameClock_.periodNs().value_or(0);
     stats_.frameJitterNs = frameClock_.jitterNs();
@@ -607,10 +608,10 @@ class Impl final : public LibcameraSource {
     const int64_t exposureUs = appliedUs ? *appliedUs : r.exposureUs;
     const std::optional<float> appliedGain = req->metadata().get(lc::controls::AnalogueGain);
     const double askedGain = gainFor(r);
-    const bool otherExposure =
-        (appliedUs &&
-         std::abs(*appliedUs - r.exposureUs) > std::max<int64_t>(kExposureToleranceUs, r.exposureUs / 20)) ||
-        (appliedGain && askedGain > 0.0 && std::abs(*appliedGain - askedGain) > kGainTolerance * askedGain);
+    const bool otherExposure = (appliedUs && std::abs(*appliedUs - r.exposureUs) >
+                                                 std::max<int64_t>(kExposureToleranceUs, r.exposureUs / 20)) ||
+                               (appliedGain && askedGain > 0.0 &&
+                                std::abs(static_cast<double>(*appliedGain) - askedGain) > kGainTolerance * askedGain);
     // The laser lit the frame's window from its first row's start to its last row's end.
     const ExposureSpan span = spanOf(stampNs, exposureUs, r, periodNs);
     const bool begunUnder = laser.onNs > 0 && span.startNs >= laser.onNs;
