@@ -30,7 +30,7 @@ struct FrameInfo {
   uint64_t sequence = 0;
   TimeNs exposureStartNs = 0;  // the sensor's time base (CLOCK_MONOTONIC on Linux)
   int64_t exposureUs = 0;      // as applied, when the source can tell; else as requested
-  double analogueGain = 0.0;   // likewise (linear); 0: not known
+  double analogueGain = 0.0;   // likewise (linear); 0: not known, or the source cannot set it
 };
 
 struct CapturedFrame {

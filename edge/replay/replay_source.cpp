@@ -1,5 +1,6 @@
 #include "replay/replay_source.h"
 
+#include <algorithm>
 #include <cmath>
 #include <limits>
 
@@ -22,7 +23,17 @@ ReplaySource::ReplaySource(std::string dir, ScanManifest m, const Clock& clock, 
       clock_(clock),
       laserLevel_(std::move(laserLevel)),
       slideMm_(std::move(slideMm)),
-      lastSlideMm_(std::numeric_limits<double>::quiet_NaN()) {}
+      lastSlideMm_(std::numeric_limits<double>::quiet_NaN()) {
+  // Gains within 5 % are one gain (the least step the metering lowers it by).
+  double least = std::numeric_limits<double>::infinity();
+  double most = 0.0;
+  for (const FrameRecord& f : manifest_.frames) {
+    if (f.analogueGain <= 0.0) continue;
+    least = std::min(least, f.analogueGain);
+    most = std::max(most, f.analogueGain);
+  }
+  gainVaries_ = most > 0.0 && least < 0.95 * most;
+}
 
 int ReplaySource::nearestFrame(double slideMm, bool laserOn, int64_t exposureUs, double analogueGain) const {
   return replay::nearestFrame(manifest_, slideMm, laserOn, exposureUs, analogueGain);
@@ -52,7 +63,7 @@ Result<ports::CapturedFrame> ReplaySource::doCapture(const ports::CaptureRequest
   out.info.sequence = sequence_++;
   out.info.exposureStartNs = start;
   out.info.exposureUs = rec.exposureUs;
-  out.info.analogueGain = rec.analogueGain;
+  out.info.analogueGain = gainVaries_ ? rec.analogueGain : 0.0;
   return out;
 }
 

@@ -33,6 +33,12 @@ class ReplaySource final : public ports::FrameSource {
   int lastFrame() const { return lastFrame_.load(); }
   const ScanManifest& manifest() const { return manifest_; }
   const std::string& dir() const { return dir_; }
+  // True when the scan was recorded at more than one analogue gain (a scan taken with the
+  // lower gain in sun). A scan recorded at one gain, or without gains, holds no frame at
+  // another: it is a camera without a gain control, and reports no gain (FrameInfo
+  // analogueGain 0), so that the metering replays it at the gain it was taken at, as the
+  // scan worker leaves a live camera without the control at its own.
+  bool gainVaries() const { return gainVaries_; }
 
   // The frame a capture at `slideMm` with the laser `laserOn` would serve; -1: none
   // (replay::nearestFrame).
@@ -49,6 +55,7 @@ class ReplaySource final : public ports::FrameSource {
   const Clock& clock_;
   std::function<bool()> laserLevel_;
   std::function<double()> slideMm_;
+  bool gainVaries_ = false;
   cv::Mat frame_;
   uint64_t sequence_ = 0;
   std::atomic<double> lastSlideMm_;

@@ -10,6 +10,7 @@
 #include <cmath>
 #include <opencv2/imgcodecs.hpp>
 
+#include "localize/exposure.h"
 #include "localize/localizer.h"
 #include "replay/replay_source.h"
 #include "replay/scan_dir.h"
@@ -508,4 +509,77 @@ TEST_CASE("The recorder (--record) keeps to its quota: the oldest scans go, numb
     CHECK(s.reason().find("record quota") != std::string::npos);
     CHECK(rec.end().isOk());
   }
+}
+
+TEST_CASE("A scan recorded at one gain replays at it: no gain reported, so the metering does not lower it",
+          "[replay][exposure]") {
+  // Laser-off frames in sun (red 150 DN at 500 us: 300 DN/ms, bright) at the camera's gain 2;
+  // the scan with the lower gain in sun also holds the one subtracted, at gain 1 (red 90).
+  const auto write = [](const std::string& dir, bool lowered) {
+    replay::ScanInfo info;
+    info.widthPx = 64;
+    info.heightPx = 48;
+    Result<replay::ScanWriter> w = replay::ScanWriter::create(dir, info, smallCalibration());
+    REQUIRE(w.isOk());
+    const auto add = [&](int red, int64_t exposureUs, double gain, bool laserOn) {
+      cv::Mat img(48, 64, CV_8UC3, cv::Scalar(0, 0, red));
+      replay::FrameRecord rec;
+      rec.exposureUs = exposureUs;
+      rec.analogueGain = gain;
+      rec.laserOn = laserOn;
+      REQUIRE(w->addFrame({img.data, img.cols, img.rows, img.step[0], image::PixelFormat::kBgr888}, rec).isOk());
+    };
+    add(150, 500, 2.0, false);
+    if (lowered) add(90, 1000, 1.0, false);
+    add(200, lowered ? 1000 : 500, lowered ? 1.0 : 2.0, true);
+    REQUIRE(w->finish().isOk());
+  };
+  const auto meter = [](replay::ReplaySource& src) {
+    localize::MeteringParams p;  // the lower gain in sun on: brightAnalogueGain 1
+    return localize::runMetering(p, 500, 2000, image::Roi{0, 0, 64, 48},
+                                 [&](int64_t us, double gain, localize::LaserOffUse) -> Result<localize::LaserOffFrame> {
+                                   ports::CaptureRequest req;
+                                   req.exposureUs = us;
+                                   req.analogueGain = gain;
+                                   Result<ports::CapturedFrame> f = src.capture(req, {});
+                                   if (!f) return f.status();
+                                   return localize::LaserOffFrame{f->view, f->info.exposureUs, f->info.analogueGain};
+                                 });
+  };
+  VirtualClock clock;
+  bool laser = false;
+
+  const test::TempDir one("alacs_replay");
+  write(one.path(), false);
+  auto src = replay::ReplaySource::open(one.path(), clock, [&] { return laser; }, [] { return 0.0; });
+  REQUIRE(src.isOk());
+  CHECK_FALSE((*src)->gainVaries());
+  Result<ports::CapturedFrame> f = (*src)->capture({}, {});
+  REQUIRE(f.isOk());
+  CHECK(f->info.analogueGain == 0.0);  // recorded at 2, reported as a camera without the control
+  const localize::MeteringRun kept = meter(**src);
+  REQUIRE(kept.status);
+  CHECK(kept.decision.bright);
+  CHECK(kept.decision.analogueGain == 0.0);  // left at the gain it was recorded at
+  CHECK(kept.decision.exposureUs == 733);    // 500 us x 220 / 150
+  REQUIRE(kept.hasLaserOff);
+  CHECK(kept.laserOff.view.data[2] == 150);  // the recorded frame, at its gain
+
+  const test::TempDir two("alacs_replay");
+  write(two.path(), true);
+  src = replay::ReplaySource::open(two.path(), clock, [&] { return laser; }, [] { return 0.0; });
+  REQUIRE(src.isOk());
+  CHECK((*src)->gainVaries());
+  const localize::MeteringRun lowered = meter(**src);
+  REQUIRE(lowered.status);
+  CHECK(lowered.decision.meteredGain == 2.0);
+  CHECK(lowered.decision.analogueGain == 1.0);
+  CHECK(lowered.decision.exposureUs == 1467);  // 733 us x 2
+  REQUIRE(lowered.hasLaserOff);
+  CHECK(lowered.laserOff.analogueGain == 1.0);
+  CHECK(lowered.laserOff.view.data[2] == 90);  // the one recorded at gain 1
+  laser = true;
+  f = (*src)->capture({}, {});
+  REQUIRE(f.isOk());
+  CHECK(f->info.analogueGain == 1.0);
 }

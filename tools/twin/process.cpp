@@ -82,17 +82,8 @@ Metering meterReplay(replay::ReplaySource& src, bool& laser, const image::Roi& r
     return out;
   }
   laser = false;
-  // A scan recorded at one gain throughout (before the lower gain in sun, or with it off)
-  // holds no frame at a lowered one: it replays as it was taken, at its gain.
-  localize::MeteringParams meter = params;
-  const bool lowered = std::any_of(frames.begin(), frames.end(), [&](const replay::FrameRecord& f) {
-    return f.laserOn && f.analogueGain > 0.0 && firstOff->analogueGain > 0.0 &&
-           f.analogueGain < 0.95 * firstOff->analogueGain;
-  });
-  const bool oneGain = !lowered && meter.brightAnalogueGain > 0.0;
-  if (oneGain) meter.brightAnalogueGain = 0.0;
   const localize::MeteringRun run =
-      localize::runMetering(meter, firstOff->exposureUs, maxExposureUs, roi,
+      localize::runMetering(params, firstOff->exposureUs, maxExposureUs, roi,
                             [&](int64_t us, double gain, localize::LaserOffUse) -> Result<localize::LaserOffFrame> {
                               ports::CaptureRequest req;
                               req.exposureUs = us;
@@ -104,8 +95,10 @@ Metering meterReplay(replay::ReplaySource& src, bool& laser, const image::Roi& r
   out.decision = run.decision;
   out.laserOffFrames = run.frames;
   if (!run.status) out.note = "metering: " + run.status.reason();
+  // A scan recorded at one gain replays at it (ReplaySource::gainVaries).
+  const bool oneGain = !src.gainVaries() && params.brightAnalogueGain > 0.0;
   if (run.status && oneGain && run.decision.bright) out.note = "bright, recorded at one gain: replayed at it";
-  if (run.status && lowered && run.decision.analogueGain == 0.0)
+  if (run.status && src.gainVaries() && run.decision.analogueGain == 0.0)
     out.note = "recorded at a lowered gain, replayed without it";
   if (run.hasLaserOff) {
     const image::ImageView& v = run.laserOff.view;
