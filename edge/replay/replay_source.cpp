@@ -24,15 +24,15 @@ ReplaySource::ReplaySource(std::string dir, ScanManifest m, const Clock& clock, 
       laserLevel_(std::move(laserLevel)),
       slideMm_(std::move(slideMm)),
       lastSlideMm_(std::numeric_limits<double>::quiet_NaN()) {
-  // Gains within 5 % are one gain (the least step the metering lowers it by).
-  double least = std::numeric_limits<double>::infinity();
-  double most = 0.0;
-  for (const FrameRecord& f : manifest_.frames) {
-    if (f.analogueGain <= 0.0) continue;
-    least = std::min(least, f.analogueGain);
-    most = std::max(most, f.analogueGain);
-  }
-  gainVaries_ = most > 0.0 && least < 0.95 * most;
+  // The laser frames against the first laser-off frame's gain (the least step the metering
+  // lowers it by is 5 %).
+  const auto& frames = manifest_.frames;
+  const auto firstOff = std::find_if(frames.begin(), frames.end(), [](const FrameRecord& f) { return !f.laserOn; });
+  if (firstOff == frames.end() || firstOff->analogueGain <= 0.0) return;
+  const double metered = firstOff->analogueGain;
+  gainLowered_ = std::any_of(frames.begin(), frames.end(), [&](const FrameRecord& f) {
+    return f.laserOn && f.analogueGain > 0.0 && f.analogueGain < 0.95 * metered;
+  });
 }
 
 int ReplaySource::nearestFrame(double slideMm, bool laserOn, int64_t exposureUs, double analogueGain) const {
@@ -63,7 +63,7 @@ Result<ports::CapturedFrame> ReplaySource::doCapture(const ports::CaptureRequest
   out.info.sequence = sequence_++;
   out.info.exposureStartNs = start;
   out.info.exposureUs = rec.exposureUs;
-  out.info.analogueGain = gainVaries_ ? rec.analogueGain : 0.0;
+  out.info.analogueGain = gainLowered_ ? rec.analogueGain : 0.0;
   return out;
 }
 

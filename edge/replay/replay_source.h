@@ -33,12 +33,13 @@ class ReplaySource final : public ports::FrameSource {
   int lastFrame() const { return lastFrame_.load(); }
   const ScanManifest& manifest() const { return manifest_; }
   const std::string& dir() const { return dir_; }
-  // True when the scan was recorded at more than one analogue gain (a scan taken with the
-  // lower gain in sun). A scan recorded at one gain, or without gains, holds no frame at
-  // another: it is a camera without a gain control, and reports no gain (FrameInfo
-  // analogueGain 0), so that the metering replays it at the gain it was taken at, as the
-  // scan worker leaves a live camera without the control at its own.
-  bool gainVaries() const { return gainVaries_; }
+  // True when laser frames were recorded at a gain 5 % or more below the scan's first
+  // laser-off frame's, where metering starts (a scan taken with the lower gain in sun).
+  // Otherwise (recorded without it, with it off, or without gains) the scan holds no laser
+  // frame at a lowered gain: it is a camera without a gain control, and reports no gain
+  // (FrameInfo::analogueGain 0), so that the metering replays it at the gain it was taken
+  // at, as the scan worker leaves a live camera without the control at its own.
+  bool gainLowered() const { return gainLowered_; }
 
   // The frame a capture at `slideMm` with the laser `laserOn` would serve; -1: none
   // (replay::nearestFrame).
@@ -55,7 +56,7 @@ class ReplaySource final : public ports::FrameSource {
   const Clock& clock_;
   std::function<bool()> laserLevel_;
   std::function<double()> slideMm_;
-  bool gainVaries_ = false;
+  bool gainLowered_ = false;
   cv::Mat frame_;
   uint64_t sequence_ = 0;
   std::atomic<double> lastSlideMm_;

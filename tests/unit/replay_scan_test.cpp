@@ -515,7 +515,9 @@ TEST_CASE("A scan recorded at one gain replays at it: no gain reported, so the m
           "[replay][exposure]") {
   // Laser-off frames in sun (red 150 DN at 500 us: 300 DN/ms, bright) at the camera's gain 2;
   // the scan with the lower gain in sun also holds the one subtracted, at gain 1 (red 90).
-  const auto write = [](const std::string& dir, bool lowered) {
+  enum class Gains { kOne, kLowered, kMeteringOnly };
+  const auto write = [](const std::string& dir, Gains gains) {
+    const bool lowered = gains == Gains::kLowered;
     replay::ScanInfo info;
     info.widthPx = 64;
     info.heightPx = 48;
@@ -531,6 +533,8 @@ TEST_CASE("A scan recorded at one gain replays at it: no gain reported, so the m
     };
     add(150, 500, 2.0, false);
     if (lowered) add(90, 1000, 1.0, false);
+    // The camera's own gain moving between metering frames: no laser frame below it.
+    if (gains == Gains::kMeteringOnly) add(150, 500, 1.6, false);
     add(200, lowered ? 1000 : 500, lowered ? 1.0 : 2.0, true);
     REQUIRE(w->finish().isOk());
   };
@@ -550,10 +554,10 @@ TEST_CASE("A scan recorded at one gain replays at it: no gain reported, so the m
   bool laser = false;
 
   const test::TempDir one("alacs_replay");
-  write(one.path(), false);
+  write(one.path(), Gains::kOne);
   auto src = replay::ReplaySource::open(one.path(), clock, [&] { return laser; }, [] { return 0.0; });
   REQUIRE(src.isOk());
-  CHECK_FALSE((*src)->gainVaries());
+  CHECK_FALSE((*src)->gainLowered());
   Result<ports::CapturedFrame> f = (*src)->capture({}, {});
   REQUIRE(f.isOk());
   CHECK(f->info.analogueGain == 0.0);  // recorded at 2, reported as a camera without the control
@@ -565,11 +569,19 @@ TEST_CASE("A scan recorded at one gain replays at it: no gain reported, so the m
   REQUIRE(kept.hasLaserOff);
   CHECK(kept.laserOff.view.data[2] == 150);  // the recorded frame, at its gain
 
+  const test::TempDir agc("alacs_replay");
+  write(agc.path(), Gains::kMeteringOnly);
+  src = replay::ReplaySource::open(
+      agc.path(), clock, [&] { return laser; }, [] { return 0.0; });
+  REQUIRE(src.isOk());
+  CHECK_FALSE((*src)->gainLowered());
+  CHECK(meter(**src).decision.analogueGain == 0.0);
+
   const test::TempDir two("alacs_replay");
-  write(two.path(), true);
+  write(two.path(), Gains::kLowered);
   src = replay::ReplaySource::open(two.path(), clock, [&] { return laser; }, [] { return 0.0; });
   REQUIRE(src.isOk());
-  CHECK((*src)->gainVaries());
+  CHECK((*src)->gainLowered());
   const localize::MeteringRun lowered = meter(**src);
   REQUIRE(lowered.status);
   CHECK(lowered.decision.meteredGain == 2.0);

@@ -95,10 +95,10 @@ Metering meterReplay(replay::ReplaySource& src, bool& laser, const image::Roi& r
   out.decision = run.decision;
   out.laserOffFrames = run.frames;
   if (!run.status) out.note = "metering: " + run.status.reason();
-  // A scan recorded at one gain replays at it (ReplaySource::gainVaries).
-  const bool oneGain = !src.gainVaries() && params.brightAnalogueGain > 0.0;
+  // A scan recorded at one gain replays at it (ReplaySource::gainLowered).
+  const bool oneGain = !src.gainLowered() && params.brightAnalogueGain > 0.0;
   if (run.status && oneGain && run.decision.bright) out.note = "bright, recorded at one gain: replayed at it";
-  if (run.status && src.gainVaries() && run.decision.analogueGain == 0.0)
+  if (run.status && src.gainLowered() && run.decision.analogueGain == 0.0)
     out.note = "recorded at a lowered gain, replayed without it";
   if (run.hasLaserOff) {
     const image::ImageView& v = run.laserOff.view;
