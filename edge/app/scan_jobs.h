@@ -34,6 +34,7 @@ struct ExposureWindow {
   TimeNs startNs = 0;
   TimeNs endNs = 0;
   TimeNs endToldNs = 0;
+  double slideMm = 0.0;  // where the frame was placed (a sweep's: at its mid-exposure)
 };
 
 struct WorkerEvent {
@@ -52,6 +53,9 @@ struct WorkerEvent {
   TimeNs processingTailNs = 0;  // image work left after the last frame (not overlapped with motion)
   int followUpStops = 0;         // localize: stops of the adaptive second pass (0: none taken)
   int firstPassLines = 0;        // localize, second pass taken: lines in the first pass's fit
+  // localize, continuous: the slowest cruise speed of its sweeps (the camera's pace,
+  // motion/sweep_speed.h), mm/s; 0: no sweep
+  double sweepSpeedMmPerS = 0.0;
   // localize: the exposure metered from laser-off frames of the ROI (localize/exposure.h)
   // and used for the laser frames (0: not metered), the laser-off frames it took (the
   // metering frames and the subtracted one), and whether the LLE subtracted a laser-off frame.

@@ -364,10 +364,12 @@ Result<ports::CapturedFrame> ScanWorker::exposeStop(size_t stop, const ports::Ca
           (void)deps_.laser->off();
           endMm = positionMm();
         });
-    frameReadSinceNs_.store(deps_.clock->now());
+    const TimeNs askedNs = deps_.clock->now();
+    frameReadSinceNs_.store(askedNs);
     frame = deps_.camera->capture(capture, laser);
     frameReadSinceNs_.store(0);
     (void)deps_.laser->off();
+    if (frame) captures_.record(deps_.clock->now() - askedNs);
     if (!laserRefused) {
       ev.status = laserRefused;
       ev.faultBit = protocol::kFaultLaserOvertime;
@@ -585,11 +587,13 @@ void ScanWorker::meterExposure(const localize::ScanPlan& plan, ports::CaptureReq
     ports::CaptureRequest req = capture;
     req.exposureUs = exposureUs;
     if (analogueGain > 0.0) req.analogueGain = analogueGain;
-    frameReadSinceNs_.store(deps_.clock->now());
+    const TimeNs askedNs = deps_.clock->now();
+    frameReadSinceNs_.store(askedNs);
     Result<ports::CapturedFrame> f = deps_.camera->capture(req, {});
     frameReadSinceNs_.store(0);
     markProgress();
     if (!f) return f.status();
+    captures_.record(deps_.clock->now() - askedNs);
     ++ev.laserOffFrames;
     return localize::LaserOffFrame{f->view, f->info.exposureUs, f->info.analogueGain};
   };
@@ -635,7 +639,9 @@ Status ScanWorker::stopAndGo(const localize::ScanPlan& plan, const ports::Captur
     Result<ports::CapturedFrame> frame = exposeStop(i, capture, ev);
     if (!frame) return frame.status();
     // The image work of this stop runs while the slide moves to the next one.
-    pipeline_.push(frame->view, recordedOr(deps_, positionMm()));
+    const double slideMm = recordedOr(deps_, positionMm());
+    ev.exposures.back().slideMm = slideMm;
+    pipeline_.push(frame->view, slideMm);
     if (cancel_.load()) return aborted(ev);
   }
   return Status::ok();
@@ -683,6 +689,25 @@ FramePlace sweptFramePlace(const motion::StepLog& log, int64_t fromSteps, bool f
 }
 }  // namespace
 
+Result<bool> ScanWorker::toSweepStart(const std::vector<double>& stops, double paceMmPerS,
+                                      const std::function<void()>& runUp, WorkerEvent& ev) {
+  const double here = positionMm();
+  const bool forward = stops.back() >= stops.front();
+  // Start from outside the span so that no stop lies behind the slide.
+  const bool inside = (forward && here > stops.front()) || (!forward && here < stops.front());
+  // A sweep slower than the motor that starts far before its first stop would crawl the
+  // whole way there: the slide first goes at full speed to where the sweep's pace can be
+  // reached from rest, when that is sooner (the second pass, which starts where the
+  // first one braked, 40-50 mm from its own first stop).
+  const std::optional<double> fastMm = motion::fastRunUpMm(deps_.limits, paceMmPerS, here, stops.front());
+  if (!inside && !fastMm) return false;
+  if (Status st = moveTo(inside ? stops.front() : *fastMm, ev, runUp); !st) return st;
+  if (cancel_.load()) return aborted(ev);
+  ALACS_LOG_DEBUG("scan", "sweep: %s at full speed, metering meanwhile",
+                  inside ? "back to the first stop" : "to the run-up of a slower sweep");
+  return true;
+}
+
 Status ScanWorker::sweepStops(const localize::ScanPlan& plan, ports::CaptureRequest& capture, WorkerEvent& ev,
                               const std::function<void()>& runUp) {
   // One move through every stop; each frame is exposed as the slide passes its stop, and
@@ -696,33 +721,44 @@ Status ScanWorker::sweepStops(const localize::ScanPlan& plan, ports::CaptureRequ
   const double nearStart = std::abs(here - stops.front()) <= std::abs(here - stops.back()) ? stops.front() : stops.back();
   if (nearStart == stops.back()) std::reverse(stops.begin(), stops.end());
   const bool forward = stops.back() >= stops.front();
-  const motion::SlideLimits& lim = deps_.limits;
-  // Start from outside the span so that no stop lies behind the slide.
-  const bool positioned = (forward && here > stops.front()) || (!forward && here < stops.front());
-  if (positioned) {
-    if (Status s = moveTo(stops.front(), ev, runUp); !s) return s;
-    if (cancel_.load()) return aborted(ev);
-  }
-  // Run on past the last stop by half an exposure's travel (so that its exposure is
-  // centred) and by the braking distance, so that the slide passes every stop at cruise
-  // speed and brakes only after the last frame, while the result is already out.
-  const double brakingMm = lim.maxSpeedMmPerS * lim.maxSpeedMmPerS / (2.0 * lim.accelMmPerS2);
-  const double overrunMm = lim.maxSpeedMmPerS * static_cast<double>(capture.exposureUs) * 1e-6 + 0.5 + brakingMm;
-  const double endMm = std::clamp(stops.back() + (forward ? overrunMm : -overrunMm), 0.0, lim.strokeMm);
+  // No faster than the camera gives frames: each stop's frame is asked for as the slide
+  // passes it, and a stop passed before the last frame was delivered would be taken late,
+  // and every stop after it later (motion/sweep_speed.h). The camera's time is its recent
+  // captures' (a first scan's own metering frames are among them: asked again below).
+  motion::SlideLimits lim = deps_.limits;
+  const auto pace = [&] { lim.maxSpeedMmPerS = motion::sweepSpeedMmPerS(deps_.limits, stops, captures_.paceNs()); };
+  pace();
+  Result<bool> started = toSweepStart(stops, lim.maxSpeedMmPerS, runUp, ev);
+  if (!started) return started.status();
+  const bool meteredAlready = *started;
   const int64_t from = positionSteps_.load();
-  Result<motion::TrapezoidMove> move = motion::planMove(lim, from, lim.stepsFor(endMm));
-  if (!move) return move.status();
   // The metering overlaps the sweep's own run-up to the first stop, expected to last as
   // long as the last one. It may make the first laser frame late by up to half a stop's
-  // travel (a sweep's frames are not all on their stops anyway: each one's position is
-  // measured); when it would make it later, the slide starts that much later. With no
+  // travel; when it would make it later, the slide starts that much later. With no
   // metering before (the first scan) it runs before the sweep.
-  const int64_t firstStopSteps = std::llabs(lim.stepsFor(stops.front()) - from);
-  const bool overlap = runUp && !positioned && firstStopSteps > 0 && meterNs_ > 0;
-  if (runUp && !positioned && !overlap) {
+  const int64_t firstStopSteps = std::llabs(deps_.limits.stepsFor(stops.front()) - from);
+  const bool overlap = runUp && !meteredAlready && firstStopSteps > 0 && meterNs_ > 0;
+  if (runUp && !meteredAlready && !overlap) {
     runUp();
     if (cancel_.load()) return aborted(ev);
   }
+  pace();
+  ev.sweepSpeedMmPerS =
+      ev.sweepSpeedMmPerS > 0.0 ? std::min(ev.sweepSpeedMmPerS, lim.maxSpeedMmPerS) : lim.maxSpeedMmPerS;
+  ALACS_LOG_DEBUG("scan", "sweep: %zu stops at %.0f mm/s (%.1f ms a capture, from the camera's last %d)", stops.size(),
+                  lim.maxSpeedMmPerS, static_cast<double>(captures_.paceNs()) / 1e6, captures_.count());
+  // Run on past the last stop by an exposure's travel (it is centred on the stop), with a
+  // rolling shutter's the travel until the ROI's last row has exposed, and by the braking
+  // distance, so that the slide passes every stop at cruise speed (each row's position is
+  // then linear in its row) and brakes only after the last frame, while the result is
+  // already out.
+  const double brakingMm = lim.maxSpeedMmPerS * lim.maxSpeedMmPerS / (2.0 * lim.accelMmPerS2);
+  const double rowsS = static_cast<double>(deps_.lineTimeNs) * 1e-9 * (plan.roi.y + plan.roi.height);
+  const double overrunMm =
+      lim.maxSpeedMmPerS * (static_cast<double>(capture.exposureUs) * 1e-6 + rowsS) + 0.5 + brakingMm;
+  const double endMm = std::clamp(stops.back() + (forward ? overrunMm : -overrunMm), 0.0, lim.strokeMm);
+  Result<motion::TrapezoidMove> move = motion::planMove(lim, from, lim.stepsFor(endMm));
+  if (!move) return move.status();
   TimeNs startNs = deps_.clock->now();
   if (overlap) {
     const auto halfStopNs =
@@ -767,6 +803,7 @@ Status ScanWorker::sweepStops(const localize::ScanPlan& plan, ports::CaptureRequ
                                              deps_.clock->now(), sampledMm);
     // A replayed frame has its recorded position, for the frame as a whole.
     const double recordedMm = recordedOr(deps_, std::numeric_limits<double>::quiet_NaN());
+    ev.exposures.back().slideMm = std::isfinite(recordedMm) ? recordedMm : place.slideMm;
     if (std::isfinite(recordedMm))
       pipeline_.push(frame->view, recordedMm);
     else

@@ -20,6 +20,7 @@
 #include "localize/exposure.h"
 #include "localize/localizer.h"
 #include "motion/step_runner.h"
+#include "motion/sweep_speed.h"
 #include "ports/frame_source.h"
 #include "protocol/codec.h"
 #include "survey/survey.h"
@@ -101,6 +102,12 @@ class ScanWorker final : public ScanJobs {
   Status moveOutcome(const motion::MoveReport& r, WorkerEvent& ev);
   // The two ways through a localize plan's stops; both hand frames to pipeline_.
   Status stopAndGo(const localize::ScanPlan& plan, const ports::CaptureRequest& capture, WorkerEvent& ev);
+  // Takes the slide to where a sweep through `stops` (in passing order) at `paceMmPerS`
+  // starts: back to the first stop when it waits inside their span, at full speed to a
+  // slow sweep's run-up when that is sooner (motion::fastRunUpMm), else nowhere. `runUp`
+  // (the metering) runs during such a move: true when it ran.
+  Result<bool> toSweepStart(const std::vector<double>& stops, double paceMmPerS, const std::function<void()>& runUp,
+                            WorkerEvent& ev);
   Status sweepStops(const localize::ScanPlan& plan, ports::CaptureRequest& capture, WorkerEvent& ev,
                     const std::function<void()>& runUp);
   // Posts `ev` to the loop (queue + eventfd).
@@ -160,6 +167,9 @@ class ScanWorker final : public ScanJobs {
   // How long the last metering took, first request to last delivery (0: none yet): the
   // next one's expected length, to fit it into a sweep's run-up (sweepStops()).
   TimeNs meterNs_ = 0;
+  // The camera's recent captures, request to delivery (laser frames and metering frames):
+  // how long a sweep must leave between two stops (motion/sweep_speed.h). Worker thread only.
+  motion::CaptureTimes captures_;
   // ALACS_Progress: written by the worker, read by the loop.
   std::atomic<int> stopsDone_{0};
   std::atomic<int> stopsTotal_{0};

@@ -770,6 +770,38 @@ TEST_CASE("A sweep with a sensor that exposes in its frame slots places each fra
   CHECK((est.centerMm - apple.centerMm).norm() < 2.0);
 }
 
+TEST_CASE("A sweep no faster than the camera takes each frame at its own stop", "[app][worker][render][sweep]") {
+  // The worker asks for a stop's frame as the slide passes it and waits for the frame. A
+  // 30 fps sensor takes 34-68 ms from request to delivery; at the motor's 300 mm/s that is
+  // 10-20 mm of travel, more than the 13.3 mm between stops: the frames fell behind, about
+  // 20 mm apart, and the last ones were taken in the braking past the span. The sweep now
+  // runs at the pace of the camera's recent captures (motion/sweep_speed.h).
+  const SceneRun run = localizeOnScene(localize::ScanParams{}, protocol::ScanMode::kContinuous, {kSensorPeriodNs});
+  REQUIRE(run.event);
+  REQUIRE(run.event->status.isOk());
+  const std::vector<app::ExposureWindow>& ex = run.event->exposures;
+  const size_t n = run.planStopsMm.size();
+  REQUIRE(ex.size() >= n);
+  std::vector<double> stops = run.planStopsMm;
+  const bool forward = ex[n - 1].slideMm > ex[0].slideMm;
+  std::sort(stops.begin(), stops.end());
+  if (!forward) std::reverse(stops.begin(), stops.end());
+  const double v = run.event->sweepSpeedMmPerS;
+  INFO("sweep at " << v << " mm/s");
+  // A first scan knows one capture (the metering frame): it allows twice that, 135 mm/s here.
+  CHECK(v < 300.0);
+  CHECK(v > 100.0);
+  // Each frame after its stop by at most a frame slot's travel (the sensor's next slot
+  // after the request) and the lateness the speed allows (half a gap): never a gap or more.
+  const double gapMm = std::abs(stops[1] - stops[0]);
+  for (size_t i = 0; i < n; ++i) {
+    const double lateMm = forward ? ex[i].slideMm - stops[i] : stops[i] - ex[i].slideMm;
+    INFO("stop " << stops[i] << " mm, frame at " << ex[i].slideMm << " mm");
+    CHECK(lateMm > -0.5);
+    CHECK(lateMm < std::min(gapMm, 0.5 * gapMm + v * 1e-9 * static_cast<double>(kSensorPeriodNs)));
+  }
+}
+
 TEST_CASE("A sweep with a rolling-shutter sensor gives each row the slide's position at its own exposure",
           "[app][worker][render]") {
   // A 30 fps sensor 1536 rows high, read out over the whole period: row v exposes v × 21.7

@@ -2,6 +2,7 @@
 
 #include "app/laser_guard.h"
 #include "motion/step_runner.h"
+#include "motion/sweep_speed.h"
 #include "sim/sim_slide.h"
 
 using namespace alacs;
@@ -234,4 +235,93 @@ TEST_CASE("A late edge shifts the rest of the move instead of a burst of catch-u
   // The move ends the delay later than planned.
   CHECK(edges.back().timeNs - edges.front().timeNs ==
         move->stepTimeNs(800) - move->stepTimeNs(1) + 2'400'000 + lim.stepPulseNs);
+}
+
+TEST_CASE("A sweep passes its stops no faster than the camera gives frames", "[motion][sweep]") {
+  const SlideLimits lim;  // 300 mm/s
+  const std::vector<double> seven{28.5, 41.8, 55.1, 68.4, 81.7, 95.0, 108.3};
+  constexpr TimeNs kFrameNs = 68 * kNsPerMs;  // a 30 fps sensor's longest capture: two periods and the exposure
+  // Not known yet, or a camera that keeps up: the motor's own speed.
+  CHECK(sweepSpeedMmPerS(lim, seven, 0) == lim.maxSpeedMmPerS);
+  CHECK(sweepSpeedMmPerS(lim, seven, 20 * kNsPerMs) == lim.maxSpeedMmPerS);
+  // At the motor's speed the frames fall behind, more at every stop: the last one 40 mm
+  // late, past the span.
+  CHECK(sweepLatenessMm(seven, 300.0, kFrameNs) == Approx(6 * (300.0 * 0.068 - 13.3)));
+  // Even stops 13.3 mm apart: the fastest speed that keeps the worst frame within half a
+  // gap, a little above one gap per capture (196 mm/s), since the lateness only builds up
+  // over the six gaps.
+  const double v = sweepSpeedMmPerS(lim, seven, kFrameNs);
+  CHECK(v == Approx((13.3 + 6.65 / 6) / 0.068).epsilon(1e-6));
+  CHECK(sweepLatenessMm(seven, v, kFrameNs) <= 6.65 + 1e-9);
+  CHECK(sweepLatenessMm(seven, 1.01 * v, kFrameNs) > 6.65);
+  // The second pass's thirds, in either direction of travel, a first-pass stop between
+  // them: 4.4 and 8.9 mm gaps. The short gap's own pace (65 mm/s) would crawl through the
+  // long ones; a frame may run late in a short gap and catch up in the next.
+  for (const std::vector<double>& second :
+       {std::vector<double>{32.93, 37.37, 46.23, 50.67}, std::vector<double>{50.67, 46.23, 37.37, 32.93}}) {
+    const double w = sweepSpeedMmPerS(lim, second, kFrameNs);
+    CHECK(w > 1.3 * 4.43 / 0.068);
+    CHECK(w < 8.87 / 0.068);
+    CHECK(sweepLatenessMm(second, w, kFrameNs) <= 0.5 * (37.37 - 32.93) + 1e-9);
+  }
+  // One stop: nothing to keep up with.
+  CHECK(sweepSpeedMmPerS(lim, {50.0}, kFrameNs) == lim.maxSpeedMmPerS);
+  // Two stops on one place (a clamped end stop): the frame after it is one capture late
+  // whatever the speed, so no later than kSweepLatenessFloorMm; not a division by zero.
+  const double same = sweepSpeedMmPerS(lim, {0.0, 0.0, 13.3}, kFrameNs);
+  CHECK(same == Approx(kSweepLatenessFloorMm / 0.068).epsilon(1e-6));
+}
+
+TEST_CASE("The camera's capture time is its longest recent one, a stall left out", "[motion][sweep]") {
+  CaptureTimes t;
+  CHECK(t.longestNs() == 0);
+  // A 30 fps sensor asked at any phase: 34-68 ms from request to delivery.
+  for (TimeNs ms : {40, 67, 35, 52, 60}) t.record(ms * kNsPerMs);
+  CHECK(t.longestNs() == 67 * kNsPerMs);
+  // A stall (a camera restart) does not slow the sweeps after it...
+  t.record(900 * kNsPerMs);
+  CHECK(t.longestNs() == 67 * kNsPerMs);
+  // ... and a slower camera mode, once most frames say so, does.
+  for (int i = 0; i < CaptureTimes::kFrames; ++i) t.record(130 * kNsPerMs);
+  CHECK(t.longestNs() == 130 * kNsPerMs);
+  CHECK(t.count() == CaptureTimes::kFrames);
+  // Two captures: the lower median bounds the longer one.
+  CaptureTimes two;
+  two.record(34 * kNsPerMs);
+  two.record(68 * kNsPerMs);
+  CHECK(two.longestNs() == 68 * kNsPerMs);
+  two.record(0);  // not a capture
+  CHECK(two.count() == 2);
+  // Few captures known: at least twice the shortest (the sensor's worst phase not seen yet).
+  CaptureTimes one;
+  CHECK(one.paceNs() == 0);
+  one.record(36 * kNsPerMs);
+  CHECK(one.longestNs() == 36 * kNsPerMs);
+  CHECK(one.paceNs() == 72 * kNsPerMs);
+  // A full window: its longest.
+  CHECK(t.paceNs() == t.longestNs());
+}
+
+TEST_CASE("A slow sweep far from its first stop goes there at full speed first", "[motion][sweep]") {
+  const SlideLimits lim;  // 300 mm/s, 3000 mm/s²
+  // The second pass at 30 fps (about 100 mm/s), the slide braked 47 mm past its first stop:
+  // at full speed to where 100 mm/s is reached from rest (1.7 mm, and half a millimetre).
+  const std::optional<double> back = fastRunUpMm(lim, 100.0, 185.0, 137.6);
+  REQUIRE(back);
+  CHECK(*back == Approx(137.6 + 100.0 * 100.0 / 6000.0 + 0.5));
+  // Forward alike.
+  const std::optional<double> ahead = fastRunUpMm(lim, 100.0, 10.0, 60.0);
+  REQUIRE(ahead);
+  CHECK(*ahead == Approx(60.0 - 100.0 * 100.0 / 6000.0 - 0.5));
+  // Sooner that way: the crawl at 100 mm/s takes about 0.49 s, full speed then the run-in 0.28 s.
+  SlideLimits pace = lim;
+  pace.maxSpeedMmPerS = 100.0;
+  const TimeNs crawlNs = planMove(pace, lim.stepsFor(10.0), lim.stepsFor(60.0) + 1)->stepTimeNs(lim.stepsFor(50.0));
+  const TimeNs fastNs = planMove(lim, lim.stepsFor(10.0), lim.stepsFor(*ahead))->durationNs();
+  CHECK(fastNs < crawlNs / 2);
+  // At the motor's own speed, or a little below it, or too near: sweep from where it is.
+  CHECK_FALSE(fastRunUpMm(lim, 300.0, 10.0, 60.0));
+  CHECK_FALSE(fastRunUpMm(lim, 280.0, 10.0, 60.0));
+  CHECK_FALSE(fastRunUpMm(lim, 100.0, 59.0, 60.0));
+  CHECK_FALSE(fastRunUpMm(lim, 100.0, 60.0, 60.0));
 }

@@ -136,6 +136,8 @@ struct Trial {
   bool ok = false;
   int followUpStops = 0;  // the adaptive second pass's stops (0: not taken)
   int laserOffFrames = 0;  // metering and the subtracted frame
+  double sweepSpeedMmPerS = 0;  // continuous: the slowest sweep's cruise speed (0: none)
+  double offStopMm = -1;        // the first pass: its frames' largest distance from their stops (-1: none)
 };
 
 double median(std::vector<double> v) {
@@ -184,6 +186,16 @@ Trial timeJob(app::ScanWorker& worker, int efd, const Clock& clock, double parkM
   t.ok = ev.status.isOk() && !ev.estimates.empty();
   t.followUpStops = ev.followUpStops;
   t.laserOffFrames = ev.laserOffFrames;
+  t.sweepSpeedMmPerS = ev.sweepSpeedMmPerS;
+  // The first pass's frames against its stops, in the order the slide passed them.
+  std::vector<double> stops = job.plan.stopsMm;
+  if (!stops.empty() && ev.exposures.size() >= stops.size()) {
+    std::sort(stops.begin(), stops.end());
+    if (ev.exposures[stops.size() - 1].slideMm < ev.exposures[0].slideMm) std::reverse(stops.begin(), stops.end());
+    t.offStopMm = 0.0;
+    for (size_t i = 0; i < stops.size(); ++i)
+      t.offStopMm = std::max(t.offStopMm, std::abs(ev.exposures[i].slideMm - stops[i]));
+  }
   if (t.ok && truthCentreMm != nullptr && job.kind == app::WorkerJob::Kind::kLocalize)
     t.centreErrMm = (ev.estimates[0].centerMm - *truthCentreMm).norm();
   return t;
@@ -215,6 +227,18 @@ void report(const char* mode, const std::vector<Trial>& trials, bool accuracy, b
     std::printf("  %-12s second pass on %zu/%zu: their cycle median %6.0f ms, max %6.0f ms; the others' median %6.0f ms, "
                 "max %6.0f ms\n",
                 "", second.size(), trials.size(), median(second), maxOf(second), median(single), maxOf(single));
+  std::vector<double> speed, offStop;
+  for (const auto& t : trials) {
+    if (t.sweepSpeedMmPerS > 0) speed.push_back(t.sweepSpeedMmPerS);
+    if (t.offStopMm >= 0) offStop.push_back(t.offStopMm);
+  }
+  if (!offStop.empty())
+    std::printf("  %-12s first pass: its frames' largest distance from their stops, median %.1f mm, max %.1f mm%s\n",
+                "", median(offStop), maxOf(offStop),
+                speed.empty() ? ""
+                              : (" | sweep speed (the camera's pace, the slower pass): median " +
+                                 std::to_string(static_cast<int>(std::lround(median(speed)))) + " mm/s")
+                                    .c_str());
   std::vector<double> render, less, frames;
   for (const auto& t : trials) {
     if (t.frames == 0) continue;
