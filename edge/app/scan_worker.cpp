@@ -699,9 +699,10 @@ Result<bool> ScanWorker::toSweepStart(const std::vector<double>& stops, double p
   // whole way there: the slide first goes at full speed to where the sweep's pace can be
   // reached from rest, when that is sooner (the second pass, which starts where the
   // first one braked, 40-50 mm from its own first stop).
-  const std::optional<double> fastMm = motion::fastRunUpMm(deps_.limits, paceMmPerS, here, stops.front());
-  if (!inside && !fastMm) return false;
-  if (Status st = moveTo(inside ? stops.front() : *fastMm, ev, runUp); !st) return st;
+  const std::optional<double> toMm = inside ? std::optional<double>(stops.front())
+                                            : motion::fastRunUpMm(deps_.limits, paceMmPerS, here, stops.front());
+  if (!toMm) return false;
+  if (Status st = moveTo(*toMm, ev, runUp); !st) return st;
   if (cancel_.load()) return aborted(ev);
   ALACS_LOG_DEBUG("scan", "sweep: %s at full speed, metering meanwhile",
                   inside ? "back to the first stop" : "to the run-up of a slower sweep");
@@ -799,15 +800,14 @@ Status ScanWorker::sweepStops(const localize::ScanPlan& plan, ports::CaptureRequ
       cancel_.store(true);  // stop the sweep: the scan has failed
       break;
     }
-    const FramePlace place = sweptFramePlace(sw->log, from, forward, lim, frame->info, plan.roi, deps_, askedNs,
-                                             deps_.clock->now(), sampledMm);
+    FramePlace place = sweptFramePlace(sw->log, from, forward, lim, frame->info, plan.roi, deps_, askedNs,
+                                       deps_.clock->now(), sampledMm);
     // A replayed frame has its recorded position, for the frame as a whole.
-    const double recordedMm = recordedOr(deps_, std::numeric_limits<double>::quiet_NaN());
-    ev.exposures.back().slideMm = std::isfinite(recordedMm) ? recordedMm : place.slideMm;
-    if (std::isfinite(recordedMm))
-      pipeline_.push(frame->view, recordedMm);
-    else
-      pipeline_.push(frame->view, place.slideMm, place.slideMmPerRow);
+    if (const double recordedMm = recordedOr(deps_, std::numeric_limits<double>::quiet_NaN());
+        std::isfinite(recordedMm))
+      place = {recordedMm, 0.0};
+    ev.exposures.back().slideMm = place.slideMm;
+    pipeline_.push(frame->view, place.slideMm, place.slideMmPerRow);
     if (cancel_.load()) status = aborted(ev);
   }
   if (status.isOk() && sw->moving.load()) {

@@ -6,8 +6,8 @@
 // time are passed before their frame can be asked for, and the frames fall behind their
 // stops, more at each one: at 300 mm/s and 30 fps the first pass's seven stops 13.3 mm
 // apart were taken about 20 mm apart, the last two in the braking past the span, and the
-// second pass's stops 6.7 mm apart the same (docs/daemon.md, "A sweep as fast as the
-// camera"). Pure logic: durations in, a speed out.
+// second pass's stops, 4.4-8.9 mm apart, 20 mm apart too (docs/daemon.md, "A sweep at the
+// camera's pace"). Pure logic: durations in, a speed out.
 #pragma once
 
 #include <array>
