@@ -340,6 +340,11 @@ void writeOverlay(const std::string& dir, int scanIndex, const image::ImageView&
 }
 }  // namespace
 
+void ScanWorker::recordCapture(TimeNs askedNs, const ports::FrameInfo& info) {
+  captures_.record(deps_.clock->now() - askedNs);
+  if (info.exposureStartNs > 0) sensorClock_.observe(info.sequence, info.exposureStartNs);
+}
+
 Result<ports::CapturedFrame> ScanWorker::exposeStop(size_t stop, const ports::CaptureRequest& capture,
                                                      WorkerEvent& ev, double* midSlideMm) {
   // Timeouts and corrupted frames are retried (the camera switches the laser around each
@@ -369,7 +374,7 @@ Result<ports::CapturedFrame> ScanWorker::exposeStop(size_t stop, const ports::Ca
     frame = deps_.camera->capture(capture, laser);
     frameReadSinceNs_.store(0);
     (void)deps_.laser->off();
-    if (frame) captures_.record(deps_.clock->now() - askedNs);
+    if (frame) recordCapture(askedNs, frame->info);
     if (!laserRefused) {
       ev.status = laserRefused;
       ev.faultBit = protocol::kFaultLaserOvertime;
@@ -593,7 +598,7 @@ void ScanWorker::meterExposure(const localize::ScanPlan& plan, ports::CaptureReq
     frameReadSinceNs_.store(0);
     markProgress();
     if (!f) return f.status();
-    captures_.record(deps_.clock->now() - askedNs);
+    recordCapture(askedNs, f->info);
     ++ev.laserOffFrames;
     return localize::LaserOffFrame{f->view, f->info.exposureUs, f->info.analogueGain};
   };
@@ -727,7 +732,7 @@ Status ScanWorker::sweepStops(const localize::ScanPlan& plan, ports::CaptureRequ
   // and every stop after it later (motion/sweep_speed.h). The camera's time is its recent
   // captures' (a first scan's own metering frames are among them: asked again below).
   motion::SlideLimits lim = deps_.limits;
-  const auto pace = [&] { lim.maxSpeedMmPerS = motion::sweepSpeedMmPerS(deps_.limits, stops, captures_.paceNs()); };
+  const auto pace = [&] { lim.maxSpeedMmPerS = motion::sweepSpeedMmPerS(deps_.limits, stops, capturePaceNs()); };
   pace();
   Result<bool> started = toSweepStart(stops, lim.maxSpeedMmPerS, runUp, ev);
   if (!started) return started.status();
@@ -746,8 +751,11 @@ Status ScanWorker::sweepStops(const localize::ScanPlan& plan, ports::CaptureRequ
   pace();
   ev.sweepSpeedMmPerS =
       ev.sweepSpeedMmPerS > 0.0 ? std::min(ev.sweepSpeedMmPerS, lim.maxSpeedMmPerS) : lim.maxSpeedMmPerS;
-  ALACS_LOG_DEBUG("scan", "sweep: %zu stops at %.0f mm/s (%.1f ms a capture, from the camera's last %d)", stops.size(),
-                  lim.maxSpeedMmPerS, static_cast<double>(captures_.paceNs()) / 1e6, captures_.count());
+  ALACS_LOG_DEBUG("scan",
+                  "sweep: %zu stops at %.0f mm/s (%.1f ms a capture, from the camera's last %d; its period %.1f ms, 0 "
+                  "until learnt)",
+                  stops.size(), lim.maxSpeedMmPerS, static_cast<double>(capturePaceNs()) / 1e6, captures_.count(),
+                  static_cast<double>(sensorClock_.periodNs().value_or(0)) / 1e6);
   // Run on past the last stop by an exposure's travel (it is centred on the stop), with a
   // rolling shutter's the travel until the ROI's last row has exposed, and by the braking
   // distance, so that the slide passes every stop at cruise speed (each row's position is

@@ -17,6 +17,7 @@
 #include "app/frame_pipeline.h"
 #include "app/laser_guard.h"
 #include "app/scan_jobs.h"
+#include "common/frame_clock.h"
 #include "localize/exposure.h"
 #include "localize/localizer.h"
 #include "motion/step_runner.h"
@@ -170,6 +171,11 @@ class ScanWorker final : public ScanJobs {
   // The camera's recent captures, request to delivery (laser frames and metering frames):
   // how long a sweep must leave between two stops (motion/sweep_speed.h). Worker thread only.
   motion::CaptureTimes captures_;
+  // The sensor's frame clock, from the delivered frames' timestamps: its period bounds the
+  // worst capture when the recent ones did not show it (CaptureTimes::paceNs). Worker thread only.
+  FrameClock sensorClock_;
+  void recordCapture(TimeNs askedNs, const ports::FrameInfo& info);
+  TimeNs capturePaceNs() const { return captures_.paceNs(sensorClock_.periodNs()); }
   // ALACS_Progress: written by the worker, read by the loop.
   std::atomic<int> stopsDone_{0};
   std::atomic<int> stopsTotal_{0};

@@ -27,10 +27,15 @@ TimeNs CaptureTimes::longestNs() const {
   return longest;
 }
 
-TimeNs CaptureTimes::paceNs() const {
+TimeNs CaptureTimes::paceNs(std::optional<TimeNs> sensorPeriodNs) const {
   const TimeNs longest = longestNs();
-  if (count_ == 0 || count_ >= kFrames) return longest;
+  if (count_ == 0) return longest;
   const TimeNs shortest = *std::min_element(ns_.begin(), ns_.begin() + count_);
+  if (sensorPeriodNs && *sensorPeriodNs > 0 && *sensorPeriodNs <= shortest) {
+    const TimeNs p = *sensorPeriodNs;
+    return (shortest + p - 1) / p * p;
+  }
+  if (count_ >= kFrames) return longest;
   return std::max(longest, 2 * shortest);
 }
 

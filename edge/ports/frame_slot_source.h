@@ -56,6 +56,7 @@ class FrameSlotSource final : public FrameSource {
       const TimeNs slot = nextSlot(clock_.now());
       sleeper_.sleepUntil(slot);
       Result<CapturedFrame> f = inner_.capture(request, ExposureHooks());  // the laser is on already
+      numberBySlot(f, slot);
       if (readout_) sleeper_.sleepUntil(slot + exposureNs + periodNs_);
       hooks.endNow();  // libcamera tells the exposure's end only at the delivery
       return f;
@@ -72,12 +73,18 @@ class FrameSlotSource final : public FrameSource {
     if (Status s = hooks.beginNow(); !s) return s;
     sleeper_.sleepUntil(slot);
     Result<CapturedFrame> f = inner_.capture(request, ExposureHooks());
+    numberBySlot(f, slot);
     // Off a lead after the span, or at the delivery if that comes first.
     const TimeNs deliveryNs = readout_ ? slot + exposureNs + periodNs_ : clock_.now();
     sleeper_.sleepUntil(std::min(span.endNs + leadNs_, deliveryNs));
     hooks.endNow();
     sleeper_.sleepUntil(deliveryNs);
     return f;
+  }
+  // A sensor numbers its frames, delivered or not: the frame's slot, as libcamera's
+  // sequence counts the sensor's frames (the inner source counts its captures).
+  void numberBySlot(Result<CapturedFrame>& f, TimeNs slotNs) const {
+    if (f) f->info.sequence = static_cast<uint64_t>(slotNs / periodNs_);
   }
   TimeNs nextSlot(TimeNs notBeforeNs) const { return (notBeforeNs + periodNs_ - 1) / periodNs_ * periodNs_; }
   ExposureSpan spanAt(TimeNs slotNs, TimeNs exposureNs, int y0, int y1) const {

@@ -302,6 +302,39 @@ TEST_CASE("The camera's capture time is its longest recent one, a stall left out
   CHECK(t.paceNs() == t.longestNs());
 }
 
+TEST_CASE("A sensor's known period bounds its worst capture, even when eight did not show it", "[motion][sweep]") {
+  // A 30 fps sensor (33.3 ms), whose frame is delivered 36 ms after its slot starts at the
+  // earliest, asked at a steady phase of its clock: eight captures of 36-55 ms, none at
+  // the worst phase. Back to back, from one slot to the first usable one after the
+  // delivery, every capture takes two periods, 66.7 ms.
+  constexpr TimeNs kPeriodNs = 33'333'333;
+  constexpr TimeNs kBackToBackNs = 2 * kPeriodNs;
+  CaptureTimes t;
+  for (TimeNs ms : {36, 55, 41, 55, 48, 39, 52, 44}) t.record(ms * kNsPerMs);
+  REQUIRE(t.count() == CaptureTimes::kFrames);
+  CHECK(t.paceNs() == 55 * kNsPerMs);  // the window alone
+  CHECK(t.paceNs(std::nullopt) == 55 * kNsPerMs);
+  CHECK(t.paceNs(kPeriodNs) == kBackToBackNs);
+  // A sweep at the window's pace falls behind its stops by more than a gap; at the
+  // period's it keeps within half a gap.
+  const SlideLimits lim = SlideLimits{};
+  const std::vector<double> stops = {0.0, 13.3, 26.6, 39.9, 53.2, 66.5, 79.8};
+  CHECK(sweepLatenessMm(stops, sweepSpeedMmPerS(lim, stops, t.paceNs()), kBackToBackNs) > 13.3);
+  CHECK(sweepLatenessMm(stops, sweepSpeedMmPerS(lim, stops, t.paceNs(kPeriodNs)), kBackToBackNs) <= 0.5 * 13.3 + 1e-9);
+  // A "period" longer than the shortest capture is not a clock the captures wait on (a
+  // camera that exposes on request, asked every 44 ms): the window decides.
+  CHECK(t.paceNs(44 * kNsPerMs) == 55 * kNsPerMs);
+  // Few captures and a known period: the period's bound, not twice the shortest.
+  CaptureTimes one;
+  one.record(36 * kNsPerMs);
+  CHECK(one.paceNs(kPeriodNs) == kBackToBackNs);
+  CHECK(one.paceNs() == 72 * kNsPerMs);
+  // A pipeline that delivers later (an ISP stage more): three periods.
+  CaptureTimes late;
+  for (TimeNs ms : {70, 88, 95}) late.record(ms * kNsPerMs);
+  CHECK(late.paceNs(kPeriodNs) == 3 * kPeriodNs);
+}
+
 TEST_CASE("A slow sweep far from its first stop goes there at full speed first", "[motion][sweep]") {
   const SlideLimits lim;  // 300 mm/s, 3000 mm/s²
   // The second pass at 30 fps (about 100 mm/s), the slide braked 47 mm past its first stop:

@@ -404,11 +404,13 @@ int simulatedCycle(const Options& o) {
       t.renderMs = rendered.renderMs() - renderBeforeMs;
       t.frames = rendered.frames() - framesBefore;
       if (o.verbose)
-        std::printf("    %s case %2d: %4.0f mm away, parked %+5.1f mm from the first stop: cycle %4.0f ms, last exposure "
-                    "ends %4.0f ms, tail %5.1f ms, %s, centre error %.2f mm, stops %.1f-%.1f mm, second pass %d stops\n",
-                    mode, c, caseDistanceMm(c), parkMm - plan->stopsMm.front(), t.cycleMs, t.lastFrameMs, t.tailMs,
-                    t.ok ? "found" : "not found", t.centreErrMm, plan->stopsMm.front(), plan->stopsMm.back(),
-                    t.followUpStops);
+        std::printf(
+            "    %s case %2d: %4.0f mm away, parked %+5.1f mm from the first stop: cycle %4.0f ms, last exposure "
+            "ends %4.0f ms, tail %5.1f ms, %s, centre error %.2f mm, stops %.1f-%.1f mm, second pass %d stops, "
+            "first pass's frames at most %.1f mm off their stops, sweep %.0f mm/s\n",
+            mode, c, caseDistanceMm(c), parkMm - plan->stopsMm.front(), t.cycleMs, t.lastFrameMs, t.tailMs,
+            t.ok ? "found" : "not found", t.centreErrMm, plan->stopsMm.front(), plan->stopsMm.back(), t.followUpStops,
+            t.offStopMm, t.sweepSpeedMmPerS);
       trials.push_back(t);
       laserOffFrames.push_back(t.laserOffFrames);
       if (t.frames > t.laserOffFrames)
