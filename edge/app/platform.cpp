@@ -213,6 +213,7 @@ class HardwarePlatform final : public Platform {
   const ports::SensorLines& lines() const override { return lines_; }
   ports::FrameSource& camera() override { return *camera_; }
   ScanObserver* observer() override { return timeline_.get(); }
+  bool cameraFreeRuns() const override { return true; }
   std::string restartReason() const override { return camera_->lostReason(); }
 
  private:
@@ -242,6 +243,8 @@ WorkerDeps workerDepsFor(const DaemonConfig& cfg, Platform& platform, const Cloc
   deps.captureRetries = cfg.frameRetries;
   deps.lineTimeNs = static_cast<TimeNs>(std::llround(cfg.lineTimeUs * 1e3));
   deps.timestampAtExposureEnd = cfg.timestampAtExposureEnd;
+  if (platform.cameraFreeRuns())
+    deps.slotLeadNs = cfg.laserOnFrameClock ? 2 * static_cast<TimeNs>(std::llround(cfg.laserLeadUs * 1e3)) : 0;
   deps.realtimePriority = cfg.realtimePriority;
   deps.capture.exposureUs = cfg.exposureUs;
   deps.capture.analogueGain = cfg.analogueGain;

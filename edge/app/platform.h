@@ -55,6 +55,9 @@ class Platform {
   // set for a second with the worker idle, so that the fault is on the bus meanwhile;
   // the daemon then exits with kExitRestart.
   bool restartDue(bool workerBusy, TimeNs now);
+  // The camera is a free-running sensor (libcamera), not one that exposes on request: a
+  // sweep may ask for each frame ahead of its stop (WorkerDeps::slotLeadNs).
+  virtual bool cameraFreeRuns() const { return false; }
   // Told of each scan (the simulator's laser timeline); may be null.
   virtual ScanObserver* observer() { return nullptr; }
 

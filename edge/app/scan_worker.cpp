@@ -342,7 +342,28 @@ void writeOverlay(const std::string& dir, int scanIndex, const image::ImageView&
 
 void ScanWorker::recordCapture(TimeNs askedNs, const ports::FrameInfo& info) {
   captures_.record(deps_.clock->now() - askedNs);
+  // The frames' timestamps as the camera gives them (a start, or an exposure's end), as the
+  // libcamera source learns its clock: it picks the frame a request gets from those.
   if (info.exposureStartNs > 0) sensorClock_.observe(info.sequence, info.exposureStartNs);
+}
+
+std::optional<TimeNs> ScanWorker::nearestFrameAskNs(TimeNs exposureMidNs, const image::Roi& window,
+                                                    int64_t exposureUs) const {
+  if (deps_.slotLeadNs < 0 || !captures_.waitsOnClock(sensorClock_.periodNs())) return std::nullopt;
+  const TimeNs exposureNs = exposureUs * kNsPerUs;
+  // From a frame's timestamp to the middle of the window's exposure (a rolling shutter's
+  // rows start a line time apart)...
+  const TimeNs toMidNs = (deps_.timestampAtExposureEnd ? -exposureNs : 0) + exposureNs / 2 +
+                         deps_.lineTimeNs * (window.y + window.height / 2);
+  const std::optional<TimeNs> stampNs = motion::nearestFrameStartNs(sensorClock_, exposureMidNs - toMidNs);
+  if (!stampNs) return std::nullopt;
+  // ... and the camera takes the first frame whose window starts exposing, on its reckoning
+  // (exposureSpan: the earliest either meaning of the timestamp allows), the lead after
+  // the request: asked a little before that, as the frame before starts a period earlier.
+  constexpr TimeNs kAskMarginNs = 500 * kNsPerUs;
+  const ExposureSpan span =
+      exposureSpan(*stampNs, exposureNs, window.y, window.y + window.height, deps_.lineTimeNs, 0, 0);
+  return span.startNs - deps_.slotLeadNs - kAskMarginNs;
 }
 
 Result<ports::CapturedFrame> ScanWorker::exposeStop(size_t stop, const ports::CaptureRequest& capture,
@@ -714,6 +735,33 @@ Result<bool> ScanWorker::toSweepStart(const std::vector<double>& stops, double p
   return true;
 }
 
+TimeNs ScanWorker::awaitStop(const Sweep& sw, TimeNs moveStartNs, int64_t fromSteps, const motion::SlideLimits& lim,
+                             double stopMm, const image::Roi& window, int64_t exposureUs) {
+  const TimeNs halfExposure = exposureUs * kNsPerUs / 2;
+  // Half an exposure's travel at cruise speed, in steps: the exposure is centred on the stop.
+  const auto halfTravel =
+      static_cast<int64_t>(lim.maxSpeedMmPerS * lim.stepsPerMm * static_cast<double>(halfExposure) * 1e-9);
+  const int64_t k = std::llabs(lim.stepsFor(stopMm) - fromSteps);
+  // Sleep to the planned passing time, then follow the steps actually emitted: a motor
+  // running late (a loaded machine) must not make the frame early.
+  const TimeNs passNs = moveStartNs + (k > 0 ? sw.move.stepTimeNs(k) : 0);
+  TimeNs askNs = passNs - halfExposure;
+  int64_t target = lim.stepsFor(stopMm) + (sw.forward ? -halfTravel : halfTravel);
+  // A free-running sensor: ask in time for the frame nearest the stop, before or after
+  // it (motion::nearestFrameStartNs), once the slide is where the plan has it then.
+  if (const std::optional<TimeNs> nearest = nearestFrameAskNs(passNs, window, exposureUs);
+      nearest && *nearest > deps_.clock->now()) {
+    askNs = *nearest;
+    const auto planned = static_cast<int64_t>(std::floor(sw.move.positionAt(askNs - moveStartNs)));
+    target = fromSteps + (sw.forward ? planned : -planned);
+  }
+  deps_.sleeper->sleepUntil(askNs);
+  while (sw.moving.load() && !cancel_.load() &&
+         (sw.forward ? positionSteps_.load() < target : positionSteps_.load() > target))
+    deps_.sleeper->sleepUntil(deps_.clock->now() + 100 * kNsPerUs);
+  return passNs;
+}
+
 Status ScanWorker::sweepStops(const localize::ScanPlan& plan, ports::CaptureRequest& capture, WorkerEvent& ev,
                               const std::function<void()>& runUp) {
   // One move through every stop; each frame is exposed as the slide passes its stop, and
@@ -787,19 +835,8 @@ Status ScanWorker::sweepStops(const localize::ScanPlan& plan, ports::CaptureRequ
     runUp();
     if (cancel_.load()) status = aborted(ev);
   }
-  const TimeNs halfExposure = capture.exposureUs * kNsPerUs / 2;
-  // Half an exposure's travel at cruise speed, in steps: the exposure is centred on the stop.
-  const auto halfTravel = static_cast<int64_t>(lim.maxSpeedMmPerS * lim.stepsPerMm *
-                                               static_cast<double>(halfExposure) * 1e-9);
   for (size_t i = 0; i < stops.size() && status.isOk(); ++i) {
-    const int64_t k = std::llabs(lim.stepsFor(stops[i]) - from);
-    // Sleep to the planned passing time, then follow the steps actually emitted: a motor
-    // running late (a loaded machine) must not make the frame early.
-    deps_.sleeper->sleepUntil(moveStart + (k > 0 ? move->stepTimeNs(k) : 0) - halfExposure);
-    const int64_t target = lim.stepsFor(stops[i]) + (forward ? -halfTravel : halfTravel);
-    while (sw->moving.load() && !cancel_.load() &&
-           (forward ? positionSteps_.load() < target : positionSteps_.load() > target))
-      deps_.sleeper->sleepUntil(deps_.clock->now() + 100 * kNsPerUs);
+    const TimeNs passNs = awaitStop(*sw, moveStart, from, lim, stops[i], plan.roi, capture.exposureUs);
     double sampledMm = 0.0;
     const TimeNs askedNs = deps_.clock->now();
     Result<ports::CapturedFrame> frame = exposeStop(i, capture, ev, &sampledMm);
@@ -808,6 +845,10 @@ Status ScanWorker::sweepStops(const localize::ScanPlan& plan, ports::CaptureRequ
       cancel_.store(true);  // stop the sweep: the scan has failed
       break;
     }
+    ALACS_LOG_DEBUG(
+        "scan", "stop %zu: the slide passes at %.1f ms; asked at %.1f ms, stamped %.1f ms, delivered %.1f ms", i,
+        static_cast<double>(passNs) / 1e6, static_cast<double>(askedNs) / 1e6,
+        static_cast<double>(frame->info.exposureStartNs) / 1e6, static_cast<double>(deps_.clock->now()) / 1e6);
     FramePlace place = sweptFramePlace(sw->log, from, forward, lim, frame->info, plan.roi, deps_, askedNs,
                                        deps_.clock->now(), sampledMm);
     // A replayed frame has its recorded position, for the frame as a whole.

@@ -49,6 +49,13 @@ struct WorkerDeps {
   // The frame's timestamp marks the end of row 0's exposure (Raspberry Pi's pipelines), not
   // its start (config camera.timestamp_at_exposure_end).
   bool timestampAtExposureEnd = false;
+  // How long before a free-running sensor's frame starts the camera must be asked for it
+  // to take that frame: 2 × camera.laser_lead_us with the laser on the frame clock (the
+  // libcamera source wakes a lead before the frame and switches the laser a lead before
+  // it), 0 when it arms at the request. A sweep then asks for each stop's frame so that
+  // the frame nearest the stop is taken. -1: not known (a camera that exposes on request),
+  // each frame is asked for as the slide passes its stop.
+  TimeNs slotLeadNs = -1;
   std::string debugDir;                // overlay PNGs go here when not empty
   // alacsd --replay: the slide position the frame just captured was recorded at, used
   // instead of the worker's own (unset or NaN: the worker's). Called on the worker thread.
@@ -176,6 +183,13 @@ class ScanWorker final : public ScanJobs {
   FrameClock sensorClock_;
   void recordCapture(TimeNs askedNs, const ports::FrameInfo& info);
   TimeNs capturePaceNs() const { return captures_.paceNs(sensorClock_.periodNs()); }
+  // When to ask for the frame whose window is exposed nearest `exposureMidNs` (the sensor's
+  // clock learnt and waited on, deps_.slotLeadNs known); nullopt: as the slide passes the stop.
+  std::optional<TimeNs> nearestFrameAskNs(TimeNs exposureMidNs, const image::Roi& window, int64_t exposureUs) const;
+  // In a sweep, waits until stop `stopMm`'s frame is to be asked for (the slide passing it,
+  // or in time for the frame nearest it); the time the plan has the slide pass the stop.
+  TimeNs awaitStop(const Sweep& sw, TimeNs moveStartNs, int64_t fromSteps, const motion::SlideLimits& lim,
+                   double stopMm, const image::Roi& window, int64_t exposureUs);
   // ALACS_Progress: written by the worker, read by the loop.
   std::atomic<int> stopsDone_{0};
   std::atomic<int> stopsTotal_{0};

@@ -27,11 +27,16 @@ TimeNs CaptureTimes::longestNs() const {
   return longest;
 }
 
+bool CaptureTimes::waitsOnClock(std::optional<TimeNs> sensorPeriodNs) const {
+  return count_ > 0 && sensorPeriodNs && *sensorPeriodNs > 0 &&
+         *sensorPeriodNs <= *std::min_element(ns_.begin(), ns_.begin() + count_);
+}
+
 TimeNs CaptureTimes::paceNs(std::optional<TimeNs> sensorPeriodNs) const {
   const TimeNs longest = longestNs();
   if (count_ == 0) return longest;
   const TimeNs shortest = *std::min_element(ns_.begin(), ns_.begin() + count_);
-  if (sensorPeriodNs && *sensorPeriodNs > 0 && *sensorPeriodNs <= shortest) {
+  if (waitsOnClock(sensorPeriodNs)) {
     const TimeNs p = *sensorPeriodNs;
     return (shortest + p - 1) / p * p;
   }
@@ -68,6 +73,14 @@ double sweepSpeedMmPerS(const SlideLimits& limits, const std::vector<double>& st
     (keepsUp(mid) ? lo : hi) = mid;
   }
   return lo;
+}
+
+std::optional<TimeNs> nearestFrameStartNs(const FrameClock& clock, TimeNs wantedStartNs) {
+  const std::optional<TimeNs> periodNs = clock.periodNs();
+  const std::optional<TimeNs> after = clock.nextStart(wantedStartNs);
+  if (!periodNs || !after) return std::nullopt;
+  const TimeNs before = *after - *periodNs;
+  return wantedStartNs - before < *after - wantedStartNs ? before : *after;
 }
 
 std::optional<double> fastRunUpMm(const SlideLimits& limits, double paceMmPerS, double hereMm, double firstMm) {

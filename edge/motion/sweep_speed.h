@@ -15,6 +15,7 @@
 #include <vector>
 
 #include "common/clock.h"
+#include "common/frame_clock.h"
 #include "motion/trapezoid.h"
 
 namespace alacs::motion {
@@ -45,6 +46,9 @@ class CaptureTimes {
   //    the shortest (the best is at least a period, so twice it bounds the worst; a first
   //    scan knows one metering frame).
   TimeNs paceNs(std::optional<TimeNs> sensorPeriodNs = std::nullopt) const;
+  // A free-running sensor's clock of `sensorPeriodNs` is what the captures wait on: no
+  // capture was shorter than a period (see paceNs).
+  bool waitsOnClock(std::optional<TimeNs> sensorPeriodNs) const;
   int count() const { return count_; }
 
  private:
@@ -69,6 +73,13 @@ double sweepLatenessMm(const std::vector<double>& stopsMm, double speedMmPerS, T
 inline constexpr double kMinSweepSpeedMmPerS = 1.0;
 inline constexpr double kSweepLatenessFloorMm = 1.0;
 double sweepSpeedMmPerS(const SlideLimits& limits, const std::vector<double>& stopsMm, TimeNs frameNs);
+
+// The start of the frame of a free-running sensor (its clock learnt) nearest `wantedStartNs`,
+// before or after it; nullopt while the clock is not learnt. A sweep asks for that frame
+// (ScanWorker::sweepStops): the frame then lies within half a period's travel of its stop,
+// before or after it, where asking as the slide passes the stop takes the first frame after
+// it, up to a whole period's travel late (6-7 mm at 200 mm/s and 30 fps).
+std::optional<TimeNs> nearestFrameStartNs(const FrameClock& clock, TimeNs wantedStartNs);
 
 // Where a sweep at `paceMmPerS`, slower than the motor, should first go at the motor's full
 // speed (then from rest, at its pace, through its first stop), when the slide waits at

@@ -651,6 +651,7 @@ SceneRun localizeOnScene(const localize::ScanParams& sp, protocol::ScanMode mode
     rig.deps.limits = motion::SlideLimits{};
     rig.deps.lineTimeNs = timing.workerToldLineTime ? timing.lineTimeNs : 0;
     rig.deps.timestampAtExposureEnd = timing.stampsExposureEnd && timing.workerToldStamp;
+    rig.deps.slotLeadNs = timing.laser == ports::LaserTiming::kFrameClock ? 2 * timing.laserLeadNs : 0;
   }
   rig.deps.capture.exposureUs = sim::autoExposureUs(scene);
   const localize::Localizer loc(scene.truth, image::LleParams{}, sp);
@@ -770,6 +771,21 @@ TEST_CASE("A sweep with a sensor that exposes in its frame slots places each fra
   CHECK((est.centerMm - apple.centerMm).norm() < 2.0);
 }
 
+// A continuous scan's first-pass stops in the order the slide passed them (its first
+// exposures are theirs), the scan having succeeded.
+std::vector<double> firstPassStops(const SceneRun& run) {
+  REQUIRE(run.event);
+  REQUIRE(run.event->status.isOk());
+  const std::vector<app::ExposureWindow>& ex = run.event->exposures;
+  const size_t n = run.planStopsMm.size();
+  REQUIRE(n >= 2);
+  REQUIRE(ex.size() >= n);
+  std::vector<double> stops = run.planStopsMm;
+  std::sort(stops.begin(), stops.end());
+  if (ex[n - 1].slideMm < ex[0].slideMm) std::reverse(stops.begin(), stops.end());
+  return stops;
+}
+
 TEST_CASE("A sweep no faster than the camera takes each frame at its own stop", "[app][worker][render][sweep]") {
   // The worker asks for a stop's frame as the slide passes it and waits for the frame. A
   // 30 fps sensor takes 34-68 ms from request to delivery; at the motor's 300 mm/s that is
@@ -777,15 +793,10 @@ TEST_CASE("A sweep no faster than the camera takes each frame at its own stop", 
   // 20 mm apart, and the last ones were taken in the braking past the span. The sweep now
   // runs at the pace of the camera's recent captures (motion/sweep_speed.h).
   const SceneRun run = localizeOnScene(localize::ScanParams{}, protocol::ScanMode::kContinuous, {kSensorPeriodNs});
-  REQUIRE(run.event);
-  REQUIRE(run.event->status.isOk());
+  const std::vector<double> stops = firstPassStops(run);
   const std::vector<app::ExposureWindow>& ex = run.event->exposures;
-  const size_t n = run.planStopsMm.size();
-  REQUIRE(ex.size() >= n);
-  std::vector<double> stops = run.planStopsMm;
+  const size_t n = stops.size();
   const bool forward = ex[n - 1].slideMm > ex[0].slideMm;
-  std::sort(stops.begin(), stops.end());
-  if (!forward) std::reverse(stops.begin(), stops.end());
   const double v = run.event->sweepSpeedMmPerS;
   INFO("sweep at " << v << " mm/s");
   // A first scan knows one capture (the metering frame): it allows twice that, 135 mm/s here.
@@ -793,13 +804,43 @@ TEST_CASE("A sweep no faster than the camera takes each frame at its own stop", 
   CHECK(v > 100.0);
   // Each frame after its stop by at most a frame slot's travel (the sensor's next slot
   // after the request) and the lateness the speed allows (half a gap): never a gap or more.
+  // Once the worker knows the sensor's clock it asks for the frame nearest the stop, which
+  // may be up to half a slot's travel before it.
   const double gapMm = std::abs(stops[1] - stops[0]);
+  const double slotMm = v * 1e-9 * static_cast<double>(kSensorPeriodNs);
   for (size_t i = 0; i < n; ++i) {
     const double lateMm = forward ? ex[i].slideMm - stops[i] : stops[i] - ex[i].slideMm;
     INFO("stop " << stops[i] << " mm, frame at " << ex[i].slideMm << " mm");
-    CHECK(lateMm > -0.5);
-    CHECK(lateMm < std::min(gapMm, 0.5 * gapMm + v * 1e-9 * static_cast<double>(kSensorPeriodNs)));
+    CHECK(lateMm > -0.5 * slotMm - 0.5);
+    CHECK(lateMm < std::min(gapMm, 0.5 * gapMm + slotMm));
   }
+}
+
+TEST_CASE("A sweep asks for the frame nearest each stop once it knows the sensor's clock",
+          "[app][worker][render][sweep]") {
+  // A 60 fps sensor, in a first scan (the sweep's pace from the one metering frame: about
+  // 200 mm/s). Asked as the slide passes each stop, its frame would come in the next slot,
+  // up to a slot's travel (3.3 mm) past the stop; with the sensor's clock learnt (four
+  // frames: the metering frame and three stops) the worker asks two leads before the slot
+  // nearest the stop, before or after it: within half a slot's travel.
+  const TimeNs periodNs = kSensorPeriodNs / 2;
+  const SceneRun run = localizeOnScene(localize::ScanParams{}, protocol::ScanMode::kContinuous,
+                                       {periodNs, 0, true, false, true, ports::LaserTiming::kFrameClock, kNsPerMs});
+  const std::vector<double> stops = firstPassStops(run);
+  const std::vector<app::ExposureWindow>& ex = run.event->exposures;
+  const size_t n = stops.size();
+  REQUIRE(n >= 6);
+  const double v = run.event->sweepSpeedMmPerS;
+  const double slotMm = v * 1e-9 * static_cast<double>(periodNs);
+  double worstMm = 0.0;
+  for (size_t i = 3; i < n; ++i) {
+    const double offMm = ex[i].slideMm - stops[i];
+    INFO("stop " << stops[i] << " mm, frame at " << ex[i].slideMm << " mm");
+    CHECK(std::abs(offMm) <= 0.5 * slotMm + 0.2);
+    worstMm = std::max(worstMm, std::abs(offMm));
+  }
+  WARN("the frames from the fourth stop on: at most " << worstMm << " mm from their stops; a slot is " << slotMm
+                                                      << " mm");
 }
 
 TEST_CASE("A sweep with a rolling-shutter sensor gives each row the slide's position at its own exposure",

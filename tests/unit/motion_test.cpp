@@ -272,6 +272,20 @@ TEST_CASE("A sweep passes its stops no faster than the camera gives frames", "[m
   CHECK(same == Approx(kSweepLatenessFloorMm / 0.068).epsilon(1e-6));
 }
 
+TEST_CASE("The sensor's frame nearest a wanted time, before or after it", "[motion][sweep]") {
+  constexpr TimeNs kPeriodNs = 33'333'333;
+  constexpr TimeNs kPhaseNs = 5'000'000;
+  FrameClock clock;
+  CHECK_FALSE(nearestFrameStartNs(clock, kPhaseNs).has_value());  // not learnt
+  for (uint64_t n = 0; n < 8; ++n) clock.observe(n, kPhaseNs + static_cast<TimeNs>(n) * kPeriodNs);
+  REQUIRE(clock.periodNs().has_value());
+  const TimeNs tenth = kPhaseNs + 10 * kPeriodNs;
+  CHECK(nearestFrameStartNs(clock, tenth + kPeriodNs / 5) == tenth);                  // the one before
+  CHECK(nearestFrameStartNs(clock, tenth + 3 * kPeriodNs / 5) == tenth + kPeriodNs);  // the one after
+  CHECK(nearestFrameStartNs(clock, tenth) == tenth);
+  CHECK(nearestFrameStartNs(clock, tenth - kPeriodNs / 5) == tenth);
+}
+
 TEST_CASE("The camera's capture time is its longest recent one, a stall left out", "[motion][sweep]") {
   CaptureTimes t;
   CHECK(t.longestNs() == 0);

@@ -78,6 +78,7 @@ struct Options {
   double fps = 30.0;         // --virtual-time: the sensor's free-running frame rate
   double lineTimeUs = 0.0;   // a rolling shutter's line time (0: a global shutter)
   int workerLineTime = 1;    // 1: the worker is told the line time (config camera.line_time_us), 0: not
+  int nearestFrame = 1;  // --virtual-time: 1: a sweep asks for the frame nearest each stop (alacsd's), 0: as it passes
   std::string laserTiming = "frame-clock";  // --virtual-time: how the camera switches the laser (ports::LaserTiming)
   double laserLeadUs = 1000.0;
   int globalShutter = 0;  // --virtual-time, frame-clock: the camera is told the sensor has a global shutter
@@ -379,6 +380,11 @@ int simulatedCycle(const Options& o) {
       ports::FrameSource& camera = o.virtualTime ? static_cast<ports::FrameSource&>(sensor) : rendered;
       app::WorkerDeps deps = workerDeps(clock, sleeper, limits, slide, laser, camera);
       deps.lineTimeNs = o.workerLineTime != 0 ? lineTimeNs : 0;
+      // The modelled sensor free-runs: the sweep asks for each stop's nearest frame, as
+      // alacsd does with libcamera (platform.cpp).
+      if (o.virtualTime && o.nearestFrame != 0)
+        deps.slotLeadNs =
+            o.laserTiming == "frame-clock" ? 2 * static_cast<TimeNs>(std::llround(o.laserLeadUs * 1e3)) : 0;
       deps.capture.exposureUs =
           std::min<int64_t>(std::llround(static_cast<double>(sim::autoExposureUs(scene)) * o.exposureX), 3000);
       deps.metering.enabled = o.metering != 0;
@@ -622,6 +628,10 @@ int main(int argc, char** argv) {
       ->check(CLI::Range(0.0, 1000.0));
   app.add_option("--worker-line-time", o.workerLineTime,
                  "1: the worker is told the line time, 0: not (to see the error)")
+      ->capture_default_str();
+  app.add_option("--nearest-frame", o.nearestFrame,
+                 "--virtual-time: 1: a sweep asks for the sensor's frame nearest each stop, once it knows the sensor's "
+                 "clock (alacsd's way), 0: for the next frame as the slide passes each stop (to compare)")
       ->capture_default_str();
   app.add_option("--laser-timing", o.laserTiming,
                  "--virtual-time: frame-clock (the daemon's default: the laser just around each frame) or request "
