@@ -244,7 +244,7 @@ WorkerDeps workerDepsFor(const DaemonConfig& cfg, Platform& platform, const Cloc
   deps.lineTimeNs = static_cast<TimeNs>(std::llround(cfg.lineTimeUs * 1e3));
   deps.timestampAtExposureEnd = cfg.timestampAtExposureEnd;
   if (platform.cameraFreeRuns())
-    deps.slotLeadNs = cfg.laserOnFrameClock ? 2 * static_cast<TimeNs>(std::llround(cfg.laserLeadUs * 1e3)) : 0;
+    deps.slotLeadNs = slotLeadFor(cfg.laserOnFrameClock, std::llround(cfg.laserLeadUs * 1e3));
   deps.realtimePriority = cfg.realtimePriority;
   deps.capture.exposureUs = cfg.exposureUs;
   deps.capture.analogueGain = cfg.analogueGain;

@@ -62,6 +62,13 @@ struct WorkerDeps {
   std::function<double()> frameSlideMm;
 };
 
+// WorkerDeps::slotLeadNs for a free-running camera that switches the laser on its frame
+// clock `laserLeadNs` before a frame (two leads: one to wake, one to switch), or at the
+// request when `laserOnFrameClock` is false (0).
+inline TimeNs slotLeadFor(bool laserOnFrameClock, TimeNs laserLeadNs) {
+  return laserOnFrameClock ? 2 * laserLeadNs : 0;
+}
+
 class ScanWorker final : public ScanJobs {
  public:
   ScanWorker(WorkerDeps deps, const localize::Localizer& localizer, int eventFd);

@@ -27,15 +27,16 @@ TimeNs CaptureTimes::longestNs() const {
   return longest;
 }
 
+TimeNs CaptureTimes::shortestNs() const { return *std::min_element(ns_.begin(), ns_.begin() + count_); }
+
 bool CaptureTimes::waitsOnClock(std::optional<TimeNs> sensorPeriodNs) const {
-  return count_ > 0 && sensorPeriodNs && *sensorPeriodNs > 0 &&
-         *sensorPeriodNs <= *std::min_element(ns_.begin(), ns_.begin() + count_);
+  return count_ > 0 && sensorPeriodNs && *sensorPeriodNs > 0 && *sensorPeriodNs <= shortestNs();
 }
 
 TimeNs CaptureTimes::paceNs(std::optional<TimeNs> sensorPeriodNs) const {
   const TimeNs longest = longestNs();
   if (count_ == 0) return longest;
-  const TimeNs shortest = *std::min_element(ns_.begin(), ns_.begin() + count_);
+  const TimeNs shortest = shortestNs();
   if (waitsOnClock(sensorPeriodNs)) {
     const TimeNs p = *sensorPeriodNs;
     return (shortest + p - 1) / p * p;

@@ -52,6 +52,8 @@ class CaptureTimes {
   int count() const { return count_; }
 
  private:
+  TimeNs shortestNs() const;  // of the captures recorded; count_ > 0
+
   std::array<TimeNs, kFrames> ns_{};
   int count_ = 0;  // recorded, at most kFrames kept
   int next_ = 0;   // where the next one goes

@@ -651,7 +651,7 @@ SceneRun localizeOnScene(const localize::ScanParams& sp, protocol::ScanMode mode
     rig.deps.limits = motion::SlideLimits{};
     rig.deps.lineTimeNs = timing.workerToldLineTime ? timing.lineTimeNs : 0;
     rig.deps.timestampAtExposureEnd = timing.stampsExposureEnd && timing.workerToldStamp;
-    rig.deps.slotLeadNs = timing.laser == ports::LaserTiming::kFrameClock ? 2 * timing.laserLeadNs : 0;
+    rig.deps.slotLeadNs = app::slotLeadFor(timing.laser == ports::LaserTiming::kFrameClock, timing.laserLeadNs);
   }
   rig.deps.capture.exposureUs = sim::autoExposureUs(scene);
   const localize::Localizer loc(scene.truth, image::LleParams{}, sp);

@@ -383,8 +383,7 @@ int simulatedCycle(const Options& o) {
       // The modelled sensor free-runs: the sweep asks for each stop's nearest frame, as
       // alacsd does with libcamera (platform.cpp).
       if (o.virtualTime && o.nearestFrame != 0)
-        deps.slotLeadNs =
-            o.laserTiming == "frame-clock" ? 2 * static_cast<TimeNs>(std::llround(o.laserLeadUs * 1e3)) : 0;
+        deps.slotLeadNs = app::slotLeadFor(o.laserTiming == "frame-clock", std::llround(o.laserLeadUs * 1e3));
       deps.capture.exposureUs =
           std::min<int64_t>(std::llround(static_cast<double>(sim::autoExposureUs(scene)) * o.exposureX), 3000);
       deps.metering.enabled = o.metering != 0;
