@@ -243,6 +243,7 @@ WorkerDeps workerDepsFor(const DaemonConfig& cfg, Platform& platform, const Cloc
   deps.captureRetries = cfg.frameRetries;
   deps.lineTimeNs = static_cast<TimeNs>(std::llround(cfg.lineTimeUs * 1e3));
   deps.timestampAtExposureEnd = cfg.timestampAtExposureEnd;
+  deps.frameClock.maxJitterNs = std::llround(cfg.frameClockJitterUs * 1e3);
   if (platform.cameraFreeRuns())
     deps.slotLeadNs = slotLeadFor(cfg.laserOnFrameClock, std::llround(cfg.laserLeadUs * 1e3));
   deps.realtimePriority = cfg.realtimePriority;

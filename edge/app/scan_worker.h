@@ -56,6 +56,10 @@ struct WorkerDeps {
   // the frame nearest the stop is taken. -1: not known (a camera that exposes on request),
   // each frame is asked for as the slide passes its stop.
   TimeNs slotLeadNs = -1;
+  // How the worker learns the sensor's frame clock from the frames' timestamps (the sweep's
+  // pace and the frame nearest each stop): camera.frame_clock_jitter_us, as the libcamera
+  // source's own clock.
+  FrameClockParams frameClock;
   std::string debugDir;                // overlay PNGs go here when not empty
   // alacsd --replay: the slide position the frame just captured was recorded at, used
   // instead of the worker's own (unset or NaN: the worker's). Called on the worker thread.

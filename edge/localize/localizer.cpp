@@ -622,7 +622,9 @@ Result<AppleEstimate> Localizer::estimateLines(const ScanPlan& plan, const std::
     return roughEstimate(plan);
   // What one line says may be another surface just as a fit may be another object.
   if (est) weighDoubt(plan, scan_.gateMm, *est);
-  return targetOrRough(likelierOfRival(plan, lines, std::move(est)));
+  Result<AppleEstimate> out = targetOrRough(likelierOfRival(plan, lines, std::move(est)));
+  if (out) weighRivalFruit(plan, lines, *out);
+  return out;
 }
 
 namespace {
@@ -707,6 +709,48 @@ double Localizer::systematicSigmaMm(const Eigen::Vector3d& approachMm) const {
   return std::hypot(lineMm, std::max(0.0, calMm));
 }
 
+double Localizer::mixtureSigmaMm(const ScanPlan& plan, const AppleEstimate& est, double p) const {
+  constexpr double kUncoveredShare = 0.05;
+  const double dMm = (est.centerMm - plan.roughMm).norm();
+  const double sr2 = 3.0 * scan_.roughSigmaMm * scan_.roughSigmaMm;
+  double other2 = dMm * dMm + sr2;
+  if (est.rivalShare > 0.0) other2 = std::max(other2, (est.rivalCenterMm - est.centerMm).squaredNorm());
+  const double w = std::max(0.0, (1.0 - p) - kUncoveredShare) / (1.0 - kUncoveredShare);
+  return std::sqrt((1.0 - w) * est.fitSigmaMm * est.fitSigmaMm + w * other2);
+}
+
+void Localizer::weighRivalFruit(const ScanPlan& plan, const std::vector<LineObservation>& lines,
+                                AppleEstimate& est) const {
+  est.rivalFruitIdentity = 1.0;
+  if (!est.sphereFit || est.linesUsed == 0 || !(est.rivalShare > 0.0) || !(scan_.roughSigmaMm > 0.0) ||
+      !(scan_.otherObjectPrior > 0.0))
+    return;
+  // The rival's own estimate: the same lines, the rough position's prior moved onto it.
+  ScanPlan around = plan;
+  around.roughMm = est.rivalCenterMm;
+  Result<AppleEstimate> rival = estimateFused(around, lines, scan_.roughSigmaMm);
+  if (!rival || !rival->sphereFit || (rival->centerMm - around.roughMm).norm() > geometry::kRivalSeparationMm ||
+      (rival->centerMm - est.centerMm).norm() <= geometry::kRivalSeparationMm)
+    return;
+  // Two fruit, one rough position: which of them it was made for, by its error alone (the
+  // density of the rough position's error at each centre; the support says how much of
+  // each the lines saw, not which the arm meant).
+  const double s2 = 2.0 * scan_.roughSigmaMm * scan_.roughSigmaMm;
+  const double dOwn2 = (est.centerMm - plan.roughMm).squaredNorm();
+  const double dRival2 = (rival->centerMm - plan.roughMm).squaredNorm();
+  est.rivalFruitIdentity = 1.0 / (1.0 + std::exp((dOwn2 - dRival2) / s2));
+  // Its rival term becomes the smaller of the two; the choice made stands (what goes out,
+  // where), what it says of itself follows.
+  const double pShare = 1.0 - est.rivalShare;
+  if (!(est.rivalFruitIdentity < pShare) || !(pShare > 0.0)) return;
+  const double pBefore = 0.01 * est.targetPct;
+  const double p = pBefore * est.rivalFruitIdentity / pShare;
+  est.targetPct = 100.0 * p;
+  if (pBefore > 0.0) est.confidencePct *= p / pBefore;
+  est.sigmaMm = mixtureSigmaMm(plan, est, p);
+  if (p < 0.5 && est.doubt == AppleEstimate::Doubt::kNone) est.doubt = AppleEstimate::Doubt::kTwoSurfaces;
+}
+
 void Localizer::weighDoubt(const ScanPlan& plan, double ballMm, AppleEstimate& est) const {
   // The fit's σ holds the points' scatter, not what they share (docs/geometry.md).
   // (It moves the whole fruit: the centre's σ takes it too.)
@@ -739,12 +783,7 @@ void Localizer::weighDoubt(const ScanPlan& plan, double ballMm, AppleEstimate& e
   // A 2σ bound may leave 5 % of the results outside: that much of the other-object chance
   // does not widen σ (else every σ would carry a few % of a neighbour's distance and stop
   // telling good fits from poor ones).
-  constexpr double kUncoveredShare = 0.05;
-  const double sr2 = 3.0 * scan_.roughSigmaMm * scan_.roughSigmaMm;
-  double other2 = dMm * dMm + sr2;
-  if (est.rivalShare > 0.0) other2 = std::max(other2, (est.rivalCenterMm - est.centerMm).squaredNorm());
-  const double w = std::max(0.0, (1.0 - p) - kUncoveredShare) / (1.0 - kUncoveredShare);
-  est.sigmaMm = std::sqrt((1.0 - w) * est.fitSigmaMm * est.fitSigmaMm + w * other2);
+  est.sigmaMm = mixtureSigmaMm(plan, est, p);
   est.targetPct = 100.0 * p;
   est.confidencePct = std::clamp(est.confidencePct * p, 0.0, 100.0);
   if (p < 0.5) est.doubt = pRival < pRough ? AppleEstimate::Doubt::kTwoSurfaces : AppleEstimate::Doubt::kFarFromRough;

@@ -225,6 +225,10 @@ struct AppleEstimate {
   double targetPct = 100.0;  // chance that the fitted object is the target
   double fitSigmaMm = 0.0;   // σ of the approach point: the fit's, systematic and shape terms (no mixture)
   double rivalShare = 0.0;   // rival score / (own + rival) from the sphere fit (0: no rival)
+  // When the rival is a fruit of its own (its own sphere on two lines or more, apart from
+  // this one): the chance, by the rough position alone, that this fit and not that fruit is
+  // the target (Localizer::weighRivalFruit; 1: no such fruit).
+  double rivalFruitIdentity = 1.0;
   Eigen::Vector3d rivalCenterMm = Eigen::Vector3d::Zero();
   // Every other object the sphere fit found in the same points (the rival among them),
   // each with its share: score / (own + its score). Empty: the rival alone, if any.
@@ -336,6 +340,14 @@ class Localizer {
   // Weighs a sphere-fit estimate against the chance that it is another object (see
   // ScanParams::otherObjectPrior): targetPct, doubt, the mixture σ and the confidence.
   void weighDoubt(const ScanPlan& plan, double ballMm, AppleEstimate& est) const;
+  // The approach point's σ for a chance p that `est` is the target: its own (fitSigmaMm)
+  // mixed with the other object's distance (weighDoubt()).
+  double mixtureSigmaMm(const ScanPlan& plan, const AppleEstimate& est, double p) const;
+  // On the estimate that goes out, after weighDoubt() and the choice: when its rival is a
+  // fruit of its own, sets est.rivalFruitIdentity from the two centres' distances to the
+  // rough position and, when that is the smaller rival term, lowers targetPct and the
+  // confidence with it, widens σ, and marks a chance below one half TWO_SURFACES.
+  void weighRivalFruit(const ScanPlan& plan, const std::vector<LineObservation>& lines, AppleEstimate& est) const;
 
   geometry::Calibration cal_;
   image::LleParams lle_;
