@@ -22,12 +22,10 @@ namespace alacs::app {
 
 ScanWorker::ScanWorker(WorkerDeps deps, const localize::Localizer& localizer, int eventFd)
     : deps_(std::move(deps)), localizer_(localizer), eventFd_(eventFd) {
-  sensorClock_ = FrameClock(deps_.frameClock);
   thread_ = std::thread([this] { run(); });
 }
 
 ScanWorker::ScanWorker(WorkerDeps deps, int eventFd) : deps_(std::move(deps)), eventFd_(eventFd) {
-  sensorClock_ = FrameClock(deps_.frameClock);
   thread_ = std::thread([this] { run(); });
 }
 

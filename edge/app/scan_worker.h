@@ -191,7 +191,7 @@ class ScanWorker final : public ScanJobs {
   motion::CaptureTimes captures_;
   // The sensor's frame clock, from the delivered frames' timestamps: its period bounds the
   // worst capture when the recent ones did not show it (CaptureTimes::paceNs). Worker thread only.
-  FrameClock sensorClock_;
+  FrameClock sensorClock_{deps_.frameClock};  // after deps_
   void recordCapture(TimeNs askedNs, const ports::FrameInfo& info);
   TimeNs capturePaceNs() const { return captures_.paceNs(sensorClock_.periodNs()); }
   // When to ask for the frame whose window is exposed nearest `exposureMidNs` (the sensor's
