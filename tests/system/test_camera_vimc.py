@@ -180,8 +180,10 @@ def test_the_laser_is_switched_on_the_sensors_frame_clock(vimc, probe) -> None:
 def test_a_frame_duration_is_asked_and_the_rate_reported(vimc, probe) -> None:
     """camera.frame_duration_us through libcamera: asked as FrameDurationLimits when the camera
     has the control, and the rate the camera runs at reported either way."""
+    # (A capture's timeout of 2 s, as the 1000 frames' test: a stall of the bench's guest
+    # is not what this test is about; docs/hil.md.)
     r = subprocess.run([str(probe), "--frames", "60", "--frame-duration-us", "33333", "--frame-clock-jitter-us", "3000",
-                        *LASER_SIZE],
+                        "--timeout-ms", "2000", *LASER_SIZE],
                        capture_output=True, text=True, timeout=300)
     # The probe prints its report (capture_failures: each failed capture's error) either way.
     assert r.returncode == 0, r.stdout[-3000:] + r.stderr[-2000:]
@@ -224,6 +226,12 @@ def _config(tmp: Path, camera_id: str) -> dict:
     cfg = json.loads((ROOT / "firmware/config/alacsd.json").read_text())
     cfg["calibration"] = str(_calibration(tmp))
     cfg["camera"]["id"] = camera_id
+    # vimc is a software camera inside the bench's guest, whose frames stall for up to
+    # about a second while the host is busy (docs/hil.md, "Stalls of the bench's camera"):
+    # the most retries the daemon takes (11 tries of camera.frame_timeout_ms, 1.65 s), so
+    # that a stall is a dropped frame and not a failed scan. The shipped timeout and laser
+    # guard are kept.
+    cfg["camera"]["retries"] = 10
     return cfg
 
 
@@ -348,7 +356,8 @@ def test_camera_unbound_mid_scan_faults_then_recovers(tmp_path, alacsd, vimc) ->
         _home(sensor)
         sensor.localize(x=10, y=-20, z=1200)
         # The first exposure, then the camera goes away under the scan.
-        assert sensor.recv(lambda n, s: n == ac.MSG_PROGRESS and s["StopsDone"] >= 1, 60) is not None
+        first = sensor.recv(lambda n, s: n == ac.MSG_PROGRESS and s["StopsDone"] >= 1, 60)
+        assert first is not None, f"no first stop ({sensor.seen[-8:]}):\n" + sensor.stop_and_log()
         _unbind(VIMC_DEVICE)
         unbound = True
         header = _result(sensor, 60)
