@@ -314,6 +314,10 @@ std::vector<double> Localizer::followUpStops(const ScanPlan& plan, const std::ve
   }
   double fromMm = -std::numeric_limits<double>::infinity();
   double toMm = std::numeric_limits<double>::infinity();
+  // The rough position stands in, and one line alone put points in the gate: too few for a
+  // fit of their own, so no evidence of another object. They may be the target's at the
+  // pass's edge, the rough position off along the slide by more than the pass's span.
+  const bool loneLine = need.farFromRough && !first->sphereFit && seen == 1;
   if (need.farFromRough) {
     // What the lines saw is likely another object (a neighbour): the target may show
     // through the gaps round the rough position instead, across a fruit's width.
@@ -323,7 +327,12 @@ std::vector<double> Localizer::followUpStops(const ScanPlan& plan, const std::ve
       fromMm = std::min(a, b);
       toMm = std::max(a, b);
     }
-    seen = 0;  // (nearest the rough position's slide first, below)
+    // A lone line: one spacing round it as well.
+    if (loneLine && std::isfinite(fromMm)) {
+      fromMm = std::min(fromMm, seenLo - spacingMm);
+      toMm = std::max(toMm, seenHi + spacingMm);
+    }
+    seen = 0;  // (nearest the rough position's slide first, below; or the lone line's)
   } else if (seen > 0) {
     fromMm = seenLo - spacingMm;
     toMm = seenHi + spacingMm;
@@ -349,12 +358,13 @@ std::vector<double> Localizer::followUpStops(const ScanPlan& plan, const std::ve
     const auto near = [&](double t) { return std::abs(t - s) < minApartMm; };
     if (std::none_of(taken.begin(), taken.end(), near) && std::none_of(out.begin(), out.end(), near)) out.push_back(s);
   }
-  // Nearest the middle of where the fruit was seen (else the rough position's slide) first
-  // when there are more than allowed; then one sweep back from where the first pass ended
-  // (it went forward: from the far end down).
+  // Nearest the middle of where the fruit was seen (else the rough position's slide, or a
+  // lone line, whichever is nearer) first when there are more than allowed; then one
+  // sweep back from where the first pass ended (it went forward: from the far end down).
   const double middleMm = seen > 0 ? seenSum / seen : cal_.laser.slideForPoint(plan.roughMm);
-  std::sort(out.begin(), out.end(),
-            [&](double a, double b) { return std::abs(a - middleMm) < std::abs(b - middleMm); });
+  const double loneMm = loneLine ? seenLo : middleMm;
+  const auto away = [&](double s) { return std::min(std::abs(s - middleMm), std::abs(s - loneMm)); };
+  std::sort(out.begin(), out.end(), [&](double a, double b) { return away(a) < away(b); });
   // Nothing of the fruit seen: no span to follow, the gaps across its width are all
   // candidates (ScanParams::followUpUnseenMaxStops).
   const size_t cap = static_cast<size_t>(seen == 0 ? scan_.followUpUnseenMaxStops : scan_.followUpMaxStops);

@@ -74,6 +74,23 @@ localize::LineObservation lineOf(const geometry::Calibration& cal, const Eigen::
   return sortedByRow(obs);
 }
 
+// The fruit's line at each of `stopsMm`, its points kept only at the stops in `seenAt` (a
+// leaf hides the fruit at the others: the line lies on the leaf, outside the gate).
+std::vector<localize::LineObservation> linesSeenAt(const geometry::Calibration& cal, const Eigen::Vector3d& c, double r,
+                                                   const std::vector<double>& stopsMm,
+                                                   const std::vector<double>& seenAt, std::mt19937& rng) {
+  std::vector<localize::LineObservation> lines;
+  for (double s : stopsMm) {
+    localize::LineObservation l = lineOf(cal, c, r, s, 0.4, {}, rng);
+    if (std::find(seenAt.begin(), seenAt.end(), s) == seenAt.end()) {
+      l.pointsMm.clear();
+      l.pixels.clear();
+    }
+    lines.push_back(std::move(l));
+  }
+  return lines;
+}
+
 // One stop's line on a spheroid about a vertical stem (y): equatorial radius a, polar
 // a·aspect; the plane's curve sampled along rays from the centre's foot in the plane, the
 // camera-facing points kept, one per image row, with noise along the viewing ray.
@@ -464,15 +481,8 @@ TEST_CASE("The second pass's reasons: a mostly hidden fruit, two surfaces, far f
   std::mt19937 rng(37);
   const double s0 = plan.stopsMm.front();
   // Two stops see the fruit (s0 + 20 and s0 + 40), the three others nothing: a leaf.
-  std::vector<localize::LineObservation> lines;
-  for (double s : plan.stopsMm) {
-    localize::LineObservation l = lineOf(k.cal, k.center, k.radius, s, 0.4, {}, rng);
-    if (s != plan.stopsMm[1] && s != plan.stopsMm[2]) {
-      l.pointsMm.clear();
-      l.pixels.clear();
-    }
-    lines.push_back(std::move(l));
-  }
+  std::vector<localize::LineObservation> lines =
+      linesSeenAt(k.cal, k.center, k.radius, plan.stopsMm, {plan.stopsMm[1], plan.stopsMm[2]}, rng);
   Result<localize::AppleEstimate> est = loc.estimate(plan, lines);
   REQUIRE(est.isOk());
   REQUIRE(est->linesUsed == 2);
@@ -533,6 +543,59 @@ TEST_CASE("The second pass's reasons: a mostly hidden fruit, two surfaces, far f
   const double limbSlide = 0.8 * 0.5 * sure.diameterMm / std::abs(k.cal.laser.planeNormal.x());
   for (double s : inside) CHECK(std::abs(s - centreSlide) <= limbSlide + 1e-6);
   CHECK(std::is_sorted(inside.rbegin(), inside.rend()));
+}
+
+TEST_CASE("A lone line at the pass's edge, the rough position standing in: the second pass looks round both",
+          "[localize]") {
+  // The rough position is off along the slide by more than the pass allows: the fruit lies
+  // beyond the first stop, which alone lights it (a leaf hides it from the others). One
+  // line is too little for a fit, and the rough position stands in, FAR_FROM_ROUGH.
+  const PaperScan c;
+  const auto& [k, loc, plan] = c;
+  const Eigen::Vector3d& n = k.cal.laser.planeNormal;
+  const double s0 = plan.stopsMm.front();
+  const double third = 20.0 / 3.0;
+  const Eigen::Vector3d fruit = k.center + (k.cal.laser.planeOffsetAt(s0 - 12.0) - n.dot(k.center)) * n;
+  std::mt19937 rng(41);
+  std::vector<localize::LineObservation> lines = linesSeenAt(k.cal, fruit, k.radius, plan.stopsMm, {s0}, rng);
+  REQUIRE(lines.front().pointsMm.size() >= 3);
+  // What estimate() gives when the widened search's fruit lies far off, through points
+  // outside the gate (the background, leaves behind): the rough position stands in.
+  localize::AppleEstimate rough;
+  rough.centerMm = plan.roughMm;
+  rough.diameterMm = 2.0 * k.radius;
+  rough.doubt = localize::AppleEstimate::Doubt::kFarFromRough;
+  CAPTURE((fruit - plan.roughMm).norm());
+  const std::vector<double> more = loc.followUpStops(plan, lines, rough, 200.0);
+  // The two thirds beyond the first stop are among the new stops (those nearest the lone
+  // line or the rough position's slide are taken); the others lie within the span round
+  // the rough position or one spacing round the line.
+  REQUIRE(more.size() == static_cast<size_t>(k.scan.followUpMaxStops));
+  CHECK(std::count_if(more.begin(), more.end(), [&](double s) { return std::abs(s - (s0 - third)) < 1e-9; }) == 1);
+  CHECK(std::count_if(more.begin(), more.end(), [&](double s) { return std::abs(s - (s0 - 2 * third)) < 1e-9; }) == 1);
+  const double a = k.cal.laser.slideForPoint(plan.roughMm - k.scan.maxAppleRadiusMm * n);
+  const double b = k.cal.laser.slideForPoint(plan.roughMm + k.scan.maxAppleRadiusMm * n);
+  for (double s : more) {
+    CAPTURE(s);
+    CHECK(((s >= std::min(a, b) - 1e-9 && s <= std::max(a, b) + 1e-9) || std::abs(s - s0) <= 20.0 + 1e-9));
+  }
+  // Those stops light the fruit again: a fit of it on three lines or more.
+  for (double s : more) lines.push_back(lineOf(k.cal, fruit, k.radius, s, 0.4, {}, rng));
+  const Result<localize::AppleEstimate> after = loc.estimate(plan, lines);
+  REQUIRE(after.isOk());
+  CAPTURE(after->linesUsed, after->confidencePct, static_cast<int>(after->doubt));
+  CHECK(after->sphereFit);
+  CHECK(after->linesUsed >= 3);
+  CHECK((after->centerMm - fruit).norm() < 3.0);
+  // Two lines that saw something: a fit the rough position was preferred to, so what they
+  // saw was likely another object; the new stops stay round the rough position.
+  localize::LineObservation second = lineOf(k.cal, fruit, k.radius, s0, 0.4, {}, rng);
+  second.slideMm = plan.stopsMm[1];
+  std::vector<localize::LineObservation> two{lines.front(), second};
+  for (double s : loc.followUpStops(plan, two, rough, 200.0)) {
+    CHECK(s >= std::min(a, b) - 1e-9);
+    CHECK(s <= std::max(a, b) + 1e-9);
+  }
 }
 
 TEST_CASE("The second pass at the end of the stroke: clamped, never twice the same stop", "[localize]") {
