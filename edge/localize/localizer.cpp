@@ -315,8 +315,8 @@ std::vector<double> Localizer::followUpStops(const ScanPlan& plan, const std::ve
   double fromMm = -std::numeric_limits<double>::infinity();
   double toMm = std::numeric_limits<double>::infinity();
   // The rough position stands in, and one line alone put points in the gate: too few for a
-  // fit of their own, so no evidence of another object. They may be the target's at the
-  // pass's edge, the rough position off along the slide by more than the pass's span.
+  // sphere of their own, so whose they are rests on one line. They may be the target's at
+  // the pass's edge, the rough position off along the slide by more than the pass's span.
   const bool loneLine = need.farFromRough && !first->sphereFit && seen == 1;
   if (need.farFromRough) {
     // What the lines saw is likely another object (a neighbour): the target may show
@@ -327,7 +327,7 @@ std::vector<double> Localizer::followUpStops(const ScanPlan& plan, const std::ve
       fromMm = std::min(a, b);
       toMm = std::max(a, b);
     }
-    // A lone line: one spacing round it as well.
+    // A lone line: up to one spacing round it as well (and what lies between).
     if (loneLine && std::isfinite(fromMm)) {
       fromMm = std::min(fromMm, seenLo - spacingMm);
       toMm = std::max(toMm, seenHi + spacingMm);

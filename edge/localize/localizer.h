@@ -94,6 +94,9 @@ struct ScanParams {
   // lines saw is likely another object: far from the rough position), there is no span to
   // follow: the target may show through any gap in the leaves across its width round the
   // rough position, and the cap is `followUpUnseenMaxStops` instead (docs/geometry.md).
+  // The rough position standing in with one line alone in the gate, the new stops span
+  // from round the rough position to one spacing round that line (a lone line: the rough
+  // position may be off along the slide), under the same cap.
   // Honest uncertainty (docs/geometry.md "Honest uncertainty"): a fitted fruit may be
   // another object than the target (a touching neighbour, a leaf and the fruit bent into
   // one sphere). The chance that it is the target weighs how far its centre lies from the
