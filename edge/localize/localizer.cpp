@@ -328,7 +328,7 @@ std::vector<double> Localizer::followUpStops(const ScanPlan& plan, const std::ve
       toMm = std::max(a, b);
     }
     // A lone line: up to one spacing round it as well (and what lies between).
-    if (loneLine && std::isfinite(fromMm)) {
+    if (loneLine) {
       fromMm = std::min(fromMm, seenLo - spacingMm);
       toMm = std::max(toMm, seenHi + spacingMm);
     }

@@ -229,8 +229,8 @@ def _config(tmp: Path, camera_id: str) -> dict:
     # vimc is a software camera inside the bench's guest, whose frames stall for up to
     # about a second while the host is busy (docs/hil.md, "Stalls of the bench's camera"):
     # the most retries the daemon takes (11 tries of camera.frame_timeout_ms, 1.65 s), so
-    # that a stall is a dropped frame and not a failed scan. The shipped timeout and laser
-    # guard are kept.
+    # that a stall costs retries (each counted as a dropped frame), not the scan. The
+    # shipped timeout and laser guard are kept.
     cfg["camera"]["retries"] = 10
     return cfg
 
