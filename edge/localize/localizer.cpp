@@ -9,23 +9,12 @@
 #include <limits>
 
 #include "geometry/spheroid_fit.h"
+#include "localize/leaf_colour.h"
 #include "localize/weak_arc.h"
 
 namespace alacs::localize {
 
 namespace {
-
-// Whether the laser-off frame's pixel under a line sample (row, column) is leaf-green:
-// (G + 1) ≥ ratio · (R + 1) (ScanParams::leafGreenRatio; the +1 keeps a black pixel from
-// counting as either). A sample outside the frame is not.
-bool leafGreen(const image::ImageView& laserOff, int row, float column, double ratio) {
-  const int x = static_cast<int>(std::lround(column));
-  if (row < 0 || row >= laserOff.height || x < 0 || x >= laserOff.width) return false;
-  const uint8_t* px = laserOff.row(row) + 3 * static_cast<size_t>(x);
-  const int red = px[image::redOffset(laserOff.format)];
-  const int green = px[1];
-  return green + 1.0 >= ratio * (red + 1.0);
-}
 
 // P(|e| <= x) for a 3D error with isotropic Gaussian components whose total 1σ is
 // sigma3d (Maxwell distribution).
@@ -433,11 +422,13 @@ Result<LineObservation> Localizer::observe(const image::ImageView& frame, const 
   std::vector<geometry::PixelPoint> pixels;
   std::vector<geometry::PixelPoint> leafPixels;
   pixels.reserve(obs.line.rows.size());
-  const bool byColour = laserOff != nullptr && scan_.leafGreenRatio > 0.0;
-  for (const auto& r : obs.line.rows) {
+  const std::vector<bool> onLeaf = laserOff != nullptr ? leafSamples(obs.line, *laserOff, scan_.leafGreenRatio)
+                                                       : std::vector<bool>(obs.line.rows.size(), false);
+  for (size_t i = 0; i < obs.line.rows.size(); ++i) {
+    const image::RowSample& r = obs.line.rows[i];
     if (!r.valid()) continue;
     const geometry::PixelPoint px{static_cast<double>(r.column), static_cast<double>(r.row)};
-    (byColour && leafGreen(*laserOff, r.row, r.column, scan_.leafGreenRatio) ? leafPixels : pixels).push_back(px);
+    (onLeaf[i] ? leafPixels : pixels).push_back(px);
   }
   triangulateRows(plan, slideMm, slideMmPerRow, pixels, &obs.pointsMm, &obs.pixels, &obs.outsidePointsMm);
   if (!leafPixels.empty())

@@ -142,9 +142,11 @@ struct ScanParams {
   // sample whose own pixel in that frame is at least this many times greener than red,
   // (G + 1) ≥ ratio · (R + 1), lies on a leaf (chlorophyll reflects 2-3 times more green
   // than red) and not on a red or bicolour fruit (whose yellow-green ground colour is about
-  // even): it joins no fit. Only where a laser-off frame is held (metering chose to
-  // subtract). 0: off (green varieties), else 1.1..10. docs/geometry.md "Leaves told by
-  // their colour".
+  // even): it joins no fit; so do up to 4 samples of the same segment at the leaf's edge
+  // (within 4 rows of 3 or more green ones), whose pixels take the colour of what lies
+  // beside it (localize/leaf_colour.h). Only
+  // where a laser-off frame is held (metering chose to subtract). 0: off (green
+  // varieties), else 1.1..10. docs/geometry.md "Leaves told by their colour".
   double leafGreenRatio = 1.4;
   int followUpMinLines = 3;
   double followUpHiddenPct = 60.0;
