@@ -30,7 +30,7 @@ sources=(common/json_file common/file_beneath common/result common/log common/cl
          geometry/calibration geometry/calibration_gate geometry/triangulation geometry/sphere_fit
          geometry/spheroid_fit
          image/lle image/lle_focus image/lle_mask image/lle_fit image/lle_reference image/lle_simd
-         motion/trapezoid localize/localizer localize/exposure localize/weak_arc sim/scene replay/scan_dir replay/png_io app/config)
+         motion/trapezoid localize/localizer localize/exposure localize/weak_arc localize/leaf_colour sim/scene replay/scan_dir replay/png_io app/config)
 objs=()
 for src in "${sources[@]}"; do
   obj="$out/obj/${src//\//_}.o"
