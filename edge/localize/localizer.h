@@ -144,9 +144,9 @@ struct ScanParams {
   // than red) and not on a red or bicolour fruit (whose yellow-green ground colour is about
   // even): it joins no fit; so do up to 4 samples of the same segment at the leaf's edge
   // (within 4 rows of 3 or more green ones), whose pixels take the colour of what lies
-  // beside it (localize/leaf_colour.h). Only
-  // where a laser-off frame is held (metering chose to subtract). 0: off (green
-  // varieties), else 1.1..10. docs/geometry.md "Leaves told by their colour".
+  // beside it (localize/leaf_colour.h). Only where a laser-off frame is held (metering
+  // chose to subtract). 0: off (green varieties), else 1.1..10. docs/geometry.md "Leaves
+  // told by their colour".
   double leafGreenRatio = 1.4;
   int followUpMinLines = 3;
   double followUpHiddenPct = 60.0;
