@@ -1,9 +1,7 @@
 #include "localize/leaf_colour.h"
 
-#include <algorithm>
 #include <cmath>
 #include <cstdint>
-#include <utility>
 
 namespace alacs::localize {
 
@@ -54,22 +52,19 @@ void markLeafEdges(const image::LaserLine& line, const std::vector<size_t>& seg,
 
 }  // namespace
 
-std::vector<bool> leafSamples(const image::LaserLine& line, const image::ImageView& laserOff, double ratio) {
+std::vector<bool> leafSamples(const image::LaserLine& line, const image::ImageView* laserOff, double ratio) {
   std::vector<bool> leaf(line.rows.size(), false);
-  if (!(ratio > 0.0)) return leaf;
+  if (laserOff == nullptr || !(ratio > 0.0)) return leaf;
   std::vector<std::vector<size_t>> bySegment(line.segments.size());
   for (size_t i = 0; i < line.rows.size(); ++i) {
     const image::RowSample& r = line.rows[i];
     if (!r.valid()) continue;
-    leaf[i] = leafGreen(laserOff, r.row, r.column, ratio);
+    leaf[i] = leafGreen(*laserOff, r.row, r.column, ratio);
     if (r.segment >= 0 && static_cast<size_t>(r.segment) < bySegment.size())
       bySegment[static_cast<size_t>(r.segment)].push_back(i);
   }
-  for (std::vector<size_t>& seg : bySegment) {
-    // LaserLine::rows is in row order; sorted again so that the rule does not rest on it.
-    std::stable_sort(seg.begin(), seg.end(), [&](size_t a, size_t b) { return line.rows[a].row < line.rows[b].row; });
-    markLeafEdges(line, seg, leaf);
-  }
+  // Taken in index order, each segment's samples are in row order (LaserLine::rows is).
+  for (const std::vector<size_t>& seg : bySegment) markLeafEdges(line, seg, leaf);
   return leaf;
 }
 

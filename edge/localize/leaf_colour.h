@@ -32,7 +32,8 @@ inline constexpr size_t kLeafGreenRunSamples = 3;
 bool leafGreen(const image::ImageView& laserOff, int row, float column, double ratio);
 
 // One flag per line.rows entry: on a leaf (green, or a leaf's edge as above). Invalid rows
-// are never. All false with ratio 0 (off).
-std::vector<bool> leafSamples(const image::LaserLine& line, const image::ImageView& laserOff, double ratio);
+// are never. All false with ratio 0 (off) or without a laser-off frame (null). Rests on
+// LaserLine::rows being in row order, as it is documented to be.
+std::vector<bool> leafSamples(const image::LaserLine& line, const image::ImageView* laserOff, double ratio);
 
 }  // namespace alacs::localize

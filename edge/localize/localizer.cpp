@@ -348,12 +348,13 @@ std::vector<double> Localizer::followUpStops(const ScanPlan& plan, const std::ve
     if (std::none_of(taken.begin(), taken.end(), near) && std::none_of(out.begin(), out.end(), near)) out.push_back(s);
   }
   // Nearest the middle of where the fruit was seen (else the rough position's slide, or a
-  // lone line, whichever is nearer) first when there are more than allowed; then one
-  // sweep back from where the first pass ended (it went forward: from the far end down).
+  // lone line, whichever is nearer) first when there are more than allowed; of two as near,
+  // the lower slide position (stable: `out` is ascending). Then one sweep back from where
+  // the first pass ended (it went forward: from the far end down).
   const double middleMm = seen > 0 ? seenSum / seen : cal_.laser.slideForPoint(plan.roughMm);
   const double loneMm = loneLine ? seenLo : middleMm;
   const auto away = [&](double s) { return std::min(std::abs(s - middleMm), std::abs(s - loneMm)); };
-  std::sort(out.begin(), out.end(), [&](double a, double b) { return away(a) < away(b); });
+  std::stable_sort(out.begin(), out.end(), [&](double a, double b) { return away(a) < away(b); });
   // Nothing of the fruit seen: no span to follow, the gaps across its width are all
   // candidates (ScanParams::followUpUnseenMaxStops).
   const size_t cap = static_cast<size_t>(seen == 0 ? scan_.followUpUnseenMaxStops : scan_.followUpMaxStops);
@@ -422,8 +423,7 @@ Result<LineObservation> Localizer::observe(const image::ImageView& frame, const 
   std::vector<geometry::PixelPoint> pixels;
   std::vector<geometry::PixelPoint> leafPixels;
   pixels.reserve(obs.line.rows.size());
-  const std::vector<bool> onLeaf = laserOff != nullptr ? leafSamples(obs.line, *laserOff, scan_.leafGreenRatio)
-                                                       : std::vector<bool>(obs.line.rows.size(), false);
+  const std::vector<bool> onLeaf = leafSamples(obs.line, laserOff, scan_.leafGreenRatio);
   for (size_t i = 0; i < obs.line.rows.size(); ++i) {
     const image::RowSample& r = obs.line.rows[i];
     if (!r.valid()) continue;

@@ -86,13 +86,15 @@ TEST_CASE("A leaf's edge: the few samples beside its green run that take the fru
   const image::ImageView off = s.view();
   REQUIRE_FALSE(localize::leafGreen(off, 5, 30.0F, kRatio));  // on its own, no leaf
   REQUIRE(localize::leafGreen(off, 12, 30.0F, kRatio));
-  const std::vector<bool> leaf = localize::leafSamples(s.line, off, kRatio);
+  const std::vector<bool> leaf = localize::leafSamples(s.line, &off, kRatio);
   REQUIRE(leaf.size() == s.line.rows.size());
   CHECK(s.at(leaf, 10) == std::vector<bool>(20, false));
   CHECK(s.at(leaf, 30) == std::vector<bool>(16, true));
   CHECK(s.at(leaf, 45) == std::vector<bool>(static_cast<size_t>(green) + 4, true));
   // Off: no sample is a leaf's.
-  CHECK(localize::leafSamples(s.line, off, 0.0) == std::vector<bool>(s.line.rows.size(), false));
+  CHECK(localize::leafSamples(s.line, &off, 0.0) == std::vector<bool>(s.line.rows.size(), false));
+  // Without a laser-off frame: none either.
+  CHECK(localize::leafSamples(s.line, nullptr, kRatio) == std::vector<bool>(s.line.rows.size(), false));
 }
 
 TEST_CASE("A leaf's edge is short and beside a green run: longer runs and lone samples are left as they are",
@@ -130,7 +132,8 @@ TEST_CASE("A leaf's edge is short and beside a green run: longer runs and lone s
   for (image::RowSample& r : s.line.rows)
     if (r.segment == 5) r.segment = 99;
   s.sortByRow();
-  const std::vector<bool> leaf = localize::leafSamples(s.line, s.view(), kRatio);
+  const image::ImageView off = s.view();
+  const std::vector<bool> leaf = localize::leafSamples(s.line, &off, kRatio);
   std::vector<bool> fruitThenLeaf(static_cast<size_t>(red), false);
   fruitThenLeaf.resize(static_cast<size_t>(red) + 6, true);
   CHECK(s.at(leaf, 10) == fruitThenLeaf);
