@@ -291,6 +291,7 @@ std::vector<double> Localizer::followUpStops(const ScanPlan& plan, const std::ve
   double seenHi = -std::numeric_limits<double>::infinity();
   double seenSum = 0.0;
   int seen = 0;
+  std::vector<double> seenAtMm;
   for (const LineObservation& l : lines) {
     size_t on = 0;
     for (const Eigen::Vector3d& p : l.pointsMm)
@@ -299,6 +300,7 @@ std::vector<double> Localizer::followUpStops(const ScanPlan& plan, const std::ve
     seenLo = std::min(seenLo, l.slideMm);
     seenHi = std::max(seenHi, l.slideMm);
     seenSum += l.slideMm;
+    seenAtMm.push_back(l.slideMm);
     ++seen;
   }
   double fromMm = -std::numeric_limits<double>::infinity();
@@ -347,14 +349,24 @@ std::vector<double> Localizer::followUpStops(const ScanPlan& plan, const std::ve
     const auto near = [&](double t) { return std::abs(t - s) < minApartMm; };
     if (std::none_of(taken.begin(), taken.end(), near) && std::none_of(out.begin(), out.end(), near)) out.push_back(s);
   }
-  // Nearest the middle of where the fruit was seen (else the rough position's slide, or a
-  // lone line, whichever is nearer) first when there are more than allowed; of two as near,
-  // the lower slide position (stable: `out` is ascending). Then one sweep back from where
-  // the first pass ended (it went forward: from the far end down).
+  // When there are more than allowed: first the thirds beside a stop that saw the fruit
+  // (the gap in the leaves it saw through; a stop between two that saw it, where a leaf
+  // hid it, comes after them), then nearest the middle of where the fruit was seen (else
+  // the rough position's slide, or a lone line, whichever is nearer); of two as near, the
+  // lower slide position (stable: `out` is ascending). Then one sweep back from where the
+  // first pass ended (it went forward: from the far end down).
   const double middleMm = seen > 0 ? seenSum / seen : cal_.laser.slideForPoint(plan.roughMm);
   const double loneMm = loneLine ? seenLo : middleMm;
   const auto away = [&](double s) { return std::min(std::abs(s - middleMm), std::abs(s - loneMm)); };
-  std::stable_sort(out.begin(), out.end(), [&](double a, double b) { return away(a) < away(b); });
+  const auto besideSeen = [&](double s) {
+    return seen > 0 &&
+           std::any_of(seenAtMm.begin(), seenAtMm.end(), [&](double t) { return std::abs(s - t) <= 0.5 * spacingMm; });
+  };
+  std::stable_sort(out.begin(), out.end(), [&](double a, double b) {
+    const bool besideA = besideSeen(a);
+    const bool besideB = besideSeen(b);
+    return besideA != besideB ? besideA : away(a) < away(b);
+  });
   // Nothing of the fruit seen: no span to follow, the gaps across its width are all
   // candidates (ScanParams::followUpUnseenMaxStops).
   const size_t cap = static_cast<size_t>(seen == 0 ? scan_.followUpUnseenMaxStops : scan_.followUpMaxStops);

@@ -474,6 +474,35 @@ TEST_CASE("The adaptive second pass: denser stops where the first pass saw the f
   CHECK(two[1] == Approx(middle - third));
 }
 
+TEST_CASE("The second pass looks through the gaps the first pass saw the fruit through before the stops between them",
+          "[localize]") {
+  // The fruit seen at s0 + 20 and s0 + 60, a leaf hiding it at s0 + 40 between them.
+  const PaperScan c;
+  const auto& [k, loc, plan] = c;
+  std::mt19937 rng(43);
+  const double third = 20.0 / 3.0;
+  const std::vector<localize::LineObservation> lines =
+      linesSeenAt(k.cal, k.center, k.radius, plan.stopsMm, {plan.stopsMm[1], plan.stopsMm[3]}, rng);
+  const Result<localize::AppleEstimate> est = loc.estimate(plan, lines);
+  REQUIRE(est.isOk());
+  REQUIRE(est->linesUsed == 2);
+  // Room for four: the thirds beside the two stops that saw it, not the four nearest the
+  // middle of the two (s0 + 40 ± 6.7 and ± 13.3, where the leaf is).
+  localize::ScanParams four = k.scan;
+  four.followUpMaxStops = 4;
+  const std::vector<double> beside =
+      localize::Localizer(k.cal, image::LleParams{}, four).followUpStops(plan, lines, est, 200.0);
+  const double s1 = plan.stopsMm[1];
+  const double s3 = plan.stopsMm[3];
+  const std::vector<double> expected{s3 + third, s3 - third, s1 + third, s1 - third};
+  REQUIRE(beside.size() == expected.size());
+  for (size_t i = 0; i < beside.size(); ++i) CHECK(beside[i] == Approx(expected[i]).margin(1e-9));
+  // Room for six: the two nearest the middle join them.
+  const std::vector<double> six = loc.followUpStops(plan, lines, est, 200.0);
+  REQUIRE(six.size() == 6);
+  CHECK(std::count_if(six.begin(), six.end(), [&](double s) { return std::abs(s - (s1 + 20.0)) < 7.0; }) == 2);
+}
+
 TEST_CASE("The second pass's reasons: a mostly hidden fruit, two surfaces, far from the rough position, an unsure size",
           "[localize]") {
   const PaperScan c;
