@@ -290,8 +290,7 @@ std::vector<double> Localizer::followUpStops(const ScanPlan& plan, const std::ve
   double seenLo = std::numeric_limits<double>::infinity();
   double seenHi = -std::numeric_limits<double>::infinity();
   double seenSum = 0.0;
-  int seen = 0;
-  std::vector<double> seenAtMm;
+  std::vector<double> seenAtMm;  // the stops that saw the fruit
   for (const LineObservation& l : lines) {
     size_t on = 0;
     for (const Eigen::Vector3d& p : l.pointsMm)
@@ -301,14 +300,13 @@ std::vector<double> Localizer::followUpStops(const ScanPlan& plan, const std::ve
     seenHi = std::max(seenHi, l.slideMm);
     seenSum += l.slideMm;
     seenAtMm.push_back(l.slideMm);
-    ++seen;
   }
   double fromMm = -std::numeric_limits<double>::infinity();
   double toMm = std::numeric_limits<double>::infinity();
   // The rough position stands in, and one line alone put points in the gate: too few for a
   // sphere of their own, so whose they are rests on one line. They may be the target's at
   // the pass's edge, the rough position off along the slide by more than the pass's span.
-  const bool loneLine = need.farFromRough && !first->sphereFit && seen == 1;
+  const bool loneLine = need.farFromRough && !first->sphereFit && seenAtMm.size() == 1;
   if (need.farFromRough) {
     // What the lines saw is likely another object (a neighbour): the target may show
     // through the gaps round the rough position instead, across a fruit's width.
@@ -323,8 +321,8 @@ std::vector<double> Localizer::followUpStops(const ScanPlan& plan, const std::ve
       fromMm = std::min(fromMm, seenLo - spacingMm);
       toMm = std::max(toMm, seenHi + spacingMm);
     }
-    seen = 0;  // (nearest the rough position's slide first, below; or the lone line's)
-  } else if (seen > 0) {
+    seenAtMm.clear();  // (nearest the rough position's slide first, below; or the lone line's)
+  } else if (!seenAtMm.empty()) {
     fromMm = seenLo - spacingMm;
     toMm = seenHi + spacingMm;
   }
@@ -355,12 +353,12 @@ std::vector<double> Localizer::followUpStops(const ScanPlan& plan, const std::ve
   // the rough position's slide, or a lone line, whichever is nearer); of two as near, the
   // lower slide position (stable: `out` is ascending). Then one sweep back from where the
   // first pass ended (it went forward: from the far end down).
-  const double middleMm = seen > 0 ? seenSum / seen : cal_.laser.slideForPoint(plan.roughMm);
+  const double middleMm =
+      seenAtMm.empty() ? cal_.laser.slideForPoint(plan.roughMm) : seenSum / static_cast<double>(seenAtMm.size());
   const double loneMm = loneLine ? seenLo : middleMm;
   const auto away = [&](double s) { return std::min(std::abs(s - middleMm), std::abs(s - loneMm)); };
   const auto besideSeen = [&](double s) {
-    return seen > 0 &&
-           std::any_of(seenAtMm.begin(), seenAtMm.end(), [&](double t) { return std::abs(s - t) <= 0.5 * spacingMm; });
+    return std::any_of(seenAtMm.begin(), seenAtMm.end(), [&](double t) { return std::abs(s - t) <= 0.5 * spacingMm; });
   };
   std::stable_sort(out.begin(), out.end(), [&](double a, double b) {
     const bool besideA = besideSeen(a);
@@ -369,7 +367,7 @@ std::vector<double> Localizer::followUpStops(const ScanPlan& plan, const std::ve
   });
   // Nothing of the fruit seen: no span to follow, the gaps across its width are all
   // candidates (ScanParams::followUpUnseenMaxStops).
-  const size_t cap = static_cast<size_t>(seen == 0 ? scan_.followUpUnseenMaxStops : scan_.followUpMaxStops);
+  const size_t cap = static_cast<size_t>(seenAtMm.empty() ? scan_.followUpUnseenMaxStops : scan_.followUpMaxStops);
   if (out.size() > cap) out.resize(cap);
   if (plan.stopsMm.back() >= plan.stopsMm.front())
     std::sort(out.begin(), out.end(), std::greater<>());
