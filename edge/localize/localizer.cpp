@@ -43,6 +43,9 @@ double targetProbability(double dMm, double sigmaMm, double ballMm, double other
 constexpr double kToleranceMm = 20.0;  // the vacuum end effector's tolerance (paper)
 constexpr double kSingleLineSigmaMm = 15.0;  // 3D 1σ of what one line says (see estimateSingleLine)
 constexpr double kPieceBreakMm = 6.0;
+// Lines from which a fit leaves little room for a sphere through two objects' pieces (or for
+// one line on a leaf); fewer, and another object is the likelier (otherObjectPrior).
+constexpr int kFirmLines = 3;
 
 // One line per stop: a replay may serve the same recorded frame for two planned stops.
 std::vector<LineObservation> uniqueStops(const std::vector<LineObservation>& observed) {
@@ -599,6 +602,12 @@ Result<AppleEstimate> Localizer::estimateLines(const ScanPlan& plan, const std::
   // about the target than the rough position does.
   const auto targetOrRough = [&](Result<AppleEstimate> e) -> Result<AppleEstimate> {
     if (!e || e->doubt != AppleEstimate::Doubt::kFarFromRough || !scan_.roughWhenFarFromRough) return e;
+    // The target may be in what the lines saw beside that object, before the rough position
+    // stands in.
+    if (e->sphereFit) {
+      Result<AppleEstimate> beside = estimateBesideOther(plan, lines, *e);
+      if (beside) return beside;
+    }
     AppleEstimate rough = roughEstimate(plan);
     rough.doubt = AppleEstimate::Doubt::kFarFromRough;
     rough.targetPct = e->targetPct;
@@ -673,7 +682,7 @@ Eigen::Vector3d Localizer::likeliestOtherMm(const ScanPlan& plan, const AppleEst
 double Localizer::otherObjectPrior(int linesUsed) const {
   // Fewer than three lines leave more room for a sphere through two objects' pieces (or
   // for one line on a leaf): three times the prior. Chosen on the benchmark's hard cases.
-  return linesUsed >= 3 ? scan_.otherObjectPrior : std::min(0.9, 3.0 * scan_.otherObjectPrior);
+  return linesUsed >= kFirmLines ? scan_.otherObjectPrior : std::min(0.9, 3.0 * scan_.otherObjectPrior);
 }
 
 Result<AppleEstimate> Localizer::likelierOfRival(const ScanPlan& plan, const std::vector<LineObservation>& lines,
@@ -798,6 +807,31 @@ void Localizer::weighDoubt(const ScanPlan& plan, double ballMm, AppleEstimate& e
   est.targetPct = 100.0 * p;
   est.confidencePct = std::clamp(est.confidencePct * p, 0.0, 100.0);
   if (p < 0.5) est.doubt = pRival < pRough ? AppleEstimate::Doubt::kTwoSurfaces : AppleEstimate::Doubt::kFarFromRough;
+}
+
+Result<AppleEstimate> Localizer::estimateBesideOther(const ScanPlan& plan, const std::vector<LineObservation>& lines,
+                                                     const AppleEstimate& other) const {
+  const double radiusMm = other.surfaceRadiusMm();
+  const double bandMm = std::max(kOffFruitMm, 3.0 * other.rmsMm);
+  std::vector<LineObservation> rest;
+  rest.reserve(lines.size());
+  size_t left = 0;
+  for (const LineObservation& l : lines) {
+    LineObservation r;
+    r.slideMm = l.slideMm;
+    for (const Eigen::Vector3d& p : l.pointsMm)
+      if (std::abs((p - other.centerMm).norm() - radiusMm) > bandMm) r.pointsMm.push_back(p);
+    left += r.pointsMm.size();
+    rest.push_back(std::move(r));
+  }
+  if (left == 0) return Status(Error::kNotFound, "nothing beside the other object");
+  Result<AppleEstimate> est = estimateFused(plan, rest, scan_.roughSigmaMm);
+  if (!est) return est;
+  if (est->linesUsed < kFirmLines)
+    return Status(Error::kNotFound, "no fruit on " + std::to_string(kFirmLines) + " lines beside the other object");
+  weighDoubt(plan, scan_.gateMm, *est);
+  if (est->doubt != AppleEstimate::Doubt::kNone) return Status(Error::kNotFound, "what is beside it is no likelier");
+  return est;
 }
 
 Result<AppleEstimate> Localizer::estimateWidened(const ScanPlan& plan, const std::vector<LineObservation>& lines) const {

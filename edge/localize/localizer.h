@@ -325,6 +325,10 @@ class Localizer {
   // The widened search: every point the lines saw within searchMm, a weak centre prior; a
   // sphere on two lines or more, else kNotFound.
   Result<AppleEstimate> estimateWidened(const ScanPlan& plan, const std::vector<LineObservation>& lines) const;
+  // The lines' points off `other`'s surface, fitted again round the rough position: a fit
+  // on three lines or more (kFirmLines) that is likelier the target than not; else kNotFound.
+  Result<AppleEstimate> estimateBesideOther(const ScanPlan& plan, const std::vector<LineObservation>& lines,
+                                            const AppleEstimate& other) const;
   // The estimate from the rough position alone: centre there, a prior radius, σ its error.
   AppleEstimate roughEstimate(const ScanPlan& plan) const;
   // When rivalTargetPct() exceeds the fit's targetPct: the estimate of that other object

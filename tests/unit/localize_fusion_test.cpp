@@ -1145,6 +1145,58 @@ TEST_CASE("One line of the target in the gate, a neighbour's sphere beyond: the 
   CHECK(fit->sigmaMm > 0.5 * (neighbour - rough).norm());
 }
 
+TEST_CASE(
+    "The fit is a neighbour far from the rough position: the target is looked for beside it before the rough "
+    "position stands in",
+    "[localize][doubt]") {
+  // A cluster: the target (31 mm radius) mostly hidden by a leaf in front of its upper part,
+  // a larger neighbour touching it from below in full view, and a second neighbour beside
+  // them; the rough position 30 mm off the target, towards the first neighbour (the
+  // hard cases' seed 12, d1600_occ1_0033: the rough position then stood in, 33 mm off).
+  // The fit takes the neighbour with the most skin, far from the rough position: another
+  // object. The points off its surface hold the target on several lines; fitted again round
+  // the rough position they give it, likelier the target than not, and it goes out.
+  Case k;
+  std::mt19937 rng(61);
+  const double targetRadiusMm = 31.0;
+  const Eigen::Vector3d below = k.center + Eigen::Vector3d(-10.0, 76.0, -12.0);
+  const Eigen::Vector3d beside = k.center + Eigen::Vector3d(40.0, -70.0, 10.0);
+  const Eigen::Vector3d rough = k.center + Eigen::Vector3d(-4.0, 29.0, 6.0);
+  localize::Localizer loc(k.cal, image::LleParams{}, k.scan);
+  auto plan = loc.plan(rough, 200.0);
+  REQUIRE(plan.isOk());
+  const std::vector<Leaf> leaves{{k.center + Eigen::Vector3d(0.0, -14.0, -targetRadiusMm - 25.0), 34.0}};
+  std::vector<localize::LineObservation> lines;
+  for (double s : plan->stopsMm) {
+    localize::LineObservation l = lineOf(k.cal, k.center, targetRadiusMm, s, 0.3, leaves, rng);
+    for (const Eigen::Vector3d& c : {below, beside}) {
+      const localize::LineObservation n = lineOf(k.cal, c, 46.0, s, 0.3, {}, rng);
+      l.pointsMm.insert(l.pointsMm.end(), n.pointsMm.begin(), n.pointsMm.end());
+      l.pixels.insert(l.pixels.end(), n.pixels.begin(), n.pixels.end());
+    }
+    applyGate(l, rough, k.scan);
+    lines.push_back(std::move(l));
+  }
+  auto est = loc.estimate(*plan, lines);
+  REQUIRE(est.isOk());
+  INFO("centre " << est->centerMm.transpose() << ", off the target " << (est->centerMm - k.center).norm()
+                 << " mm, lines " << est->linesUsed << ", target " << est->targetPct << " %, doubt "
+                 << static_cast<int>(est->doubt) << ", σ " << est->sigmaMm);
+  CHECK(est->sphereFit);
+  CHECK(est->linesUsed >= 3);
+  CHECK((est->centerMm - k.center).norm() < 6.0);
+  CHECK(est->doubt == localize::AppleEstimate::Doubt::kNone);
+  CHECK(est->targetPct > 50.0);
+  // The fit alone (the rule that lets the rough position stand in, off) is the neighbour.
+  localize::ScanParams fitOut = k.scan;
+  fitOut.roughWhenFarFromRough = false;
+  auto fit = localize::Localizer(k.cal, image::LleParams{}, fitOut).estimate(*plan, lines);
+  REQUIRE(fit.isOk());
+  INFO("the fit alone " << fit->centerMm.transpose());
+  CHECK((fit->centerMm - k.center).norm() > 40.0);
+  CHECK(fit->doubt == localize::AppleEstimate::Doubt::kFarFromRough);
+}
+
 TEST_CASE("Of a fit and its rival, the one the doubt model finds likelier the target is reported",
           "[localize][doubt]") {
   Case k;
