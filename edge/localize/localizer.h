@@ -108,8 +108,10 @@ struct ScanParams {
   double otherObjectPrior = 0.1;
   // A fit within the gate that is more likely another object than the target (its centre
   // far from the rough position: Doubt::kFarFromRough) locates that other object, not the
-  // target. The best estimate of the target is then the rough position's own (its σ, low
-  // confidence), and the bus says ROUGH_ONLY with reason FAR_FROM_ROUGH. On the tuning
+  // target. The points off its surface are fitted again first (estimateBesideOther: a
+  // sphere there on three lines or more, likelier the target, goes out as found); else the
+  // best estimate of the target is the rough position's own (its σ, low confidence), and
+  // the bus says ROUGH_ONLY with reason FAR_FROM_ROUGH. On the tuning
   // worlds not one such fit was within 20 mm of the target (docs/geometry.md). false: the
   // fit goes out, AMBIGUOUS (before issue 17's last change). A fit of the widened search
   // (OUTSIDE_GATE) is treated alike when the lines lit something within the gate (the

@@ -1195,6 +1195,32 @@ TEST_CASE(
   INFO("the fit alone " << fit->centerMm.transpose());
   CHECK((fit->centerMm - k.center).norm() > 40.0);
   CHECK(fit->doubt == localize::AppleEstimate::Doubt::kFarFromRough);
+  // The target at its first two stops only: what remains beside the neighbour is too little
+  // for a fruit of its own, and the rough position stands in (with a bar of two lines it
+  // stands in too: no fit there is likelier the target).
+  std::vector<localize::LineObservation> twoLines;
+  int withTarget = 0;
+  for (double s : plan->stopsMm) {
+    localize::LineObservation l = lineOf(k.cal, k.center, targetRadiusMm, s, 0.3, leaves, rng);
+    if (!l.pointsMm.empty() && ++withTarget > 2) {
+      l = localize::LineObservation{};
+      l.slideMm = s;
+    }
+    for (const Eigen::Vector3d& c : {below, beside}) {
+      const localize::LineObservation n = lineOf(k.cal, c, 46.0, s, 0.3, {}, rng);
+      l.pointsMm.insert(l.pointsMm.end(), n.pointsMm.begin(), n.pointsMm.end());
+      l.pixels.insert(l.pixels.end(), n.pixels.begin(), n.pixels.end());
+    }
+    applyGate(l, rough, k.scan);
+    twoLines.push_back(std::move(l));
+  }
+  REQUIRE(withTarget >= 3);
+  auto fewer = loc.estimate(*plan, twoLines);
+  REQUIRE(fewer.isOk());
+  INFO("two lines of the target: centre " << fewer->centerMm.transpose() << ", lines " << fewer->linesUsed);
+  CHECK(fewer->doubt == localize::AppleEstimate::Doubt::kFarFromRough);
+  CHECK(fewer->linesUsed == 0);
+  CHECK((fewer->centerMm - rough).norm() < 1e-9);
 }
 
 TEST_CASE("Of a fit and its rival, the one the doubt model finds likelier the target is reported",
