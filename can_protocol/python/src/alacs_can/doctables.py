@@ -105,7 +105,10 @@ MEANINGS: dict[type[IntEnum], dict[str, str]] = {
         "FAR_FROM_ROUGH": "what the lines saw lies farther from the rough position than the RGB-D "
                           "camera's error makes likely: more likely a neighbour. ROUGH_ONLY: the rough "
                           "position goes out in its place (`scan.rough_when_far_from_rough`, the "
-                          "default); AMBIGUOUS: the fit goes out (a fruit the widened search found "
+                          "default), unless the points off that object, fitted again round the rough "
+                          "position, give a fruit on three lines or more that is likelier the target, "
+                          "which then goes out as any fit does (MEASURED, without this reason); "
+                          "AMBIGUOUS: the fit goes out (a fruit the widened search found "
                           "where the gate saw nothing else, or with that option off)",
         "CAMERA_FAULT": "camera timeout or corrupt frames",
         "MOTION_FAULT": "slide fault (limit hit, homing lost)",
