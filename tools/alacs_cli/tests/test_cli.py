@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import io
 import json
+import random
 import subprocess
 import sys
 import threading
@@ -41,6 +42,9 @@ class FakeSensor(threading.Thread):
         self.status_every_s: float | None = None
         self.extra_frames: list[can.Message] = []
         self.meas = 0x1FF
+        # The counter of the last command accepted; the same counter again is NACKed
+        # BAD_COUNTER, as alacsd does within 1 s (the fake has no clock).
+        self.last_counter: int | None = None
         self._halt = threading.Event()
 
     def send(self, name: str, **signals: Any) -> None:
@@ -87,6 +91,10 @@ class FakeSensor(threading.Thread):
         if op in self.nack:
             self.ack(op, counter, "NACK", self.nack[op], **self.nack_detail)
             return
+        if counter == self.last_counter:
+            self.ack(op, counter, "NACK", "BAD_COUNTER")
+            return
+        self.last_counter = counter
         if op == "STOP":
             self.stopped = True
         if op == "GET_VERSION":
@@ -166,6 +174,46 @@ def test_localize_success(sensor: FakeSensor, channel: str) -> None:
                    "LocalizeMode": "CONTINUOUS", "TargetId": 7, "RoughX": -120, "RoughY": 45,
                    "RoughZ": 650}
     assert alacs_can.check_command(sensor.received[0].data)
+
+
+def test_a_drawn_counter_that_repeats_the_last_is_sent_again(
+        sensor: FakeSensor, channel: str, monkeypatch: pytest.MonkeyPatch,
+        capsys: pytest.CaptureFixture[str]) -> None:
+    # The previous call drew 6 too, under a second ago: NACK BAD_COUNTER, not executed.
+    monkeypatch.setattr(random, "randrange", lambda n: 6)
+    sensor.last_counter = 6
+    sensor.progress = [dict(ProgressPhase="EXPOSING", StopsDone=1, StopsTotal=2,
+                            ObjectsFound=0)]
+    rc, out = run_cli(channel, "localize", "--x", "0", "--y", "0", "--z", "500",
+                      "--timeout", "3")
+    assert rc == EXIT_OK, out
+    assert [c["CmdCounter"] for c in sensor.commands()] == [6, 7]
+    assert [c["CmdOpcode"] for c in sensor.commands()] == ["LOCALIZE", "LOCALIZE"]
+    assert "AckCounter=7" in out and "LOCALIZE MEASURED" in out
+    assert "progress LOCALIZE EXPOSING stop 1/2" in out  # the second counter's progress
+    assert "counter 6 repeated" in capsys.readouterr().err
+
+
+def test_a_given_counter_that_repeats_the_last_is_nacked(
+        sensor: FakeSensor, channel: str, capsys: pytest.CaptureFixture[str]) -> None:
+    sensor.last_counter = 6
+    rc, out = run_cli(channel, "--counter", "6", "localize", "--x", "0", "--y", "0",
+                      "--z", "500", "--timeout", "3")
+    assert rc == EXIT_REJECTED
+    assert "NackReason=BAD_COUNTER" in out
+    assert [c["CmdCounter"] for c in sensor.commands()] == [6]
+    assert "NACK BAD_COUNTER" in capsys.readouterr().err
+
+
+def test_config_pages_follow_a_counter_sent_again(
+        sensor: FakeSensor, channel: str, monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setattr(random, "randrange", lambda n: 15)
+    sensor.last_counter = 15
+    rc, out = run_cli(channel, "config", "--exposure-us", "900", "--heartbeat-ms", "500")
+    assert rc == EXIT_OK, out
+    assert [(c["CfgPage"], c["CmdCounter"]) for c in sensor.commands()] == [
+        ("ACQUISITION", 15), ("ACQUISITION", 0), ("SCAN", 1)]
+    assert out.count("AckResult=ACK") == 2
 
 
 def test_localize_json(sensor: FakeSensor, channel: str) -> None:

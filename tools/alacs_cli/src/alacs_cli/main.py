@@ -21,7 +21,7 @@ import sys
 import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import Any, TextIO
+from typing import Any, TextIO, TypeVar
 
 import can
 from cantools.database import Database
@@ -35,6 +35,8 @@ from . import envelope
 from .link import Deadline, Decoded, Exchange, Rejected, SensorLink, Timeout
 from .monitor import MonitorTable
 from .progress import ProgressView
+
+T = TypeVar("T")
 
 EXIT_OK, EXIT_REJECTED, EXIT_USAGE, EXIT_TIMEOUT, EXIT_BUS = 0, 1, 2, 3, 4
 EXIT_INTERRUPTED, EXIT_BROKEN_PIPE = 130, 141
@@ -221,9 +223,29 @@ class Cli:
 
     def run_command(self, link: SensorLink, opcode: Opcode, **signals: object) -> Exchange:
         timeout = self.args.timeout if self.args.timeout is not None else 2.0
-        ex = link.command(opcode, self.counter, timeout, **signals)
+        ex = self.with_counter(lambda counter: link.command(opcode, counter, timeout, **signals))
         self.emit_ack("ack", ex.ack)
         return ex
+
+    def with_counter(self, send: Callable[[int], T]) -> T:
+        """``send(counter)`` with this tool's counter, once more with the next on BAD_COUNTER.
+
+        The sensor NACKs BAD_COUNTER, and does not execute, a command whose counter repeats
+        the one it last accepted within 1 s: the previous ``alacs`` call's, say, which drew
+        the same random counter (1 in 16). When the counter is this tool's own draw, not
+        ``--counter``, the command is sent again with the next counter; a given counter is
+        the user's, so its NACK is shown as it came.
+        """
+        try:
+            return send(self.counter)
+        except Rejected as exc:
+            if self.args.counter is not None or exc.reason != "BAD_COUNTER":
+                raise
+        repeated, self.counter = self.counter, (self.counter + 1) & 0x0F
+        print(f"alacs {self.args.cmd}: counter {repeated} repeated the sensor's last accepted "
+              f"one (NACK BAD_COUNTER, not executed): sent again with counter {self.counter}",
+              file=sys.stderr)
+        return send(self.counter)
 
     def cmd_localize(self, link: SensorLink) -> int:
         a = self.args
@@ -248,14 +270,15 @@ class Cli:
         view = ProgressView(self.db, self.out, self.counter, opcode.name, self.args.json)
 
         def on_frame(frame: can.Message) -> None:
+            view.counter = self.counter  # the one sent: it moves on once after BAD_COUNTER
             p = view.push(frame)
             if p is not None:
                 deadline.follow(expected_scan_s(
                     opcode, int(p["StopsTotal"]) - int(p["StopsDone"])))
 
         try:
-            ex = link.command(opcode, self.counter, min(2.0, deadline.remaining()),
-                              on_frame=on_frame, **signals)
+            ex = self.with_counter(lambda counter: link.command(
+                opcode, counter, min(2.0, deadline.remaining()), on_frame=on_frame, **signals))
             self.emit_ack("ack", ex.ack)
             link.wait_result(ex, deadline, target, on_frame=on_frame)
         finally:
@@ -330,7 +353,8 @@ class Cli:
         return run
 
     def cmd_version(self, link: SensorLink) -> int:
-        ex = link.command(Opcode.GET_VERSION, self.counter, self.args.timeout)
+        ex = self.with_counter(
+            lambda counter: link.command(Opcode.GET_VERSION, counter, self.args.timeout))
         ack = ex.ack
         text = (f"alacsd {ack['SwMajor']}.{ack['SwMinor']}.{ack['SwPatch']}  "
                 f"protocol {ack['ProtocolVersion']} (this tool: {alacs_can.PROTOCOL_VERSION})")
@@ -339,15 +363,19 @@ class Cli:
 
     def cmd_config(self, link: SensorLink) -> int:
         a = self.args
-        frames = alacs_can.encode_set_config(
-            self.db, self.counter, exposure_us=a.exposure_us, brce_step=a.brce_step,
-            brce_threshold=a.brce_threshold, scan_stops=a.scan_stops,
-            stop_spacing_mm=a.stop_spacing_mm, heartbeat_ms=a.heartbeat_ms)
-        for frame in frames:
-            counter = frame.data[1] & 0x0F
-            link.bus.send(frame)
-            self.emit_ack("ack", link.wait_ack(Opcode.SET_CONFIG, counter, a.timeout))
-        return EXIT_OK
+
+        def send_pages(first_counter: int) -> int:
+            frames = alacs_can.encode_set_config(
+                self.db, first_counter, exposure_us=a.exposure_us, brce_step=a.brce_step,
+                brce_threshold=a.brce_threshold, scan_stops=a.scan_stops,
+                stop_spacing_mm=a.stop_spacing_mm, heartbeat_ms=a.heartbeat_ms)
+            for frame in frames:
+                counter = frame.data[1] & 0x0F
+                link.bus.send(frame)
+                self.emit_ack("ack", link.wait_ack(Opcode.SET_CONFIG, counter, a.timeout))
+            return EXIT_OK
+
+        return self.with_counter(send_pages)
 
     def cmd_status(self, link: SensorLink) -> int:
         status_id = self.db.get_message_by_name(alacs_can.MSG_STATUS).frame_id

@@ -20,7 +20,7 @@ class ProgressView:
                  json_lines: bool = False, tty: bool | None = None) -> None:
         self._db = db
         self._out = out
-        self._counter = counter
+        self.counter = counter
         self._mode = mode
         self._json = json_lines
         self._id = db.get_message_by_name(alacs_can.MSG_PROGRESS).frame_id
@@ -46,7 +46,7 @@ class ProgressView:
             p = alacs_can.decode(self._db, frame)
         except (DecodeError, ValueError):
             return None
-        if p["ProgressCounter"] != self._counter or p["ProgressMode"] != self._mode:
+        if p["ProgressCounter"] != self.counter or p["ProgressMode"] != self._mode:
             return None
         self.latest = p
         key = (p["ProgressPhase"], p["StopsDone"], p["StopsTotal"], p["ObjectsFound"])
