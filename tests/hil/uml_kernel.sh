@@ -33,7 +33,15 @@ readonly kOptions=(
     VIDEO_DEV MEDIA_CONTROLLER V4L_TEST_DRIVERS VIDEO_VIMC VIDEOBUF2_VMALLOC
 )
 # Integer options (name=value), set with the booleans above.
-readonly kValues=(UML_PCI_OVER_VIRTIO_DEVICE_ID=1234)
+# KERNEL_STACK_ORDER 4 (64 KB): each thread_info and the signal stack's register
+# frame hold a host XSAVE area, up to 16 KB with uml-xstate.patch.
+readonly kValues=(UML_PCI_OVER_VIRTIO_DEVICE_ID=1234 KERNEL_STACK_ORDER=4)
+# Linux 6.1's UML hard-codes the host's XSAVE area as 2696 bytes (an AVX-512 CPU's).
+# The host's PTRACE_SETREGSET takes exactly its own size and fails with EFAULT on
+# any other, so on a CPU with AMX (11008 bytes) init dies at its first context
+# switch ("userspace - ptrace set fp regs failed, errno = 14", then a panic). The
+# patch reads the size from the host and makes room for 16 KB.
+readonly kPatch="$(cd "$(dirname "${BASH_SOURCE[0]}")" && pwd -P)/uml-xstate.patch"
 
 die() {
     echo "uml_kernel.sh: $*" >&2
@@ -60,6 +68,7 @@ build_kernel() {
         cd "$dir"
         "${run[@]}" tar xJf "$kSourceTarball"
         cd linux-source-6.1
+        patch -p1 --quiet <"$kPatch"
         "${run[@]}" make ARCH=um defconfig
         ./scripts/config "${enable[@]}"
         "${run[@]}" make ARCH=um olddefconfig
@@ -95,6 +104,7 @@ main() {
             printf "%s\n" "${kOptions[@]}" "${kValues[@]}"
             echo "$kSourcePackage $version"
             declare -f build_kernel
+            cat "$kPatch"
         } | sha256sum | cut -c1-16
     )
     local root
