@@ -297,7 +297,7 @@ std::vector<double> Localizer::followUpStops(const ScanPlan& plan, const std::ve
   for (const LineObservation& l : lines) {
     size_t on = 0;
     for (const Eigen::Vector3d& p : l.pointsMm)
-      if (!first->sphereFit || std::abs((p - centre).norm() - radius) < onSurfaceMm) ++on;
+      if (!first->sphereFit || first->offSurfaceMm(p) < onSurfaceMm) ++on;
     if (on < kMinPointsSeen) continue;
     seenLo = std::min(seenLo, l.slideMm);
     seenHi = std::max(seenHi, l.slideMm);
@@ -564,11 +564,9 @@ constexpr size_t kOccupiedGatePoints = kMinPointsSeen;
 constexpr double kOffFruitMm = 6.0;
 
 size_t otherPointsInGate(const std::vector<LineObservation>& lines, const AppleEstimate& found) {
-  const double radiusMm = found.surfaceRadiusMm();
   size_t n = 0;
   for (const LineObservation& l : lines) {
-    for (const Eigen::Vector3d& p : l.pointsMm)
-      n += std::abs((p - found.centerMm).norm() - radiusMm) > kOffFruitMm ? 1U : 0U;
+    for (const Eigen::Vector3d& p : l.pointsMm) n += found.offSurfaceMm(p) > kOffFruitMm ? 1U : 0U;
     n += l.leafPointsMm.size();  // leaves, told by their colour
   }
   return n;
@@ -811,7 +809,6 @@ void Localizer::weighDoubt(const ScanPlan& plan, double ballMm, AppleEstimate& e
 
 Result<AppleEstimate> Localizer::estimateBesideOther(const ScanPlan& plan, const std::vector<LineObservation>& lines,
                                                      const AppleEstimate& other) const {
-  const double radiusMm = other.surfaceRadiusMm();
   const double bandMm = std::max(kOffFruitMm, 3.0 * other.rmsMm);
   std::vector<LineObservation> rest;
   rest.reserve(lines.size());
@@ -820,7 +817,7 @@ Result<AppleEstimate> Localizer::estimateBesideOther(const ScanPlan& plan, const
     LineObservation r;
     r.slideMm = l.slideMm;
     for (const Eigen::Vector3d& p : l.pointsMm)
-      if (std::abs((p - other.centerMm).norm() - radiusMm) > bandMm) r.pointsMm.push_back(p);
+      if (other.offSurfaceMm(p) > bandMm) r.pointsMm.push_back(p);
     left += r.pointsMm.size();
     rest.push_back(std::move(r));
   }

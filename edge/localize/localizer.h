@@ -10,6 +10,7 @@
 #pragma once
 
 #include <Eigen/Core>
+#include <cmath>
 #include <vector>
 
 #include "common/result.h"
@@ -212,6 +213,10 @@ struct AppleEstimate {
   // lies at surfaceRadiusMm() about centerMm, which is what tells points on it from others.
   double diameterHeldMm = 0.0;
   double surfaceRadiusMm() const { return 0.5 * (diameterMm + diameterHeldMm); }
+  // How far a point lies from that surface, either side: the test for "on this fruit".
+  double offSurfaceMm(const Eigen::Vector3d& pointMm) const {
+    return std::abs((pointMm - centerMm).norm() - surfaceRadiusMm());
+  }
   double sigmaMm = 0.0;          // 1σ (3D) of the approach point
   double centerSigmaMm = 0.0;    // 1σ (3D) of the centre
   double diameterSigmaMm = 0.0;
