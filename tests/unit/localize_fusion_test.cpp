@@ -1166,17 +1166,19 @@ TEST_CASE(
   auto plan = loc.plan(rough, 200.0);
   REQUIRE(plan.isOk());
   const std::vector<Leaf> leaves{{k.center + Eigen::Vector3d(0.0, -14.0, -targetRadiusMm - 25.0), 34.0}};
-  std::vector<localize::LineObservation> lines;
-  for (double s : plan->stopsMm) {
-    localize::LineObservation l = lineOf(k.cal, k.center, targetRadiusMm, s, 0.3, leaves, rng);
+  // The target's line at stop s joined by both neighbours' lines, then gated.
+  auto withNeighbours = [&](localize::LineObservation l, double s) {
     for (const Eigen::Vector3d& c : {below, beside}) {
       const localize::LineObservation n = lineOf(k.cal, c, 46.0, s, 0.3, {}, rng);
       l.pointsMm.insert(l.pointsMm.end(), n.pointsMm.begin(), n.pointsMm.end());
       l.pixels.insert(l.pixels.end(), n.pixels.begin(), n.pixels.end());
     }
     applyGate(l, rough, k.scan);
-    lines.push_back(std::move(l));
-  }
+    return l;
+  };
+  std::vector<localize::LineObservation> lines;
+  for (double s : plan->stopsMm)
+    lines.push_back(withNeighbours(lineOf(k.cal, k.center, targetRadiusMm, s, 0.3, leaves, rng), s));
   auto est = loc.estimate(*plan, lines);
   REQUIRE(est.isOk());
   INFO("centre " << est->centerMm.transpose() << ", off the target " << (est->centerMm - k.center).norm()
@@ -1206,13 +1208,7 @@ TEST_CASE(
       l = localize::LineObservation{};
       l.slideMm = s;
     }
-    for (const Eigen::Vector3d& c : {below, beside}) {
-      const localize::LineObservation n = lineOf(k.cal, c, 46.0, s, 0.3, {}, rng);
-      l.pointsMm.insert(l.pointsMm.end(), n.pointsMm.begin(), n.pointsMm.end());
-      l.pixels.insert(l.pixels.end(), n.pixels.begin(), n.pixels.end());
-    }
-    applyGate(l, rough, k.scan);
-    twoLines.push_back(std::move(l));
+    twoLines.push_back(withNeighbours(std::move(l), s));
   }
   REQUIRE(withTarget >= 3);
   auto fewer = loc.estimate(*plan, twoLines);
