@@ -483,16 +483,19 @@ class Impl final : public LibcameraSource {
   // after the window's end and `periodNs` the period that end was reckoned with; else at
   // once, `offAtNs` 0 (off at the delivery). No frame it can catch before the deadline:
   // the laser stays off (the capture times out). A thread that wakes too late for its
-  // frame (a loaded machine, a coarse timer) does not pulse the laser for it; after
-  // kMaxLateWakes in one capture the capture takes the laser from now on, so that a late
-  // wake costs at most one frame period (on the bench, 3 cost 60 ms a capture).
-  static constexpr int kMaxLateWakes = 1;
+  // frame (a loaded machine, a coarse timer) does not pulse the laser for it. Either miss,
+  // that or a frame that came after the laser went off (doCapture), counts in
+  // `clockMisses`; after kMaxClockMisses in one capture the capture takes the laser from
+  // now on, so that a clock the frames do not keep to costs a capture at most one frame
+  // period. (On the bench, trying 3 late wakes cost 60 ms a capture; a clock that missed
+  // every frame, unbounded, timed a capture out after 2 s of pulses.)
+  static constexpr int kMaxClockMisses = 1;
   Status armLaser(const ports::CaptureRequest& r, const ports::ExposureHooks& hooks, LaserWindow& laser,
-                  TimeNs deadlineNs, int& lateWakes, TimeNs& offAtNs, TimeNs& periodNs) {
+                  TimeNs deadlineNs, int& clockMisses, TimeNs& offAtNs, TimeNs& periodNs) {
     offAtNs = 0;
     periodNs = frameClock_.periodNs().value_or(0);
     const TimeNs leadNs = cfg_.laserLeadNs;
-    while (cfg_.laserOnFrameClock && hooks.begin && lateWakes < kMaxLateWakes) {
+    while (cfg_.laserOnFrameClock && hooks.begin && clockMisses < kMaxClockMisses) {
       // A frame whose window starts before now + 2 leads is not caught: one lead to wake,
       // one to switch.
       const TimeNs notBefore = monotonicNowNs() + 2 * leadNs;
@@ -528,7 +531,7 @@ class Impl final : public LibcameraSource {
         }
         laser.end();  // the switch itself took the lead
       }
-      ++lateWakes;
+      ++clockMisses;
       std::lock_guard<std::mutex> lock(mu_);
       ++stats_.frameClockMisses;
     }
@@ -568,10 +571,10 @@ class Impl final : public LibcameraSource {
     TimeNs offAtNs = 0;   // when the laser goes off; 0: at the delivery
     TimeNs periodNs = 0;  // the period the laser's window was reckoned with
     bool armed = false;
-    int lateWakes = 0;
+    int clockMisses = 0;  // this capture's, both kinds (armLaser)
     while (true) {
       if (!armed) {
-        if (Status s = armLaser(r, hooks, laser, deadlineNs, lateWakes, offAtNs, periodNs); !s) return s;
+        if (Status s = armLaser(r, hooks, laser, deadlineNs, clockMisses, offAtNs, periodNs); !s) return s;
         armed = true;
       }
       if (laser.on && offAtNs > 0) {
@@ -586,8 +589,12 @@ class Impl final : public LibcameraSource {
         return std::move(*out);
       // Not this capture's frame. One that began under the laser but ended after it went
       // off (later than predicted, or the one predicted was dropped): on again for the
-      // next. An older one: the frame lit may still come.
-      if (cameLate) armed = false;
+      // next, from the request once the clock has missed kMaxClockMisses. An older one: the
+      // frame lit may still come.
+      if (cameLate) {
+        armed = false;
+        ++clockMisses;
+      }
     }
   }
 
