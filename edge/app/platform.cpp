@@ -109,6 +109,7 @@ class CameraWhenAvailable final : public ports::FrameSource {
     error_ = Status::ok();
     rateLogged_ = false;
     capturesUnlearnt_ = 0;
+    missWatch_.reset();
     source_.store(owner_.get());
     return error_;
   }
@@ -129,6 +130,15 @@ class CameraWhenAvailable final : public ports::FrameSource {
       capturesUnlearnt_ = 0;
     }
     if (!rateLogged_) logRate(st);
+    if (cfg_.laserOnFrameClock && missWatch_.afterCapture(st.frameClockMisses))
+      ALACS_LOG_WARN("camera",
+                     "the frame clock missed %d of the last %d captures (a frame later than predicted, or the "
+                     "capture's thread woke late): each cost a frame period and a second laser pulse, from the "
+                     "request; camera.laser_lead_us %lld, camera.frame_clock_jitter_us %lld (raise them, or set "
+                     "camera.laser_on_frame_clock false)",
+                     missWatch_.missedInWindow(), FrameClockMissWatch::kCaptures,
+                     static_cast<long long>(cfg_.laserLeadNs / kNsPerUs),
+                     static_cast<long long>(cfg_.frameClockJitterNs / kNsPerUs));
     return frame;
   }
   static constexpr int kFramesToLearnTheClock = 30;
@@ -168,6 +178,7 @@ class CameraWhenAvailable final : public ports::FrameSource {
   Status error_;
   bool rateLogged_ = false;  // the worker's thread
   int capturesUnlearnt_ = 0;
+  FrameClockMissWatch missWatch_;  // the worker's thread
   uint64_t reopensSeen_ = 0;
 };
 

@@ -112,6 +112,21 @@ FrameRateNote frameRateNote(int64_t askedUs, bool cameraHasControl, TimeNs perio
   return {false, rate + ", as asked (" + asked + ")"};
 }
 
+bool FrameClockMissWatch::afterCapture(uint64_t missesTotal) {
+  // The first count seen is the baseline (the adapter's count runs from its open).
+  const bool missed = lastTotal_ && missesTotal > *lastTotal_;
+  lastTotal_ = missesTotal;
+  const size_t slot = static_cast<size_t>(head_);
+  if (seen_ == kCaptures) missed_ -= window_[slot] ? 1 : 0;
+  window_[slot] = missed;
+  missed_ += missed ? 1 : 0;
+  head_ = (head_ + 1) % kCaptures;
+  seen_ = std::min(seen_ + 1, kCaptures);
+  if (told_ || missed_ < kMisses) return false;
+  told_ = true;
+  return true;
+}
+
 std::optional<TimeNs> FrameClock::periodNs() const {
   if (count_ < params_.minFrames || periodNs_ <= 0.0 || jitterNs_ > params_.maxJitterNs) return std::nullopt;
   return static_cast<TimeNs>(std::llround(periodNs_));

@@ -56,6 +56,30 @@ struct FrameRateNote {
 };
 FrameRateNote frameRateNote(int64_t askedUs, bool cameraHasControl, TimeNs periodNs);
 
+// Says when the laser's timing on the frame clock keeps failing: a camera whose frames keep
+// coming later than predicted (or a capturing thread that keeps waking late) costs every
+// such capture a frame period and a second laser pulse, from the request (the libcamera
+// adapter tries the clock once a capture). Fed the adapter's running count of misses after
+// each capture, it answers true once, the first time kMisses of the last kCaptures
+// captures missed; reset() when the camera is opened again.
+class FrameClockMissWatch {
+ public:
+  static constexpr int kCaptures = 30;
+  static constexpr int kMisses = 10;
+
+  bool afterCapture(uint64_t missesTotal);
+  void reset() { *this = FrameClockMissWatch{}; }
+  int missedInWindow() const { return missed_; }
+
+ private:
+  std::array<bool, kCaptures> window_{};  // the last kCaptures captures: did each miss?
+  int head_ = 0;
+  int seen_ = 0;
+  int missed_ = 0;
+  std::optional<uint64_t> lastTotal_;
+  bool told_ = false;
+};
+
 class FrameClock {
  public:
   static constexpr int kFrames = 8;

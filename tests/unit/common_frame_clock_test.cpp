@@ -176,3 +176,40 @@ TEST_CASE("The span the laser must cover holds for either meaning of the timesta
   CHECK_FALSE(litBy(span, kT0Ns - 1000, kT0Ns + 4 * kNsPerMs));  // off before they ended
   CHECK_FALSE(litBy(span, 0, 0));                                // never on
 }
+
+TEST_CASE("A frame clock that keeps missing is told once: kMisses of the last kCaptures captures", "[frame_clock]") {
+  using W = FrameClockMissWatch;
+  W watch;
+  // The adapter's count runs from its open: the first count seen is the baseline, however large.
+  uint64_t total = 500;
+  CHECK_FALSE(watch.afterCapture(total));
+  CHECK(watch.missedInWindow() == 0);
+  SECTION("one capture in four missing (7 or 8 in any 30) is never told") {
+    for (int i = 0; i < 300; ++i) {
+      if (i % 4 == 0) ++total;
+      CHECK_FALSE(watch.afterCapture(total));
+    }
+    CHECK(watch.missedInWindow() <= 8);
+  }
+  SECTION("one capture in three missing is told when the kMisses-th lands, once") {
+    int toldAt = -1;
+    for (int i = 0; i < 300; ++i) {
+      if (i % 3 == 2) total += 2;  // a count that rises by more than one is still one capture
+      if (watch.afterCapture(total)) {
+        CHECK(toldAt < 0);
+        toldAt = i;
+      }
+    }
+    // The kMisses-th miss is capture 3 * kMisses - 1, with kMisses of them in its window.
+    CHECK(toldAt == 3 * W::kMisses - 1);
+    CHECK(watch.missedInWindow() == W::kMisses);
+    // A camera opened again is watched afresh (its count from 0 again).
+    watch.reset();
+    total = 0;
+    CHECK_FALSE(watch.afterCapture(total));
+    int toldAgainAt = -1;
+    for (int i = 0; i < W::kCaptures && toldAgainAt < 0; ++i)
+      if (watch.afterCapture(++total)) toldAgainAt = i;
+    CHECK(toldAgainAt == W::kMisses - 1);
+  }
+}
