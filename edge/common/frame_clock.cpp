@@ -116,12 +116,11 @@ bool FrameClockMissWatch::afterCapture(uint64_t missesTotal) {
   // The first count seen is the baseline (the adapter's count runs from its open).
   const bool missed = lastTotal_ && missesTotal > *lastTotal_;
   lastTotal_ = missesTotal;
+  // The slot's old entry leaves the window (false until the window first fills).
   const size_t slot = static_cast<size_t>(head_);
-  if (seen_ == kCaptures) missed_ -= window_[slot] ? 1 : 0;
+  missed_ += (missed ? 1 : 0) - (window_[slot] ? 1 : 0);
   window_[slot] = missed;
-  missed_ += missed ? 1 : 0;
   head_ = (head_ + 1) % kCaptures;
-  seen_ = std::min(seen_ + 1, kCaptures);
   if (told_ || missed_ < kMisses) return false;
   told_ = true;
   return true;

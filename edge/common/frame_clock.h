@@ -74,8 +74,7 @@ class FrameClockMissWatch {
  private:
   std::array<bool, kCaptures> window_{};  // the last kCaptures captures: did each miss?
   int head_ = 0;
-  int seen_ = 0;
-  int missed_ = 0;
+  int missed_ = 0;  // true entries in window_
   std::optional<uint64_t> lastTotal_;
   bool told_ = false;
 };
