@@ -51,7 +51,27 @@ void FrameClock::observe(uint64_t sequence, TimeNs startNs) {
   }
   samples_[static_cast<size_t>((head_ + count_) % kFrames)] = {index, startNs};
   ++count_;
+  if (params_.seesRunsOfFrames && count_ >= params_.minFrames && onFinerGrid()) {
+    // Learn again from this frame: the next interval, counted by the sequence numbers,
+    // gives the period.
+    head_ = (head_ + count_ - 1) % kFrames;
+    samples_[static_cast<size_t>(head_)].index = 0;
+    count_ = 1;
+    ++finerGridRestarts_;
+  }
   fit();
+}
+
+// Between the frames held: more steps of two slots than of one.
+bool FrameClock::onFinerGrid() const {
+  int ones = 0;
+  int twos = 0;
+  for (int i = 1; i < count_; ++i) {
+    const uint64_t step = at(i).index - at(i - 1).index;
+    ones += step == 1 ? 1 : 0;
+    twos += step == 2 ? 1 : 0;
+  }
+  return twos > ones;
 }
 
 // Least squares of start against index, both relative to the last sample (small

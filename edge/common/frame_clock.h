@@ -11,7 +11,8 @@
 // buffer takes a sequence number; vimc's does not). One frame that does not fit a learnt
 // model is held aside (a timestamp taken late); a second in a row (a mode change, a stall)
 // starts the learning again from the first of them, a sequence that goes back (a restart)
-// from that frame.
+// from that frame. A model whose slots are mostly empty, where every frame should fill one
+// (FrameClockParams::seesRunsOfFrames), starts it again from the last frame.
 #pragma once
 
 #include <array>
@@ -27,6 +28,12 @@ struct FrameClockParams {
   int minFrames = 4;                    // frames seen before a prediction is made
   TimeNs maxJitterNs = 300 * kNsPerUs;  // a frame further than this from the model is off it
   int maxPeriodsAhead = 16;             // no prediction this far past the last frame seen
+  // The clock is shown runs of consecutive frames (a consumer that keeps buffers queued, as
+  // the libcamera adapter with its 4), not one frame now and then (the scan worker's clock,
+  // one frame a capture). A model on which steps of two slots outnumber steps of one is
+  // then a grid finer than the frames (a timer's ticks: vimc on a 100 Hz kernel), whose
+  // empty slots the laser would be switched for: it is learnt again from the last frame.
+  bool seesRunsOfFrames = false;
 };
 
 // When rows [y0Px, y1Px) of a frame exposed, as the laser must cover them, from the frame's
@@ -97,6 +104,8 @@ class FrameClock {
   std::optional<TimeNs> periodNs() const;
   // The largest distance of the frames seen from the fitted model.
   TimeNs jitterNs() const { return jitterNs_; }
+  // Times a model was dropped as a grid finer than the frames (seesRunsOfFrames).
+  uint64_t finerGridRestarts() const { return finerGridRestarts_; }
   // The start of the first frame that starts at or after `notBeforeNs`; nullopt while the
   // clock is not learnt, or when that is more than maxPeriodsAhead past the last frame
   // seen (a stream that stalled may have drifted or restarted).
@@ -108,6 +117,7 @@ class FrameClock {
     TimeNs startNs;
   };
   void fit();
+  bool onFinerGrid() const;
   const Sample& at(int i) const { return samples_[static_cast<size_t>((head_ + i) % kFrames)]; }
 
   FrameClockParams params_;
@@ -121,6 +131,7 @@ class FrameClock {
   // A frame off the learnt clock, held aside until the next shows whether the clock
   // changed (index: its driver sequence number).
   std::optional<Sample> outlier_;
+  uint64_t finerGridRestarts_ = 0;
 };
 
 }  // namespace alacs

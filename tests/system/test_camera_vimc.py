@@ -159,7 +159,7 @@ def test_the_laser_is_switched_on_the_sensors_frame_clock(vimc, probe) -> None:
     assert r.returncode == 0, r.stderr
     clocked = json.loads(r.stdout)
     keys = ("frames_captured", "frame_interval_median_ms", "frame_period_us", "frame_jitter_us",
-            "frames_on_frame_clock", "frame_clock_misses", "laser_on_per_frame_median_ms",
+            "frames_on_frame_clock", "frame_clock_misses", "frame_clock_finer_grids", "laser_on_per_frame_median_ms",
             "laser_on_per_frame_on_clock_median_ms", "prediction_error_median_us", "prediction_error_max_us",
             "frames_laser_did_not_cover")
     print("\nvimc laser from the request: " + json.dumps({k: request[k] for k in keys}))

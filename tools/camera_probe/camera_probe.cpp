@@ -114,6 +114,7 @@ nlohmann::json statsJson(const drivers::LibcameraStats& s) {
           {"laser_on_frame_clock", s.laserOnFrameClock},
           {"laser_from_request", s.laserFromRequest},
           {"frame_clock_misses", s.frameClockMisses},
+          {"frame_clock_finer_grids", s.frameClockFinerGrids},
           {"frame_period_us", static_cast<double>(s.framePeriodNs) / 1e3},
           {"frame_jitter_us", static_cast<double>(s.frameJitterNs) / 1e3}};
 }

@@ -106,6 +106,10 @@ class Impl final : public LibcameraSource {
     cfg_ = cfg;
     FrameClockParams clock;
     clock.maxJitterNs = cfg.frameClockJitterNs;
+    // Its buffers go back to the camera as each capture drains them: with three or more
+    // the clock sees runs of consecutive frames, and a model with most slots empty is a
+    // grid finer than the frames (FrameClockParams::seesRunsOfFrames).
+    clock.seesRunsOfFrames = cfg.bufferCount >= 3;
     frameClock_ = FrameClock(clock);
     if (cfg.widthPx <= 0 || cfg.heightPx <= 0 || cfg.bufferCount < 1)
       return {Error::kInvalidArgument, "camera size and buffer count must be positive"};
@@ -444,6 +448,7 @@ class Impl final : public LibcameraSource {
     std::lock_guard<std::mutex> lock(mu_);
     stats_.framePeriodNs = frameClock_.periodNs().value_or(0);
     stats_.frameJitterNs = frameClock_.jitterNs();
+    stats_.frameClockFinerGrids = frameClock_.finerGridRestarts();
   }
 
   // Frames completed before this capture: back to the camera at once (so that a buffer is

@@ -91,6 +91,7 @@ struct LibcameraStats {
   uint64_t laserOnFrameClock = 0;
   uint64_t laserFromRequest = 0;
   uint64_t frameClockMisses = 0;
+  uint64_t frameClockFinerGrids = 0;  // models dropped as a grid finer than the frames
   int64_t framePeriodNs = 0;  // as learnt; 0: not learnt
   int64_t frameJitterNs = 0;
   // The timestamp predicted for the last capture's frame, switched on the frame clock;
