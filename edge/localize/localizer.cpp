@@ -807,20 +807,36 @@ void Localizer::weighDoubt(const ScanPlan& plan, double ballMm, AppleEstimate& e
   if (p < 0.5) est.doubt = pRival < pRough ? AppleEstimate::Doubt::kTwoSurfaces : AppleEstimate::Doubt::kFarFromRough;
 }
 
+namespace {
+// Each line's slide with the 3D points `pick` gives it (no pixels, no samples), for a fit
+// of other points than the gate's; `pick` returns how many of them count (adds to `counted`).
+template <class Pick>
+std::vector<LineObservation> slidesWithPoints(const std::vector<LineObservation>& lines, Pick pick, size_t& counted) {
+  std::vector<LineObservation> out;
+  out.reserve(lines.size());
+  counted = 0;
+  for (const LineObservation& l : lines) {
+    LineObservation o;
+    o.slideMm = l.slideMm;
+    counted += pick(l, o.pointsMm);
+    out.push_back(std::move(o));
+  }
+  return out;
+}
+}  // namespace
+
 Result<AppleEstimate> Localizer::estimateBesideOther(const ScanPlan& plan, const std::vector<LineObservation>& lines,
                                                      const AppleEstimate& other) const {
   const double bandMm = std::max(kOffFruitMm, 3.0 * other.rmsMm);
-  std::vector<LineObservation> rest;
-  rest.reserve(lines.size());
   size_t left = 0;
-  for (const LineObservation& l : lines) {
-    LineObservation r;
-    r.slideMm = l.slideMm;
-    for (const Eigen::Vector3d& p : l.pointsMm)
-      if (other.offSurfaceMm(p) > bandMm) r.pointsMm.push_back(p);
-    left += r.pointsMm.size();
-    rest.push_back(std::move(r));
-  }
+  const std::vector<LineObservation> rest = slidesWithPoints(
+      lines,
+      [&](const LineObservation& l, std::vector<Eigen::Vector3d>& pointsMm) {
+        for (const Eigen::Vector3d& p : l.pointsMm)
+          if (other.offSurfaceMm(p) > bandMm) pointsMm.push_back(p);
+        return pointsMm.size();
+      },
+      left);
   if (left == 0) return Status(Error::kNotFound, "nothing beside the other object");
   Result<AppleEstimate> est = estimateFused(plan, rest, scan_.roughSigmaMm);
   if (!est) return est;
@@ -831,18 +847,17 @@ Result<AppleEstimate> Localizer::estimateBesideOther(const ScanPlan& plan, const
   return est;
 }
 
-Result<AppleEstimate> Localizer::estimateWidened(const ScanPlan& plan, const std::vector<LineObservation>& lines) const {
-  std::vector<LineObservation> wide;
-  wide.reserve(lines.size());
+Result<AppleEstimate> Localizer::estimateWidened(const ScanPlan& plan,
+                                                 const std::vector<LineObservation>& lines) const {
   size_t outside = 0;
-  for (const LineObservation& l : lines) {
-    LineObservation w;
-    w.slideMm = l.slideMm;
-    w.pointsMm = l.pointsMm;
-    w.pointsMm.insert(w.pointsMm.end(), l.outsidePointsMm.begin(), l.outsidePointsMm.end());
-    outside += l.outsidePointsMm.size();
-    wide.push_back(std::move(w));
-  }
+  const std::vector<LineObservation> wide = slidesWithPoints(
+      lines,
+      [](const LineObservation& l, std::vector<Eigen::Vector3d>& pointsMm) {
+        pointsMm = l.pointsMm;
+        pointsMm.insert(pointsMm.end(), l.outsidePointsMm.begin(), l.outsidePointsMm.end());
+        return l.outsidePointsMm.size();
+      },
+      outside);
   if (outside == 0) return Status(Error::kNotFound, "no laser line within the widened search");
   // The centre's prior is only that it lies within the search: the gate's rough position
   // was wrong, or there would have been a fit inside it.
