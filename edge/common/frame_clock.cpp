@@ -22,7 +22,8 @@ void FrameClock::observe(uint64_t sequence, TimeNs startNs) {
       const double predicted = interceptNs_ + periods * periodNs_;
       fits = std::abs(static_cast<double>(startNs) - predicted) <= static_cast<double>(params_.maxJitterNs);
     } else if (fits) {
-      index = last.index + (sequence - lastSequence_);
+      // After a finer grid, one slot: its sequence numbers may count the slots it skipped.
+      index = last.index + (afterFinerGrid_ ? 1 : sequence - lastSequence_);
     }
     if (!fits && onward && count_ >= params_.minFrames && !outlier_) {
       // One frame off a learnt clock is held aside: a late interrupt's timestamp leaves
@@ -44,6 +45,7 @@ void FrameClock::observe(uint64_t sequence, TimeNs startNs) {
     }
   }
   outlier_.reset();
+  afterFinerGrid_ = false;
   lastSequence_ = sequence;
   if (count_ == kFrames) {
     head_ = (head_ + 1) % kFrames;
@@ -52,11 +54,13 @@ void FrameClock::observe(uint64_t sequence, TimeNs startNs) {
   samples_[static_cast<size_t>((head_ + count_) % kFrames)] = {index, startNs};
   ++count_;
   if (params_.seesRunsOfFrames && count_ >= params_.minFrames && onFinerGrid()) {
-    // Learn again from this frame: the next interval, counted by the sequence numbers,
-    // gives the period.
+    // Learn again from this frame, the next interval one slot (the frames' own period;
+    // sequence numbers that count every slot, as some drivers' do, would give the grid
+    // again).
     head_ = (head_ + count_ - 1) % kFrames;
     samples_[static_cast<size_t>(head_)].index = 0;
     count_ = 1;
+    afterFinerGrid_ = true;
     ++finerGridRestarts_;
   }
   fit();

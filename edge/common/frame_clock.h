@@ -12,7 +12,8 @@
 // model is held aside (a timestamp taken late); a second in a row (a mode change, a stall)
 // starts the learning again from the first of them, a sequence that goes back (a restart)
 // from that frame. A model whose slots are mostly empty, where every frame should fill one
-// (FrameClockParams::seesRunsOfFrames), starts it again from the last frame.
+// (FrameClockParams::seesRunsOfFrames), starts it again from the last frame, the next
+// interval counted as one slot.
 #pragma once
 
 #include <array>
@@ -98,6 +99,7 @@ class FrameClock {
   void reset() {
     count_ = 0;
     outlier_.reset();
+    afterFinerGrid_ = false;
   }
 
   // The fitted period; nullopt until minFrames frames fit one.
@@ -132,6 +134,7 @@ class FrameClock {
   // changed (index: its driver sequence number).
   std::optional<Sample> outlier_;
   uint64_t finerGridRestarts_ = 0;
+  bool afterFinerGrid_ = false;  // learning again from the last frame after a finer grid
 };
 
 }  // namespace alacs

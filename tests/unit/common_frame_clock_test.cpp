@@ -257,6 +257,24 @@ TEST_CASE("A clock shown every frame does not keep a grid finer than its frames 
   CHECK(std::abs(*next - tickStart(43)) <= 100 * kNsPerUs);
 }
 
+TEST_CASE("Frames on every other slot, numbered by the slot: the clock learns the frames' own period",
+          "[common][frame_clock]") {
+  // A pipeline that delivers every second frame of its sensor, its sequence numbers
+  // counting the frames it skipped (some drivers number every slot). Counted by the
+  // sequence numbers, the first interval is two slots, and the grid is learnt with every
+  // other slot empty; learnt again, it must not count that interval by them again.
+  FrameClockParams shown;
+  shown.seesRunsOfFrames = true;
+  FrameClock clock(shown);
+  for (uint64_t k = 0; k < 12; ++k) clock.observe(2 * k, startOf(2 * k));
+  CHECK(clock.finerGridRestarts() == 1);
+  REQUIRE(clock.periodNs());
+  CHECK(std::abs(*clock.periodNs() - 2 * kPeriodNs) < 20 * kNsPerUs);
+  const std::optional<TimeNs> next = clock.nextStart(startOf(22) + kPeriodNs / 2);
+  REQUIRE(next);
+  CHECK(std::abs(*next - startOf(24)) <= 100 * kNsPerUs);
+}
+
 TEST_CASE("Runs of frames between a consumer's pauses keep the clock learnt", "[common][frame_clock]") {
   // Four buffers: up to four consecutive frames, then none until they are queued again
   // (the driver numbers only the frames it had a buffer for).
