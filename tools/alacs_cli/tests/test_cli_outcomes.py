@@ -44,6 +44,22 @@ def test_every_status_but_measured_fails_and_says_why(
     assert MEANINGS[alacs_can.ResultReason][reason].replace("`", "") in err
 
 
+@pytest.mark.parametrize(("status", "said", "not_said"), [
+    ("AMBIGUOUS", "AMBIGUOUS: the fit goes out", "ROUGH_ONLY: the rough position goes out"),
+    ("ROUGH_ONLY", "ROUGH_ONLY: the rough position goes out", "AMBIGUOUS: the fit goes out")])
+def test_a_reason_is_explained_for_its_status_alone(
+        sensor: FakeSensor, channel: str, capsys: pytest.CaptureFixture[str],
+        status: str, said: str, not_said: str) -> None:
+    # FAR_FROM_ROUGH's value table says what it means with either status; the CLI says the
+    # part that applies.
+    sensor.result_status, sensor.result_reason = status, "FAR_FROM_ROUGH"
+    rc, _ = run_cli(channel, *LOCALIZE, "--timeout", "3")
+    assert rc == EXIT_REJECTED
+    err = capsys.readouterr().err
+    assert "more likely a neighbour" in err and said in err, err
+    assert not_said not in err, err
+
+
 def test_rough_only_in_json_is_not_measured(sensor: FakeSensor, channel: str) -> None:
     sensor.result_status, sensor.result_reason = "ROUGH_ONLY", "FAR_FROM_ROUGH"
     rc, out = run_cli(channel, "--json", *LOCALIZE, "--timeout", "3")

@@ -228,7 +228,8 @@ RESULT_OBJECT = MessageSpec(
         S("ObjMeasCounter", 8, 8, "Low byte of the ResultHeader's MeasCounter."),
         *_xyz("Center", c.ObjPage.CENTER, "Apple centre"),
         *_xyz("Approach", c.ObjPage.APPROACH_POINT, "Approach (pre-grasp) point"),
-        S("SigmaMm", 16, 8, "Fit residual standard deviation.", scale=0.1, unit="mm",
+        S("SigmaMm", 16, 8, "1 sigma (3D) of the approach point, the chance of another object "
+          "included; saturates: 25.5 means 25.5 mm or more.", scale=0.1, unit="mm",
           mux=("ObjPage", int(c.ObjPage.QUALITY))),
         S("Confidence", 24, 8, "Detection confidence.", unit="%", maximum=100,
           mux=("ObjPage", int(c.ObjPage.QUALITY))),

@@ -16,6 +16,7 @@ import dataclasses
 import json
 import os
 import random
+import re
 import shutil
 import sys
 import time
@@ -179,6 +180,19 @@ def print_result(result: LocalizationResult, out: TextIO) -> None:
               f"{quality}", file=out)
 
 
+def reason_for_status(status: str, text: str) -> str:
+    """A reason's value-table text for a result of this status, without the clauses that
+    name another status (FAR_FROM_ROUGH's "ROUGH_ONLY: ..." beside an AMBIGUOUS result) and
+    without the Markdown."""
+    others = {s.name for s in alacs_can.ResultStatus} - {status}
+    kept = []
+    for sentence in re.split(r"(?<=\.) ", text):
+        parts = [p for p in sentence.split("; ") if p.split(":", 1)[0] not in others]
+        if parts:
+            kept.append("; ".join(parts))
+    return " ".join(kept).replace("`", "").replace("**", "")
+
+
 RESULT_MEANING = {
     "NOT_FOUND": "nothing was found",
     "ROUGH_ONLY": "the rough position echoed back, not a measurement",
@@ -299,7 +313,7 @@ class Cli:
         meaning = RESULT_MEANING.get(str(status), "not a measurement")
         # What the reason means and what to do about it: the value table's own text in
         # docs/can-protocol.md, without its Markdown.
-        why = MEANINGS[alacs_can.ResultReason].get(str(reason), "").replace("`", "").replace("**", "")
+        why = reason_for_status(str(status), MEANINGS[alacs_can.ResultReason].get(str(reason), ""))
         print(f"alacs {self.args.cmd}: result {status}, reason {reason}: {meaning}"
               + (f"; {reason}: {why}" if why and reason != "NONE" else ""), file=sys.stderr)
         return EXIT_REJECTED
