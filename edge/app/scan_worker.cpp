@@ -316,15 +316,30 @@ void writeOverlay(const std::string& dir, int scanIndex, const image::ImageView&
   const cv::Rect window(plan.roi.x, plan.roi.y, plan.roi.width, plan.roi.height);
   const cv::Mat img(frame.height, frame.width, CV_8UC3, const_cast<uint8_t*>(frame.data), frame.strideBytes);
   cv::Mat out = img(window).clone();
-  static const cv::Scalar kColours[] = {{255, 255, 0}, {0, 255, 0}, {255, 0, 255}, {0, 255, 255}, {255, 128, 0}};
+  // One colour a stop (BGR), each line labelled with its slide position where it begins;
+  // samples the fit did not use in red. The picture is the last stop's frame, so its own
+  // laser line shows too, wherever it fell.
+  static const cv::Scalar kColours[] = {{255, 255, 0}, {0, 255, 0},     {255, 0, 255},  {0, 255, 255},
+                                        {255, 128, 0}, {128, 128, 255}, {255, 255, 255}};
+  constexpr size_t kNumColours = sizeof kColours / sizeof kColours[0];
+  const auto label = [&out](const std::string& text, cv::Point at, const cv::Scalar& colour) {
+    cv::putText(out, text, at, cv::FONT_HERSHEY_PLAIN, 0.9, colour, 1, cv::LINE_AA);
+  };
   size_t k = 0;
   for (const auto& l : lines) {
-    const cv::Scalar c = kColours[k++ % 5];
+    const cv::Scalar c = kColours[k++ % kNumColours];
     for (const auto& r : l.line.rows) {
       const cv::Point p(static_cast<int>(std::lround(r.column)) - window.x, r.row - window.y);
       cv::circle(out, p, 1, r.inlier ? c : cv::Scalar(0, 0, 255), cv::FILLED);
     }
+    if (!l.line.rows.empty()) {
+      const auto& first = l.line.rows.front();
+      const cv::Point at(static_cast<int>(std::lround(first.column)) - window.x - 12, first.row - window.y - 4);
+      label(std::to_string(static_cast<int>(std::lround(l.slideMm))), at, c);
+    }
   }
+  label("laser lines by stop (slide mm)", {6, 14}, {255, 255, 255});
+  label("red: not fitted; image: last stop", {6, 28}, {255, 255, 255});
   cv::rectangle(out, cv::Rect(0, 0, window.width, window.height), {255, 255, 255}, 2);
   char name[32];
   std::snprintf(name, sizeof name, "overlay_%04d.png", scanIndex);

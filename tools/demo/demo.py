@@ -70,9 +70,10 @@ def main() -> int:
     print("\n".join(shown.lines))
     print(f"(candump log: {ex.candump_log}; {shown.frames} frames, of them {shown.status} "
           f"ALACS_Status, {shown.status_shown} shown (1 in {STATUS_EVERY}))")
-    print("(cantools prints a scaled value as the double it computes: CenterX -16.400000000000002 "
-          "is -16.4 mm, the signal's 0.1 mm step; `alacs monitor` and `alacs replay --print` round "
-          "to the step. RoughZ is sent in 10 mm steps, so it differs from the rough position typed.)")
+    print("(cantools prints a scaled value as the double it computes, -164 x 0.1 as "
+          "-16.400000000000002 mm; `alacs monitor` and `alacs replay --print` round to the "
+          "signal's step. RoughZ is sent in 10 mm steps, so it differs from the rough position "
+          "typed.)")
     print("\n--- result ---")
     if ex.result is None or not ex.result.objects:
         print("no result received")
