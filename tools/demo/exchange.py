@@ -212,13 +212,15 @@ def describe_start(db: cantools.database.Database, frames: list[can.Message],
     if not frames:
         return f"nothing seen from node 0x{node_id:02X}"
     first = frames[0]
+    hb_id = ac.frame_id(ac.MSG_HEARTBEAT, node_id)
+    if first.arbitration_id == hb_id and first.dlc >= 1 and first.data[0] == int(ac.NmtState.BOOTUP):
+        return f"first frame from node 0x{node_id:02X}: its boot-up (Heartbeat NmtState BOOTUP 0x00)"
     name = ac.message_name(db, first) or f"id 0x{first.arbitration_id:03X}"
     try:
         body = ", ".join(f"{k}={v}" for k, v in ac.decode(db, first).items())
     except Exception:  # undecodable: show the bytes instead
         body = bytes(first.data).hex(" ").upper()
     text = f"first frame from node 0x{node_id:02X}: {name} ({body})"
-    hb_id = ac.frame_id(ac.MSG_HEARTBEAT, node_id)
     heartbeats = [m for m in frames if m.arbitration_id == hb_id and m.dlc >= 1]
     if any(m.data[0] == int(ac.NmtState.BOOTUP) for m in heartbeats):
         return text + "; boot-up (NmtState BOOTUP 0x00) seen"

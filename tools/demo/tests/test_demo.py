@@ -64,8 +64,7 @@ def _hb(state: int, node_id: int = 0x10) -> can.Message:
 def test_boot_up_reported_only_when_seen() -> None:
     db = alacs_can.load_database()
     text = exchange.describe_start(db, [_hb(0x00)], 0x10)
-    assert text == ("first frame from node 0x10: Heartbeat (NmtState=BOOTUP); boot-up "
-                    "(NmtState BOOTUP 0x00) seen")
+    assert text == "first frame from node 0x10: its boot-up (Heartbeat NmtState BOOTUP 0x00)"
     text = exchange.describe_start(db, [_hb(0x05)], 0x10)
     assert "first frame from node 0x10: Heartbeat (NmtState=OPERATIONAL)" in text
     assert "no boot-up (NmtState BOOTUP 0x00) seen" in text and "OPERATIONAL (0x05)" in text
@@ -93,14 +92,14 @@ def test_install_step_prints_one_line(tmp_path: Path) -> None:
     assert proc.returncode == 0
     assert proc.stdout == ""
     assert proc.stderr.splitlines() == [
-        f"demo: installing: done (log: {tmp_path / 'logs' / 'install.log'})"]
+        f"demo: installing ... done (log: {tmp_path / 'logs' / 'install.log'})"]
     assert len((tmp_path / "logs" / "install.log").read_text().splitlines()) == 1700
 
 
 def test_install_step_shows_the_log_on_failure(tmp_path: Path) -> None:
     proc = _quiet(tmp_path, "echo E: Unable to locate package foo; exit 100")
     assert proc.returncode == 100
-    assert "demo: installing: FAILED (exit 100)" in proc.stderr
+    assert "demo: installing ... FAILED (exit 100)" in proc.stderr
     assert "E: Unable to locate package foo" in proc.stderr
 
 
