@@ -15,6 +15,17 @@ TimeNs startOf(uint64_t seq) {
   const TimeNs jitter = static_cast<TimeNs>((seq * 7919U) % 81U) - 40;
   return kT0Ns + static_cast<TimeNs>(seq) * kPeriodNs + jitter * kNsPerUs;
 }
+
+// The clock learnt `periodNs` (within `periodTolNs`) and predicts, from `fromNs`, the frame
+// that starts at `wantNs`.
+void checkPredicts(const FrameClock& clock, TimeNs periodNs, TimeNs fromNs, TimeNs wantNs,
+                   TimeNs periodTolNs = 20 * kNsPerUs) {
+  REQUIRE(clock.periodNs());
+  CHECK(std::abs(*clock.periodNs() - periodNs) < periodTolNs);
+  const std::optional<TimeNs> next = clock.nextStart(fromNs);
+  REQUIRE(next);
+  CHECK(std::abs(*next - wantNs) <= 100 * kNsPerUs);
+}
 }  // namespace
 
 TEST_CASE("The frame clock predicts a free-running sensor's next frame within its jitter", "[common][frame_clock]") {
@@ -43,11 +54,7 @@ TEST_CASE("The frame clock predicts a free-running sensor's next frame within it
 TEST_CASE("The frame clock counts frames the application skipped by their sequence numbers", "[common][frame_clock]") {
   FrameClock clock;
   for (uint64_t seq : {0U, 1U, 3U, 4U, 7U, 8U, 9U, 12U}) clock.observe(seq, startOf(seq));
-  REQUIRE(clock.periodNs());
-  CHECK(std::abs(*clock.periodNs() - kPeriodNs) < 20 * kNsPerUs);
-  const std::optional<TimeNs> next = clock.nextStart(startOf(12) + kPeriodNs / 2);
-  REQUIRE(next);
-  CHECK(std::abs(*next - startOf(13)) <= 100 * kNsPerUs);
+  checkPredicts(clock, kPeriodNs, startOf(12) + kPeriodNs / 2, startOf(13));
 }
 
 TEST_CASE("A frame off the learnt clock (a mode change, a restart) makes it learn again", "[common][frame_clock]") {
@@ -139,11 +146,7 @@ TEST_CASE("A driver that numbers only the frames it had a buffer for (vimc): the
   // The sensor's frames 0-4, 6, 7, 10, 11; the driver numbers them 0-8.
   uint64_t driverSequence = 0;
   for (uint64_t frame : {0U, 1U, 2U, 3U, 4U, 6U, 7U, 10U, 11U}) clock.observe(driverSequence++, startOf(frame));
-  REQUIRE(clock.periodNs());
-  CHECK(std::abs(*clock.periodNs() - kPeriodNs) < 20 * kNsPerUs);
-  const std::optional<TimeNs> next = clock.nextStart(startOf(11) + kPeriodNs / 2);
-  REQUIRE(next);
-  CHECK(std::abs(*next - startOf(12)) <= 100 * kNsPerUs);
+  checkPredicts(clock, kPeriodNs, startOf(11) + kPeriodNs / 2, startOf(12));
 }
 
 TEST_CASE("The span the laser must cover holds for either meaning of the timestamp and any readout",
@@ -250,11 +253,7 @@ TEST_CASE("A clock shown every frame does not keep a grid finer than its frames 
   // predicts the frame after the last.
   CHECK_FALSE(oneTickAt.has_value());
   CHECK(clock.finerGridRestarts() == 1);
-  REQUIRE(clock.periodNs());
-  CHECK(std::abs(*clock.periodNs() - 2 * kTickNs) < 50 * kNsPerUs);
-  const std::optional<TimeNs> next = clock.nextStart(tickStart(41) + kTickNs);
-  REQUIRE(next);
-  CHECK(std::abs(*next - tickStart(43)) <= 100 * kNsPerUs);
+  checkPredicts(clock, 2 * kTickNs, tickStart(41) + kTickNs, tickStart(43), 50 * kNsPerUs);
 }
 
 TEST_CASE("Frames on every other slot, numbered by the slot: the clock learns the frames' own period",
@@ -268,11 +267,7 @@ TEST_CASE("Frames on every other slot, numbered by the slot: the clock learns th
   FrameClock clock(shown);
   for (uint64_t k = 0; k < 12; ++k) clock.observe(2 * k, startOf(2 * k));
   CHECK(clock.finerGridRestarts() == 1);
-  REQUIRE(clock.periodNs());
-  CHECK(std::abs(*clock.periodNs() - 2 * kPeriodNs) < 20 * kNsPerUs);
-  const std::optional<TimeNs> next = clock.nextStart(startOf(22) + kPeriodNs / 2);
-  REQUIRE(next);
-  CHECK(std::abs(*next - startOf(24)) <= 100 * kNsPerUs);
+  checkPredicts(clock, 2 * kPeriodNs, startOf(22) + kPeriodNs / 2, startOf(24));
 }
 
 TEST_CASE("Runs of frames between a consumer's pauses keep the clock learnt", "[common][frame_clock]") {
@@ -285,11 +280,7 @@ TEST_CASE("Runs of frames between a consumer's pauses keep the clock learnt", "[
   for (uint64_t frame : {0U, 1U, 2U, 3U, 9U, 10U, 11U, 12U, 20U, 21U, 22U, 23U, 25U, 26U, 27U, 28U})
     clock.observe(driverSequence++, startOf(frame));
   CHECK(clock.finerGridRestarts() == 0);
-  REQUIRE(clock.periodNs());
-  CHECK(std::abs(*clock.periodNs() - kPeriodNs) < 20 * kNsPerUs);
-  const std::optional<TimeNs> next = clock.nextStart(startOf(28) + kPeriodNs / 2);
-  REQUIRE(next);
-  CHECK(std::abs(*next - startOf(29)) <= 100 * kNsPerUs);
+  checkPredicts(clock, kPeriodNs, startOf(28) + kPeriodNs / 2, startOf(29));
 }
 
 TEST_CASE("Frames one or two ticks apart at random: the tick is rarely the period", "[common][frame_clock]") {
