@@ -104,6 +104,7 @@ Status configFromJson(const Json& json, DaemonConfig& c) {
     s->number("follow_up_diameter_sigma_mm", c.scan.followUpDiameterSigmaMm, Need::kOptional, 0, 100);
     s->integer("follow_up_max_stops", c.scan.followUpMaxStops, Need::kOptional, 0, 16);
     s->integer("follow_up_unseen_max_stops", c.scan.followUpUnseenMaxStops, Need::kOptional, 0, 32);
+    s->number("follow_up_far_sigmas", c.scan.followUpFarSigmas, Need::kOptional, 0, 10);
     s->number("weak_arc_min_z", c.scan.weakArcMinZ, Need::kOptional, 0, 100);
     s->number("leaf_green_ratio", c.scan.leafGreenRatio, Need::kOptional, 0, 10);
     s->finish();
@@ -199,6 +200,7 @@ OrderedJson configToJson(const DaemonConfig& c) {
                {"follow_up_diameter_sigma_mm", c.scan.followUpDiameterSigmaMm},
                {"follow_up_max_stops", c.scan.followUpMaxStops},
                {"follow_up_unseen_max_stops", c.scan.followUpUnseenMaxStops},
+               {"follow_up_far_sigmas", c.scan.followUpFarSigmas},
                {"weak_arc_min_z", c.scan.weakArcMinZ},
                {"leaf_green_ratio", c.scan.leafGreenRatio}};
   j["lle"] = {{"brce_step", c.lle.brceStep},

@@ -1009,27 +1009,78 @@ struct MatchedKernel {
   std::array<int16_t, 2 * kMatchedHalfPx + 1> q16{};  // the same in 16 bits (-57..199)
 };
 
+// A response's noise relative to a mid-scale level's, from the level under its window
+// (Σ q² · red, `level` below): √((floor + 128) / (floor + level / Σq²)) in Q12, tabled at a
+// quarter DN of mean level (0..255), so that each response costs a multiply and a shift,
+// not a square root and a division. A floor far above every level (noise that does not grow
+// with the light) gives exactly 4096: the responses unchanged.
+class NoiseShares {
+ public:
+  NoiseShares(double floorDn, const MatchedKernel& k) {
+    int64_t q2sum = 0;
+    for (const int16_t q : k.q16) q2sum += static_cast<int64_t>(q) * q;
+    // level · 4 / Σq² as (level · perLevel) >> 32: the quarter-DN bin.
+    perLevelQ32_ = (int64_t{4} << 32) / std::max<int64_t>(1, q2sum);
+    const double f = std::max(0.5, floorDn);
+    for (size_t i = 0; i < q12_.size(); ++i)
+      q12_[i] =
+          static_cast<int32_t>(std::lround(4096.0 * std::sqrt((f + 128.0) / (f + 0.25 * static_cast<double>(i)))));
+  }
+  // (response · share) >> 12, rounded towards minus infinity (exact at 4096).
+  int32_t scale(int32_t response, int32_t level) const {
+    const int64_t bin = std::clamp<int64_t>((static_cast<int64_t>(level) * perLevelQ32_) >> 32, 0,
+                                            static_cast<int64_t>(q12_.size()) - 1);
+    return static_cast<int32_t>((static_cast<int64_t>(response) * q12_[static_cast<size_t>(bin)]) >> 12);
+  }
+
+ private:
+  std::array<int32_t, 1024> q12_{};
+  int64_t perLevelQ32_ = 0;
+};
+
 // One ROI row through the matched filter: its best column (-1: none), the response there
-// over the row's robust spread (1.4826 · MAD of every response), in hundredths, and the
-// responses beside it. A column whose window holds a laser-off pixel at full scale gives no
-// response (the difference there is no measure of the line). `resp` and `sorted` hold w each.
+// over its noise, in hundredths, and the responses beside it. Shot noise's variance follows
+// the light, so each response is first divided by its own noise's share: √(floor + level),
+// the level being the laser-off red under its window weighed as the response weighs it (by
+// the kernel's squares) and the floor the read noise in DN of light (matchedNoiseFloorDn);
+// the row's robust spread (1.4826 · MAD) is then taken of those, and the best column is the
+// largest of them. (Until 2026-12-05 the raw responses: where most of a row lay in shade,
+// noise on a band of sunlit skin stood at 5 of the shade's spread; docs/lle.md.) A column
+// whose window holds a laser-off pixel at full scale gives no response (the difference
+// there is no measure of the line). `resp`, `sorted` and `level` hold w each.
 struct MatchedRow {
   int x = -1;
   int zCenti = 0;
   int32_t left = 0, mid = 0, right = 0;  // the responses at x - 1, x, x + 1
 };
 MatchedRow matchedRow(const uint8_t* on, const uint8_t* off, int redOffset, int w, const MatchedKernel& k,
-                      int32_t* resp, int32_t* sorted, int16_t* diff) {
+                      const NoiseShares& shares, int32_t* resp, int32_t* sorted, int16_t* diff, int32_t* level) {
   constexpr int32_t kNone = std::numeric_limits<int32_t>::min();
   const auto ro = static_cast<size_t>(redOffset);
   const auto red = [&](const uint8_t* f, int x) { return static_cast<int32_t>(f[static_cast<size_t>(x) * 3U + ro]); };
-  // The difference first (16 bits: -255..255), then the filter over it into sorted[x - half],
-  // one tap at a time over the whole row (16 × 16 → 32-bit products, which the compiler
+  const int n = std::max(0, w - 2 * kMatchedHalfPx);
+  MatchedRow out;
+  if (n < 4) return out;
+  // The level under each window: the laser-off red into `level`, its sums weighed by the
+  // kernel's squares into sorted[x - half], one tap at a time (Σ q² · red ≤ 17 · 199² · 255
+  // fits 32 bits), then back into level[x].
+  for (int x = 0; x < w; ++x) level[x] = red(off, x);
+  {
+    int32_t* __restrict__ sums = sorted;
+    std::fill(sums, sums + n, 0);
+    for (size_t i = 0; i < k.q16.size(); ++i) {
+      const int32_t q2 = static_cast<int32_t>(k.q16[i]) * k.q16[i];
+      const int32_t* __restrict__ o = level + i;
+      for (int j = 0; j < n; ++j) sums[j] += q2 * o[j];
+    }
+  }
+  for (int j = 0; j < n; ++j) level[j + kMatchedHalfPx] = sorted[j];
+  // The difference (16 bits: -255..255), then the filter over it into sorted[x - half], one
+  // tap at a time over the whole row (16 × 16 → 32-bit products, which the compiler
   // vectorises), then each response into resp[x] where no clipped laser-off pixel is in its
   // window.
-  const int n = std::max(0, w - 2 * kMatchedHalfPx);
   for (int x = 0; x < w; ++x) diff[x] = static_cast<int16_t>(red(on, x) - red(off, x));
-  if (n > 0) {
+  {
     int32_t* __restrict__ r = sorted;
     std::fill(r, r + n, 0);
     for (size_t i = 0; i < k.q16.size(); ++i) {
@@ -1047,21 +1098,84 @@ MatchedRow matchedRow(const uint8_t* on, const uint8_t* off, int redOffset, int 
     if (x < kMatchedHalfPx || x + kMatchedHalfPx >= w) continue;
     if (clipAt < x - kMatchedHalfPx) resp[x] = sorted[x - kMatchedHalfPx];
   }
-  MatchedRow out;
-  if (n < 4) return out;
+  // Each response over its noise's share (NoiseShares: integers, a table per frame).
+  int best = -1;
+  for (int j = 0; j < n; ++j) {
+    const int x = j + kMatchedHalfPx;
+    sorted[j] = shares.scale(sorted[j], level[x]);
+    if (x > kMatchedHalfPx && x + kMatchedHalfPx + 1 < w && resp[x] != kNone &&
+        (best < 0 || sorted[j] > sorted[best - kMatchedHalfPx]))
+      best = x;
+  }
+  if (best < 0 || resp[best - 1] == kNone || resp[best + 1] == kNone) return out;
+  const int32_t bestScaled = sorted[best - kMatchedHalfPx];
   const int32_t median = kthSmallest(sorted, n, n / 2);
   for (int i = 0; i < n; ++i) sorted[i] = std::abs(sorted[i] - median);
   const double spread = 1.4826 * std::max<int32_t>(1, kthSmallest(sorted, n, n / 2));
-  int best = -1;
-  for (int x = kMatchedHalfPx + 1; x + kMatchedHalfPx + 1 < w; ++x)
-    if (resp[x] != kNone && (best < 0 || resp[x] > resp[best])) best = x;
-  if (best < 0 || resp[best - 1] == kNone || resp[best + 1] == kNone) return out;
   out.x = best;
-  out.zCenti = static_cast<int>(std::lround(100.0 * (resp[best] - median) / spread));
+  out.zCenti = static_cast<int>(std::lround(100.0 * (bestScaled - median) / spread));
   out.left = resp[best - 1];
   out.mid = resp[best];
   out.right = resp[best + 1];
   return out;
+}
+
+// The noise floor of a laser-off-subtracted ROI, in DN of light: the difference's variance
+// grows with the ambient's level as read² + level/gain does (shot noise), and the floor is
+// read²·gain, the level at which the two are equal. From the pixels themselves: their
+// |difference| binned by the laser-off red (16 DN bins, clipped pixels left out; every other
+// row and column), each
+// bin's robust spread (1.4826 · median |difference|; the line's few pixels barely move a
+// median), and a straight line through (level, spread²) weighed by the bins' counts.
+// Where the spread does not grow with the level (fewer than two bins, or a flat or falling
+// line), a floor so high that every window's noise is the row's (as before 2026-12-05).
+double matchedNoiseFloorDn(const ImageView& frame, const ImageView& laserOff, const Roi& roi, int ro) {
+  constexpr double kFlat = 1e9;
+  constexpr int kBins = 16;
+  constexpr int32_t kMinCount = 64;
+  std::array<std::array<int32_t, 256>, kBins> hist{};
+  std::array<int64_t, kBins> sum{};
+  std::array<int32_t, kBins> count{};
+  // Every other row and column: a quarter of the ROI is ample for 16 medians, at a quarter of the cost.
+  for (int y = 0; y < roi.height; y += 2) {
+    const uint8_t* on = roiRow(&frame, roi, y);
+    const uint8_t* off = roiRow(&laserOff, roi, y);
+    for (int x = 0; x < roi.width; x += 2) {
+      const int o = off[static_cast<size_t>(x) * 3U + static_cast<size_t>(ro)];
+      if (o >= 250) continue;
+      const int d = std::abs(static_cast<int>(on[static_cast<size_t>(x) * 3U + static_cast<size_t>(ro)]) - o);
+      const auto b = static_cast<size_t>(o >> 4);
+      ++hist[b][static_cast<size_t>(d)];
+      sum[b] += o;
+      ++count[b];
+    }
+  }
+  double sw = 0.0, sx = 0.0, sy = 0.0, sxx = 0.0, sxy = 0.0;
+  int bins = 0;
+  for (size_t b = 0; b < static_cast<size_t>(kBins); ++b) {
+    if (count[b] < kMinCount) continue;
+    // The median |difference|, interpolated within its integer value.
+    const double half = 0.5 * count[b];
+    int32_t below = 0;
+    size_t v = 0;
+    while (below + hist[b][v] < half) below += hist[b][v++];
+    const double mad = static_cast<double>(v) - 0.5 + (half - below) / std::max(1, hist[b][v]);
+    const double var = std::pow(1.4826 * std::max(mad, 0.0), 2.0);
+    const double level = static_cast<double>(sum[b]) / count[b];
+    const double wgt = count[b];
+    sw += wgt;
+    sx += wgt * level;
+    sy += wgt * var;
+    sxx += wgt * level * level;
+    sxy += wgt * level * var;
+    ++bins;
+  }
+  const double det = sw * sxx - sx * sx;
+  if (bins < 2 || !(det > 0.0)) return kFlat;
+  const double slope = (sw * sxy - sx * sy) / det;
+  const double intercept = (sy - slope * sx) / sw;
+  if (!(slope > 1e-6)) return kFlat;
+  return std::clamp(intercept / slope, 0.5, kFlat);
 }
 
 // Buffers of matchedFilterRows, per ROI row (h) or column (w).
@@ -1069,6 +1183,7 @@ struct MatchedArrays {
   int32_t* resp;    // w: a row's responses
   int32_t* sorted;  // w: the same, for the median
   int16_t* diff;    // w: the row's red difference
+  int32_t* level;   // w: the laser-off red under each response's window (Σ q² · red)
   int32_t* colQ8;   // h: the column (Q8, in the ROI) of the row's line sample or filter peak (unsmoothed)
   int32_t* z;       // h: the peak's response over the row's spread (hundredths)
   uint8_t* state;   // h: 0 free, 1 the line's, 2 another sample (left alone), 3 taken here
@@ -1234,12 +1349,13 @@ void matchedFilterRows(const ImageView& frame, const ImageView& laserOff, const 
   Arena arena(ws.scratch);  // one reserve per take (each take may pad to 16 bytes)
   for (int i = 0; i < 2; ++i) arena.reserve<int32_t>(uw);
   arena.reserve<int16_t>(uw);
+  arena.reserve<int32_t>(uw);
   for (int i = 0; i < 5; ++i) arena.reserve<int32_t>(uh);
   arena.reserve<uint8_t>(uh);
   arena.commit();
-  MatchedArrays a{arena.take<int32_t>(uw), arena.take<int32_t>(uw), arena.take<int16_t>(uw),
-                  arena.take<int32_t>(uh), arena.take<int32_t>(uh), arena.take<uint8_t>(uh),
-                  arena.take<int32_t>(uh), arena.take<int32_t>(uh), arena.take<int32_t>(uh)};
+  MatchedArrays a{arena.take<int32_t>(uw), arena.take<int32_t>(uw), arena.take<int16_t>(uw), arena.take<int32_t>(uw),
+                  arena.take<int32_t>(uh), arena.take<int32_t>(uh), arena.take<uint8_t>(uh), arena.take<int32_t>(uh),
+                  arena.take<int32_t>(uh), arena.take<int32_t>(uh)};
   std::fill(a.state, a.state + h, uint8_t{0});
   for (const RowSample& r : out.rows) {
     const int y = r.row - roi.y;
@@ -1252,11 +1368,12 @@ void matchedFilterRows(const ImageView& frame, const ImageView& laserOff, const 
     }
   }
   const int ro = redOffset(frame.format);
+  const NoiseShares shares(matchedNoiseFloorDn(frame, laserOff, roi, ro), kKernel);
   for (int y = 0; y < h; ++y) {
     a.z[y] = 0;
     if (a.state[y] != 0) continue;
-    const MatchedRow m =
-        matchedRow(roiRow(&frame, roi, y), roiRow(&laserOff, roi, y), ro, w, kKernel, a.resp, a.sorted, a.diff);
+    const MatchedRow m = matchedRow(roiRow(&frame, roi, y), roiRow(&laserOff, roi, y), ro, w, kKernel, shares, a.resp,
+                                    a.sorted, a.diff, a.level);
     if (m.x < 0) continue;
     a.z[y] = m.zCenti;
     // Sub-pixel: the vertex of the parabola through the three responses (within ±0.5 px).

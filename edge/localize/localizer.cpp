@@ -151,6 +151,8 @@ Status ScanParams::validate() const {
   if (followUpMaxStops < 0 || followUpMaxStops > 16) return {Error::kInvalidArgument, "scan.follow_up_max_stops must be in 0..16"};
   if (followUpUnseenMaxStops < 0 || followUpUnseenMaxStops > 32)
     return {Error::kInvalidArgument, "scan.follow_up_unseen_max_stops must be in 0..32"};
+  if (!(followUpFarSigmas == 0.0 || (followUpFarSigmas >= 1.0 && followUpFarSigmas <= 10.0)))
+    return {Error::kInvalidArgument, "scan.follow_up_far_sigmas must be 0 (off) or in 1..10"};
   if (!(weakArcMinZ == 0.0 || (weakArcMinZ >= 4.0 && weakArcMinZ <= 100.0)))
     return {Error::kInvalidArgument, "scan.weak_arc_min_z must be 0 (off) or in 4..100"};
   if (!(leafGreenRatio == 0.0 || (leafGreenRatio >= 1.1 && leafGreenRatio <= 10.0)))
@@ -277,7 +279,9 @@ std::vector<double> Localizer::followUpStops(const ScanPlan& plan, const std::ve
   need.unsureSize = scan_.followUpDiameterSigmaMm > 0.0 && first->diameterSigmaMm > scan_.followUpDiameterSigmaMm;
   need.hidden = scan_.followUpHiddenPct > 0.0 && first->sphereFit && first->occlusionPct >= scan_.followUpHiddenPct;
   need.twoSurfaces = first->doubt == AppleEstimate::Doubt::kTwoSurfaces;
-  need.farFromRough = first->doubt == AppleEstimate::Doubt::kFarFromRough;
+  need.farFromRough = first->doubt == AppleEstimate::Doubt::kFarFromRough ||
+                      (scan_.followUpFarSigmas > 0.0 && first->sphereFit &&
+                       (first->centerMm - plan.roughMm).norm() > scan_.followUpFarSigmas * scan_.roughSigmaMm);
   if (!need.any()) return {};
   std::vector<double> taken = plan.stopsMm;
   std::sort(taken.begin(), taken.end());

@@ -156,6 +156,15 @@ struct ScanParams {
   double followUpDiameterSigmaMm = 0.0;
   int followUpMaxStops = 6;
   int followUpUnseenMaxStops = 6;
+  // A fit whose centre lies farther from the rough position than this many roughSigmaMm
+  // (3D distance) also has the second pass look round the rough position, as a fit more
+  // likely another object does (Doubt::kFarFromRough), though the doubt model still takes
+  // it for the target: a touching neighbour lies about that far, and where the lines missed
+  // the target (sunlit skin), the neighbour is all they saw. The rough position's own error
+  // puts a target beyond 2.5σ in 10 % of scans (Maxwell); on the twin's hard cases it asks
+  // for 1.7 % more second passes (docs/geometry.md, "A fit far from the rough position
+  // looks again"). 0: off.
+  double followUpFarSigmas = 2.5;
   Status validate() const;
   // The paper's scan: these defaults with five stops 2 cm apart (the twin's benchmark
   // scans, and the tests built on them).

@@ -29,8 +29,15 @@ TEST_CASE("Config: defaults, overrides and errors that name the key", "[config]"
   auto type = app::loadConfig(write(R"({"motion": {"stroke_mm": "long"}})"));
   CHECK(type.status().reason().find("motion.stroke_mm") != std::string::npos);
   auto followUp = app::loadConfig(
-      write(R"({"scan": {"follow_up_min_lines": 4, "follow_up_max_stops": 0, "follow_up_unseen_max_stops": 20}})"));
+      write(R"({"scan": {"follow_up_min_lines": 4, "follow_up_max_stops": 0, "follow_up_unseen_max_stops": 20,
+                         "follow_up_far_sigmas": 0}})"));
   REQUIRE(followUp.isOk());
+  CHECK(followUp->scan.followUpFarSigmas == 0.0);
+  CHECK(ok->scan.followUpFarSigmas == 2.5);
+  CHECK(app::loadConfig(write(R"({"scan": {"follow_up_far_sigmas": 0.5}})"))
+            .status()
+            .reason()
+            .find("follow_up_far_sigmas") != std::string::npos);
   CHECK(followUp->scan.followUpMinLines == 4);
   CHECK(followUp->scan.followUpMaxStops == 0);
   CHECK(followUp->scan.followUpUnseenMaxStops == 20);

@@ -939,6 +939,69 @@ TEST_CASE("A neighbour's stronger line at the ROI's edge is not the line; the ce
   CHECK_THAT(refused.reason(), Catch::Contains("centrePriorShare"));
 }
 
+TEST_CASE("Sunlit skin beside shade: the matched filter's noise bar follows the brightness",
+          "[lle][ambient][matched]") {
+  // Shot noise grows with the light: a band of sunlit skin (red 200, 16 columns) has 3 DN
+  // of it in each frame, the shade round it (red 20) 0.7 DN. A row's robust spread is the
+  // shade's where most of the row is shaded, so noise on the skin stood at 5 of it, and the
+  // band kept the rows' best columns together: the filter kept runs of noise there (the
+  // hard cases' seed 18, d1600_occ1_0015: ten rows that triangulate 85 mm behind the fruit's
+  // centre, whose free space then refused the fruit). The bar now scales with the
+  // ambient's own level under each window (docs/lle.md, "The matched filter's noise").
+  const int w = 200, h = 160, skinFrom = 150, skinTo = 166;
+  // Each frame's noise shared by neighbouring pixels, as a Bayer sensor's demosaicing
+  // shares it (a 3 x 3 mean of white noise, scaled back to its σ).
+  std::mt19937 rng(29);
+  std::normal_distribution<double> unit(0.0, 1.0);
+  const auto at = [](int x, int y, int stride) {
+    return static_cast<size_t>(y) * static_cast<size_t>(stride) + static_cast<size_t>(x);
+  };
+  const auto correlated = [&]() {
+    std::vector<double> white(static_cast<size_t>((w + 2) * (h + 2)));
+    for (double& v : white) v = unit(rng);
+    std::vector<double> out(static_cast<size_t>(w * h));
+    for (int y = 0; y < h; ++y)
+      for (int x = 0; x < w; ++x) {
+        double sum = 0.0;
+        for (int dy = 0; dy < 3; ++dy)
+          for (int dx = 0; dx < 3; ++dx) sum += white[at(x + dx, y + dy, w + 2)];
+        out[at(x, y, w)] = sum / 3.0;  // 9 terms: σ 3, back to 1
+      }
+    return out;
+  };
+  Rgb off(w, h), on(w, h);
+  for (Rgb* f : {&off, &on}) {
+    const std::vector<double> n = correlated();
+    for (int y = 0; y < h; ++y)
+      for (int x = 0; x < w; ++x) {
+        const bool skin = x >= skinFrom && x < skinTo;
+        const double level = skin ? 200.0 : 20.0;
+        const double sd = skin ? 3.0 : 0.7;
+        f->red(x, y) = static_cast<uint8_t>(std::lround(level + sd * n[at(x, y, w)]));
+      }
+  }
+  const ImageView offView = off.view();
+  LleParams p;
+  REQUIRE(p.matchedFilter);
+  // Noise alone: no row at all.
+  const LaserLine none = run(on, p, nullptr, &offView);
+  INFO("rows found in noise: " << none.rows.size());  // (24 before 2026-12-05, all the filter's)
+  CHECK(none.rows.empty());
+  // A line of 12 DN on the skin is still found, and where it is.
+  const auto truth = [](int y) { return 155.0 + 0.03 * y; };
+  addLine(on, truth, 1.4, 12);
+  const LaserLine line = run(on, p, nullptr, &offView);
+  int found = 0, astray = 0;
+  for (const auto& r : line.rows) {
+    if (!r.valid()) continue;
+    ++found;
+    astray += std::abs(r.column - truth(r.row)) > 2.0 ? 1 : 0;
+  }
+  INFO("rows on the line " << found << ", astray " << astray);
+  CHECK(found >= 100);
+  CHECK(astray <= 2);
+}
+
 TEST_CASE("kthSmallest is the value nth_element selects, on any spread of values", "[lle][matched]") {
   // The matched filter's median and MAD (detail::kthSmallest): a histogram narrows the
   // search to one bin. Spreads from one value to the whole int32 range, ties, a single bin

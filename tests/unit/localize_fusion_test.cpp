@@ -546,6 +546,20 @@ TEST_CASE("The second pass's reasons: a mostly hidden fruit, two surfaces, far f
     CHECK(s >= std::min(a, b) - 1e-9);
     CHECK(s <= std::max(a, b) + 1e-9);
   }
+  // A fit the doubt model still takes for the target, but farther from the rough position
+  // than followUpFarSigmas of its σ (a touching neighbour's distance): the same stops round
+  // the rough position; nearer, none. Off (0), none either way.
+  const double farMm = k.scan.followUpFarSigmas * k.scan.roughSigmaMm;
+  REQUIRE(farMm > 0.0);
+  localize::AppleEstimate distant = sure;
+  distant.centerMm = plan.roughMm + (farMm + 1.0) * Eigen::Vector3d::UnitY();
+  CHECK(loc.followUpStops(plan, lines, distant, 200.0) == around);
+  localize::AppleEstimate within = sure;
+  within.centerMm = plan.roughMm + (farMm - 1.0) * Eigen::Vector3d::UnitY();
+  CHECK(loc.followUpStops(plan, lines, within, 200.0).empty());
+  localize::ScanParams nearOnly = k.scan;
+  nearOnly.followUpFarSigmas = 0.0;
+  CHECK(localize::Localizer(k.cal, image::LleParams{}, nearOnly).followUpStops(plan, lines, distant, 200.0).empty());
   // Nothing of the target seen: the cap is followUpUnseenMaxStops, so that the thirds
   // across its whole width round the rough position can be taken; where the fruit was
   // seen, followUpMaxStops still holds.
@@ -667,6 +681,8 @@ TEST_CASE("Scan parameters are validated", "[localize]") {
       {[](P& p) { p.priorRadiusMm = 5.0; }, "prior_radius_mm"},
       {[](P& p) { p.followUpMaxStops = 17; }, "follow_up_max_stops"},
       {[](P& p) { p.followUpUnseenMaxStops = 33; }, "follow_up_unseen_max_stops"},
+      {[](P& p) { p.followUpFarSigmas = 0.5; }, "follow_up_far_sigmas"},
+      {[](P& p) { p.followUpFarSigmas = 11.0; }, "follow_up_far_sigmas"},
       {[](P& p) { p.followUpHiddenPct = 101.0; }, "follow_up_hidden_pct"},
       {[](P& p) { p.leafGreenRatio = 0.5; }, "leaf_green_ratio"},
       {[](P& p) { p.leafGreenRatio = 1.0; }, "leaf_green_ratio"},

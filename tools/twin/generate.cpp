@@ -272,6 +272,7 @@ int generateMain(const Args& args) {
   localize::ScanParams scanParams;
   scanParams.followUpUnseenMaxStops =
       static_cast<int>(args.integer("follow-up-unseen-max-stops", scanParams.followUpUnseenMaxStops));
+  scanParams.followUpFarSigmas = args.num("follow-up-far-sigmas", scanParams.followUpFarSigmas);
   if (Status s = scanParams.validate(); !s) {
     std::fprintf(stderr, "alacs-twin generate: %s\n", s.reason().c_str());
     return 2;

@@ -297,6 +297,7 @@ int main(int argc, char** argv) {
            {"max-exposure-us", Kind::kInteger, "the longest exposure metering may choose: camera.exposure_us (3000)"},
            {"follow-up-unseen-max-stops", Kind::kInteger,
             "ScanParams::followUpUnseenMaxStops for the second pass rendered (default ScanParams')"},
+           {"follow-up-far-sigmas", Kind::kNumber, "ScanParams::followUpFarSigmas for the second pass rendered"},
            {"resume", Kind::kFlag, "keep the cases already written"},
            {"only", Kind::kText,
             "NAME[,NAME..]: generate these cases only (the others untouched; to render again the scans a "
@@ -334,6 +335,7 @@ int main(int argc, char** argv) {
                 "ScanParams::roughWhenFarFromRough off: a fit more likely another object goes out (AMBIGUOUS)"},
                {"follow-up-unseen-max-stops", Kind::kInteger,
                 "ScanParams::followUpUnseenMaxStops (the scans hold the stops their generation asked for)"},
+               {"follow-up-far-sigmas", Kind::kNumber, "ScanParams::followUpFarSigmas (as generate's)"},
                {"weak-arc-min-z", Kind::kNumber, "ScanParams::weakArcMinZ: the sunlit arc search's bar (0: off)"},
                {"leaf-green-ratio", Kind::kNumber,
                 "ScanParams::leafGreenRatio: samples this much greener than red in the laser-off frame join no fit (0: "

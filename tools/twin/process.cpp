@@ -149,6 +149,7 @@ int processMain(const Args& args) {
   scan.shapeIrregularityPct = args.num("shape-irregularity-pct", scan.shapeIrregularityPct);
   scan.followUpUnseenMaxStops =
       static_cast<int>(args.integer("follow-up-unseen-max-stops", scan.followUpUnseenMaxStops));
+  scan.followUpFarSigmas = args.num("follow-up-far-sigmas", scan.followUpFarSigmas);
   if (Status s = scan.validate(); !s) {
     std::fprintf(stderr, "alacs-twin process: %s\n", s.reason().c_str());
     return 2;
