@@ -1124,9 +1124,9 @@ MatchedRow matchedRow(const uint8_t* on, const uint8_t* off, int redOffset, int 
 // grows with the ambient's level as read² + level/gain does (shot noise), and the floor is
 // read²·gain, the level at which the two are equal. From the pixels themselves: their
 // |difference| binned by the laser-off red (16 DN bins, clipped pixels left out; every other
-// row and column), each
-// bin's robust spread (1.4826 · median |difference|; the line's few pixels barely move a
-// median), and a straight line through (level, spread²) weighed by the bins' counts.
+// row and column), each bin's robust spread (1.4826 · median |difference|; the line's few
+// pixels barely move a median), and a straight line through (level, spread²) weighed by the
+// bins' counts.
 // Where the spread does not grow with the level (fewer than two bins, or a flat or falling
 // line), a floor so high that every window's noise is the row's (as before 2026-12-05).
 double matchedNoiseFloorDn(const ImageView& frame, const ImageView& laserOff, const Roi& roi, int ro) {
