@@ -1038,6 +1038,18 @@ class NoiseShares {
   int64_t perLevelQ32_ = 0;
 };
 
+// out[j] = Σ_i weight(i) · src[j + i] for j < n, one tap at a time over the whole row (the
+// compiler vectorises the inner loop): the matched filter's responses and its levels.
+template <class Src, class Weight>
+void sumTaps(const Src* src, int n, size_t taps, Weight weight, int32_t* __restrict__ out) {
+  std::fill(out, out + n, 0);
+  for (size_t i = 0; i < taps; ++i) {
+    const int32_t q = weight(i);
+    const Src* __restrict__ s = src + i;
+    for (int j = 0; j < n; ++j) out[j] += q * static_cast<int32_t>(s[j]);
+  }
+}
+
 // One ROI row through the matched filter: its best column (-1: none), the response there
 // over its noise, in hundredths, and the responses beside it. Shot noise's variance follows
 // the light, so each response is first divided by its own noise's share: √(floor + level),
@@ -1065,30 +1077,16 @@ MatchedRow matchedRow(const uint8_t* on, const uint8_t* off, int redOffset, int 
   // kernel's squares into sorted[x - half], one tap at a time (Σ q² · red ≤ 17 · 199² · 255
   // fits 32 bits), then back into level[x].
   for (int x = 0; x < w; ++x) level[x] = red(off, x);
-  {
-    int32_t* __restrict__ sums = sorted;
-    std::fill(sums, sums + n, 0);
-    for (size_t i = 0; i < k.q16.size(); ++i) {
-      const int32_t q2 = static_cast<int32_t>(k.q16[i]) * k.q16[i];
-      const int32_t* __restrict__ o = level + i;
-      for (int j = 0; j < n; ++j) sums[j] += q2 * o[j];
-    }
-  }
+  sumTaps(
+      level, n, k.q16.size(), [&](size_t i) { return static_cast<int32_t>(k.q16[i]) * k.q16[i]; }, sorted);
   for (int j = 0; j < n; ++j) level[j + kMatchedHalfPx] = sorted[j];
   // The difference (16 bits: -255..255), then the filter over it into sorted[x - half], one
   // tap at a time over the whole row (16 × 16 → 32-bit products, which the compiler
   // vectorises), then each response into resp[x] where no clipped laser-off pixel is in its
   // window.
   for (int x = 0; x < w; ++x) diff[x] = static_cast<int16_t>(red(on, x) - red(off, x));
-  {
-    int32_t* __restrict__ r = sorted;
-    std::fill(r, r + n, 0);
-    for (size_t i = 0; i < k.q16.size(); ++i) {
-      const int32_t q = k.q16[i];
-      const int16_t* __restrict__ d = diff + i;
-      for (int j = 0; j < n; ++j) r[j] += q * static_cast<int32_t>(d[j]);
-    }
-  }
+  sumTaps(
+      diff, n, k.q16.size(), [&](size_t i) { return static_cast<int32_t>(k.q16[i]); }, sorted);
   int clipAt = -1000000;  // the last laser-off pixel at full scale up to x + half
   for (int x = 0; x < std::min(kMatchedHalfPx, w); ++x)
     if (red(off, x) == 255) clipAt = x;
@@ -1185,7 +1183,7 @@ struct MatchedArrays {
   int16_t* diff;    // w: the row's red difference
   int32_t* level;   // w: the laser-off red under each response's window (Σ q² · red)
   int32_t* colQ8;   // h: the column (Q8, in the ROI) of the row's line sample or filter peak (unsmoothed)
-  int32_t* z;       // h: the peak's response over the row's spread (hundredths)
+  int32_t* z;       // h: the peak's response over its noise (hundredths; matchedRow)
   uint8_t* state;   // h: 0 free, 1 the line's, 2 another sample (left alone), 3 taken here
   int32_t* run;     // h: the run the row belongs to (-1: none)
   int32_t* stack;   // h: the walk's stack, then the kept rows' smoothed columns (Q8, in the ROI)
