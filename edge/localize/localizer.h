@@ -51,11 +51,16 @@ struct ScanParams {
   double minRadiusMm = 27.5;      // what counts as an apple: 55–105 mm across
   double maxRadiusMm = 52.5;
   // Apples are a little oblate about the stem: the sphere is refined into a spheroid with
-  // these priors (aspect = height/width; the stem's tilt from "up" in the camera frame).
+  // these priors (aspect = height/width; the stem's tilt from "up" in the camera frame,
+  // σ per axis of the tilt's two angles). The tilt's was 20°: fruit hang with the stem
+  // leaning 50° and more, and a prior that held them near vertical put the centre
+  // millimetres off with a σ that did not cover it. 30° chosen on the tuning worlds; from
+  // 35° on, a round fruit in full view may take an oblate shape facing the camera
+  // (docs/geometry.md, "The stem's tilt").
   bool spheroid = true;
   double priorAspect = 0.9;
   double priorAspectSigma = 0.1;
-  double stemTiltSigmaDeg = 20.0;
+  double stemTiltSigmaDeg = 30.0;
   // The largest sphere the sphere fit may take for a fruit (its search, its refinement and
   // the one-line fit alike): the longest semi-axis of the largest fruit (equatorial radius
   // maxRadiusMm) at the aspect prior's 2σ, maxRadiusMm × max(1, priorAspect +
