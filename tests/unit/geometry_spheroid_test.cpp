@@ -134,7 +134,7 @@ struct Refined {
 };
 
 Refined refine(const Apple& ap, std::mt19937& rng, const std::vector<double>& dxMm, double fromMm, double toMm,
-               double tiltSigmaDeg = 20.0) {
+               double tiltSigmaRad = SpheroidPriors{}.stemTiltSigmaRad) {
   std::vector<Eigen::Vector3d> pts;
   std::vector<int> lines;
   int id = 0;
@@ -151,9 +151,9 @@ Refined refine(const Apple& ap, std::mt19937& rng, const std::vector<double>& dx
   sp.outlierMm = 5.0;
   auto sphere = fitSphere(pts, lines, {}, sp);
   REQUIRE(sphere.isOk());
-  SpheroidPriors pr;  // aspect 0.9 ± 0.1 (the localizer's), tilt ± tiltSigmaDeg
+  SpheroidPriors pr;  // aspect 0.9 ± 0.1 (the localizer's), tilt ± tiltSigmaRad
   pr.aspectSigma = 0.1;
-  pr.stemTiltSigmaRad = tiltSigmaDeg * M_PI / 180.0;
+  pr.stemTiltSigmaRad = tiltSigmaRad;
   pr.pointsPerIndependent = 5.0;
   auto fit = refineSpheroid(pts, std::vector<bool>(pts.size(), true), *sphere, pr);
   REQUIRE(fit.isOk());
@@ -205,7 +205,7 @@ TEST_CASE("A fruit whose stem leans far from vertical: a wider tilt prior lets t
   // gap in the leaves. At the old ScanParams::stemTiltSigmaDeg, 20° (a 50° lean at 2.5σ),
   // the prior bent the stem back towards vertical and the centre came out 2.7 mm off; at the
   // localizer's 30° the lines set the tilt nearer the truth and the centre is 2.0 mm off,
-  // the approach point 1.2 mm (1.6) (docs/geometry.md, "The stem's tilt").
+  // the approach point 1.2 mm off (1.6 at 20°) (docs/geometry.md, "The stem's tilt").
   Apple ap;
   ap.k = 0.8;
   ap.s =
@@ -216,8 +216,9 @@ TEST_CASE("A fruit whose stem leans far from vertical: a wider tilt prior lets t
   std::mt19937 rngNarrow(5);
   std::mt19937 rngWide(5);  // the same points for both
   const std::vector<double> dx{-20.0, -5.0, 10.0};
-  const Refined narrow = refine(ap, rngNarrow, dx, -25.0, 20.0, 20.0);
-  const Refined wide = refine(ap, rngWide, dx, -25.0, 20.0, localize::ScanParams{}.stemTiltSigmaDeg);
+  const double wideDeg = localize::ScanParams{}.stemTiltSigmaDeg;
+  const Refined narrow = refine(ap, rngNarrow, dx, -25.0, 20.0, 20.0 * M_PI / 180.0);
+  const Refined wide = refine(ap, rngWide, dx, -25.0, 20.0, wideDeg * M_PI / 180.0);
   const auto approachErr = [&](const SpheroidFit& f) {
     Eigen::Vector3d p;
     Eigen::Vector3d n;
@@ -227,14 +228,16 @@ TEST_CASE("A fruit whose stem leans far from vertical: a wider tilt prior lets t
   const auto tiltDeg = [](const SpheroidFit& f) { return std::acos(std::abs(f.stemAxis.y())) * 180.0 / M_PI; };
   const double centreNarrow = (narrow.spheroid.centerMm - ap.c).norm();
   const double centreWide = (wide.spheroid.centerMm - ap.c).norm();
-  INFO("tilt σ 20°: centre off " << centreNarrow << " mm, approach off " << approachErr(narrow.spheroid) << " mm, σ "
+  const double approachNarrow = approachErr(narrow.spheroid);
+  const double approachWide = approachErr(wide.spheroid);
+  const double sigmaWide = spheroidApproachSigma(wide.spheroid);
+  INFO("tilt σ 20°: centre off " << centreNarrow << " mm, approach off " << approachNarrow << " mm, σ "
                                  << spheroidApproachSigma(narrow.spheroid) << ", tilt " << tiltDeg(narrow.spheroid));
-  INFO("tilt σ " << localize::ScanParams{}.stemTiltSigmaDeg << "°: centre off " << centreWide << " mm, approach off "
-                 << approachErr(wide.spheroid) << " mm, σ " << spheroidApproachSigma(wide.spheroid) << ", tilt "
-                 << tiltDeg(wide.spheroid));
+  INFO("tilt σ " << wideDeg << "°: centre off " << centreWide << " mm, approach off " << approachWide << " mm, σ "
+                 << sigmaWide << ", tilt " << tiltDeg(wide.spheroid));
   CHECK(centreNarrow > 2.0);
   CHECK(centreWide < 0.8 * centreNarrow);
-  CHECK(approachErr(wide.spheroid) < approachErr(narrow.spheroid));
-  CHECK(approachErr(wide.spheroid) < spheroidApproachSigma(wide.spheroid));
+  CHECK(approachWide < approachNarrow);
+  CHECK(approachWide < sigmaWide);
   CHECK(std::abs(tiltDeg(wide.spheroid) - 50.0) < std::abs(tiltDeg(narrow.spheroid) - 50.0));
 }
