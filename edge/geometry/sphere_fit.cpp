@@ -232,7 +232,8 @@ struct GaussNewton {
 // `holdRadius` only the centre moves; `jtj` is the full information either way (for the
 // covariance).
 GaussNewton refine(const std::vector<Eigen::Vector3d>& pts, const std::vector<bool>& use, Eigen::Vector3d c,
-                   double radius, double band, const SphereFitParams& p, bool holdRadius = false) {
+                   double radius, double band, const SphereFitParams& p, bool holdRadius = false,
+                   double maxStepMm = 0.0) {
   GaussNewton out;
   for (int it = 0; it < p.iterations; ++it) {
     out.jtj.setZero();
@@ -273,6 +274,9 @@ GaussNewton refine(const std::vector<Eigen::Vector3d>& pts, const std::vector<bo
     else
       step = out.jtj.ldlt().solve(-jtr);
     if (!step.allFinite()) return out;
+    // A step held short (maxStepMm > 0): where the points leave a direction to the priors,
+    // the linearised step overshoots beyond the band and loses them.
+    if (maxStepMm > 0.0 && step.head<3>().norm() > maxStepMm) step *= maxStepMm / step.head<3>().norm();
     c += step.head<3>();
     radius += step(3);
     if (step.norm() < 1e-7) break;
@@ -281,6 +285,31 @@ GaussNewton refine(const std::vector<Eigen::Vector3d>& pts, const std::vector<bo
   out.radius = radius;
   out.ok = std::isfinite(radius) && c.allFinite();
   return out;
+}
+
+// Whether an arc bends at least half as much as the flattest fruit's circle would over the
+// same chord (its sagitta: the farthest point from the chord between its ends), over a
+// chord of kFlatArcMinChordMm or more. A leaf's straight cut does not; a lumpy fruit's arc,
+// whose circle comes out flatter than any fruit's, does (docs/geometry.md, "A flat arc").
+// Over a shorter chord that half bend is within a few times the line's depth noise (a few
+// tenths of a millimetre): 1.75 mm at 40 mm for the largest fruit, 0.9 mm at 30 mm.
+constexpr double kFlatArcMinChordMm = 40.0;
+constexpr double kFlatArcStepMm = 2.0;  // finishFlatArc()'s refinement, held to short steps
+bool curvesLikeFruit(const std::vector<Eigen::Vector3d>& pts, const std::vector<size_t>& idx,
+                     const SphereFitParams& p) {
+  if (idx.size() < 3) return false;
+  const Eigen::Vector3d& a = pts[idx.front()];
+  const Eigen::Vector3d chord = pts[idx.back()] - a;
+  const double lengthMm = chord.norm();
+  if (lengthMm < kFlatArcMinChordMm) return false;
+  const Eigen::Vector3d along = chord / lengthMm;
+  double sagittaMm = 0.0;
+  for (size_t i : idx) {
+    const Eigen::Vector3d d = pts[i] - a;
+    sagittaMm = std::max(sagittaMm, (d - d.dot(along) * along).norm());
+  }
+  const double half = std::min(0.5 * lengthMm, p.maxRadiusMm);
+  return sagittaMm >= 0.5 * (p.maxRadiusMm - std::sqrt(p.maxRadiusMm * p.maxRadiusMm - half * half));
 }
 
 struct Hypothesis {
@@ -317,10 +346,25 @@ Hypothesis search(const std::vector<Eigen::Vector3d>& pts, const Pieces& pieces,
       Eigen::Vector3d normal;
       double rho = 0.0;
       if (!circleOf(pts, piece, p.linePlaneNormal, &c0, &rho, &normal)) continue;
-      for (int k = -24; k <= 24; ++k) {
-        const double delta = 2.0 * k;  // mm
-        const double r = std::sqrt(rho * rho + delta * delta);
-        offer(c0 + delta * normal, r, pts[piece.front()]);
+      const auto offerCircle = [&](const Eigen::Vector3d& centre, double inPlaneRadius) {
+        for (int k = -24; k <= 24; ++k) {
+          const double delta = 2.0 * k;  // mm
+          offer(centre + delta * normal, std::sqrt(inPlaneRadius * inPlaneRadius + delta * delta), pts[piece.front()]);
+        }
+      };
+      offerCircle(c0, rho);
+      // An arc flatter than any fruit's: no sphere through its circle is fruit-sized. A
+      // lumpy fruit's skin does that over a ridge (the circle of a short arc is ill
+      // determined); so does a leaf. Fruit-sized circles through the arc's middle, on the
+      // side of its own centre, are offered as well: the scorer keeps one only where it
+      // explains the piece (a leaf's flat arc strays from it), and finishOneLine() then
+      // fits the sphere with the priors (docs/geometry.md, "A flat arc").
+      if (rho > p.maxRadiusMm && curvesLikeFruit(pts, piece, p)) {
+        const Eigen::Vector3d& mid = pts[piece[piece.size() / 2]];
+        const Eigen::Vector3d toward = (c0 - mid) - normal.dot(c0 - mid) * normal;
+        if (toward.norm() > 1e-9)
+          for (double shrunk : {0.8 * p.priorRadiusMm, p.priorRadiusMm, 1.2 * p.priorRadiusMm})
+            offerCircle(mid + shrunk * toward.normalized(), shrunk);
       }
     }
     return best;
@@ -469,6 +513,56 @@ std::vector<size_t> oneLinePoints(const std::vector<Eigen::Vector3d>& pts, const
   return idx;
 }
 
+// One line whose circle is flatter than any fruit (see search()): the circle the points fix
+// is not the fruit's, so the sphere is fitted to the points directly, its radius and
+// centre held by their priors (the valley of equally good spheres that the δ search below
+// walks is here bounded by the radius prior, which the flat circle cannot meet). The
+// points' own scatter (and the skin's lumps) go into the covariance with the priors'.
+Result<SphereFit> finishFlatArc(const std::vector<Eigen::Vector3d>& pts, const std::vector<size_t>& idx,
+                                const Hypothesis& h, double arcRangeMm, const SphereFitParams& p) {
+  if (!curvesLikeFruit(pts, idx, p)) return Status(Error::kOutOfRange, "the one line's arc is flat: no fruit");
+  std::vector<bool> use(pts.size(), false);
+  for (size_t i : idx) use[i] = true;
+  const double bandMm = std::max(p.outlierMm, 2.0 * p.ransacBandMm);
+  GaussNewton gn =
+      refine(pts, use, h.c, std::clamp(h.r, p.minRadiusMm, p.maxRadiusMm), bandMm, p, false, kFlatArcStepMm);
+  // Out of the fruit's sizes even with the radius prior's pull (the arc's flat bend drags
+  // the radius on): the radius is held at the prior's, which the arc cannot tell, and the
+  // centre fitted to it.
+  if ((!gn.ok || !(gn.radius >= p.minRadiusMm && gn.radius <= p.maxRadiusMm)) && p.priorRadiusMm > 0.0) {
+    // From the hypothesis' sphere moved about the arc's middle to that radius, so that the
+    // arc lies on it.
+    const Eigen::Vector3d& mid = pts[idx[idx.size() / 2]];
+    const Eigen::Vector3d c1 = mid + p.priorRadiusMm * (h.c - mid).normalized();
+    gn = refine(pts, use, c1, p.priorRadiusMm, bandMm, p, true, kFlatArcStepMm);
+  }
+  if (!gn.ok || !(gn.radius >= p.minRadiusMm && gn.radius <= p.maxRadiusMm) || gn.c.norm() < arcRangeMm)
+    return Status(Error::kOutOfRange, "no fruit-sized sphere through the one line's flat arc");
+  SphereFit out;
+  out.centerMm = gn.c;
+  out.radiusMm = gn.radius;
+  out.inlier.assign(pts.size(), false);
+  double inSq = 0.0;
+  for (size_t i : idx) {
+    const double r = (pts[i] - out.centerMm).norm() - out.radiusMm;
+    if (std::abs(r) <= p.outlierMm) {
+      out.inlier[i] = true;
+      ++out.inliers;
+      inSq += r * r;
+    }
+  }
+  if (out.inliers < p.minPoints) return Status(Error::kBadInput, "too few inliers on the one line's flat arc");
+  out.rmsMm = std::sqrt(inSq / static_cast<double>(out.inliers));
+  out.groupsUsed = 1;
+  out.linesUsed = 1;
+  const double variance = std::max(1.0, inSq / std::max(1.0, static_cast<double>(out.inliers) - 4.0));
+  out.covariance = gn.jtj.inverse() * variance * std::max(1.0, p.pointsPerIndependent);
+  if (!out.covariance.allFinite()) return Status(Error::kBadInput, "the one line's flat arc fit is degenerate");
+  out.centerSigmaMm = std::sqrt(std::max(0.0, out.covariance.topLeftCorner<3, 3>().trace()));
+  out.radiusSigmaMm = std::sqrt(std::max(0.0, out.covariance(3, 3)));
+  return out;
+}
+
 // One line: the points fix a circle in the laser plane and nothing else; every sphere
 // through that circle fits them equally. The priors (radius, rough position) choose the
 // centre's offset δ from the plane: c = c0 + δ·n, R = sqrt(ρ² + δ²), δ at the minimum of
@@ -549,7 +643,9 @@ Result<SphereFit> finishOneLine(const std::vector<Eigen::Vector3d>& pts, const P
       bestDelta = delta;
     }
   }
-  if (!(bestCost < 1e300)) return Status(Error::kOutOfRange, "no fruit-sized sphere through the one line");
+  if (!(bestCost < 1e300))
+    return rho > p.maxRadiusMm ? finishFlatArc(pts, idx, h, arcRange, p)
+                               : Status(Error::kOutOfRange, "no fruit-sized sphere through the one line");
   // Curvature: f is −2·log posterior, so var(δ) = 2 / f''.
   const double hStep = 0.5;
   const double f2 = (cost(bestDelta + hStep) - 2.0 * cost(bestDelta) + cost(bestDelta - hStep)) / (hStep * hStep);
