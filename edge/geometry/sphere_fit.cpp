@@ -513,6 +513,30 @@ std::vector<size_t> oneLinePoints(const std::vector<Eigen::Vector3d>& pts, const
   return idx;
 }
 
+// One line's sphere (centre, radius) with the points of `idx` it explains within the final
+// band as its inliers and their RMS; the covariance is the caller's.
+Result<SphereFit> oneLineSphere(const std::vector<Eigen::Vector3d>& pts, const std::vector<size_t>& idx,
+                                const Eigen::Vector3d& centerMm, double radiusMm, const SphereFitParams& p) {
+  SphereFit out;
+  out.centerMm = centerMm;
+  out.radiusMm = radiusMm;
+  out.inlier.assign(pts.size(), false);
+  double inSq = 0.0;
+  for (size_t i : idx) {
+    const double r = (pts[i] - out.centerMm).norm() - out.radiusMm;
+    if (std::abs(r) <= p.outlierMm) {
+      out.inlier[i] = true;
+      ++out.inliers;
+      inSq += r * r;
+    }
+  }
+  if (out.inliers < p.minPoints) return Status(Error::kBadInput, "too few inliers on the one line");
+  out.rmsMm = std::sqrt(inSq / static_cast<double>(out.inliers));
+  out.groupsUsed = 1;
+  out.linesUsed = 1;
+  return out;
+}
+
 // One line whose circle is flatter than any fruit (see search()): the circle the points fix
 // is not the fruit's, so the sphere is fitted to the points directly, its radius and
 // centre held by their priors (the valley of equally good spheres that the δ search below
@@ -538,29 +562,16 @@ Result<SphereFit> finishFlatArc(const std::vector<Eigen::Vector3d>& pts, const s
   }
   if (!gn.ok || !(gn.radius >= p.minRadiusMm && gn.radius <= p.maxRadiusMm) || gn.c.norm() < arcRangeMm)
     return Status(Error::kOutOfRange, "no fruit-sized sphere through the one line's flat arc");
-  SphereFit out;
-  out.centerMm = gn.c;
-  out.radiusMm = gn.radius;
-  out.inlier.assign(pts.size(), false);
-  double inSq = 0.0;
-  for (size_t i : idx) {
-    const double r = (pts[i] - out.centerMm).norm() - out.radiusMm;
-    if (std::abs(r) <= p.outlierMm) {
-      out.inlier[i] = true;
-      ++out.inliers;
-      inSq += r * r;
-    }
-  }
-  if (out.inliers < p.minPoints) return Status(Error::kBadInput, "too few inliers on the one line's flat arc");
-  out.rmsMm = std::sqrt(inSq / static_cast<double>(out.inliers));
-  out.groupsUsed = 1;
-  out.linesUsed = 1;
+  Result<SphereFit> fit = oneLineSphere(pts, idx, gn.c, gn.radius, p);
+  if (!fit) return fit;
+  SphereFit& out = *fit;
+  const double inSq = out.rmsMm * out.rmsMm * static_cast<double>(out.inliers);
   const double variance = std::max(1.0, inSq / std::max(1.0, static_cast<double>(out.inliers) - 4.0));
   out.covariance = gn.jtj.inverse() * variance * std::max(1.0, p.pointsPerIndependent);
   if (!out.covariance.allFinite()) return Status(Error::kBadInput, "the one line's flat arc fit is degenerate");
   out.centerSigmaMm = std::sqrt(std::max(0.0, out.covariance.topLeftCorner<3, 3>().trace()));
   out.radiusSigmaMm = std::sqrt(std::max(0.0, out.covariance(3, 3)));
-  return out;
+  return fit;
 }
 
 // One line: the points fix a circle in the laser plane and nothing else; every sphere
@@ -571,7 +582,6 @@ Result<SphereFit> finishFlatArc(const std::vector<Eigen::Vector3d>& pts, const s
 // wander along the valley of equally good spheres, driven by the noise.)
 Result<SphereFit> finishOneLine(const std::vector<Eigen::Vector3d>& pts, const Pieces& pieces, const Hypothesis& h,
                                 const SphereFitParams& p) {
-  const size_t n = pts.size();
   const std::vector<size_t> idx = oneLinePoints(pts, pieces, h, p);
   if (idx.size() < p.minPoints) return Status(Error::kBadInput, "too few points on the one line");
   // Plane and in-plane frame.
@@ -650,23 +660,10 @@ Result<SphereFit> finishOneLine(const std::vector<Eigen::Vector3d>& pts, const P
   const double hStep = 0.5;
   const double f2 = (cost(bestDelta + hStep) - 2.0 * cost(bestDelta) + cost(bestDelta - hStep)) / (hStep * hStep);
   const double varDelta = f2 > 1e-9 ? 2.0 / f2 : p.maxRadiusMm * p.maxRadiusMm;
-  SphereFit out;
-  out.centerMm = c0 + bestDelta * normal;
-  out.radiusMm = std::sqrt(rho * rho + bestDelta * bestDelta);
-  out.inlier.assign(n, false);
-  double inSq = 0.0;
-  for (size_t i : idx) {
-    const double r = (pts[i] - out.centerMm).norm() - out.radiusMm;
-    if (std::abs(r) <= p.outlierMm) {
-      out.inlier[i] = true;
-      ++out.inliers;
-      inSq += r * r;
-    }
-  }
-  if (out.inliers < p.minPoints) return Status(Error::kBadInput, "too few inliers on the one line");
-  out.rmsMm = std::sqrt(inSq / static_cast<double>(out.inliers));
-  out.groupsUsed = 1;
-  out.linesUsed = 1;
+  Result<SphereFit> fit =
+      oneLineSphere(pts, idx, c0 + bestDelta * normal, std::sqrt(rho * rho + bestDelta * bestDelta), p);
+  if (!fit) return fit;
+  SphereFit& out = *fit;
   // Covariance of (c, R): the circle's (in-plane centre and ρ) and δ's, through
   // c = c0 + δ·n, R = sqrt(ρ² + δ²).
   const double variance = sumSq / std::max(1.0, static_cast<double>(used) - 3.0);
@@ -683,7 +680,7 @@ Result<SphereFit> finishOneLine(const std::vector<Eigen::Vector3d>& pts, const P
   out.covariance = j * covIn * j.transpose();
   out.centerSigmaMm = std::sqrt(std::max(0.0, out.covariance.topLeftCorner<3, 3>().trace()));
   out.radiusSigmaMm = std::sqrt(std::max(0.0, out.covariance(3, 3)));
-  return out;
+  return fit;
 }
 
 // Points within `bandMm` of the hypothesis' sphere.
