@@ -541,7 +541,8 @@ Result<SphereFit> oneLineSphere(const std::vector<Eigen::Vector3d>& pts, const s
 // is not the fruit's, so the sphere is fitted to the points directly, its radius and
 // centre held by their priors (the valley of equally good spheres that the δ search below
 // walks is here bounded by the radius prior, which the flat circle cannot meet). The
-// points' own scatter (and the skin's lumps) go into the covariance with the priors'.
+// points' own scatter goes into the covariance with the priors', at least 1 mm² (the
+// scale of a lumpy skin's departure, which made the arc flat).
 Result<SphereFit> finishFlatArc(const std::vector<Eigen::Vector3d>& pts, const std::vector<size_t>& idx,
                                 const Hypothesis& h, double arcRangeMm, const SphereFitParams& p) {
   if (!curvesLikeFruit(pts, idx, p)) return Status(Error::kOutOfRange, "the one line's arc is flat: no fruit");
