@@ -15,13 +15,14 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from alacs_eval import cli, diagnose, diameter, evaluate, metrics, stack, twin, worlds
+from alacs_eval import cli, compare, diagnose, diameter, evaluate, metrics, stack, twin, worlds
 from alacs_eval.scans import Scan, target_truth
 
 
 @pytest.mark.parametrize("look", [["--count", "2"], ["--loc", "--per-cell", "1"], ["--diameter", "--per-cell", "1"],
-                                  ["--loc", "--stack", "2", "--per-cell", "1"]],
-                         ids=["lle", "localization", "diameter", "stack"])
+                                  ["--loc", "--stack", "2", "--per-cell", "1"],
+                                  ["--loc", "--against", "/bin/true", "--per-cell", "1"]],
+                         ids=["lle", "localization", "diameter", "stack", "two builds"])
 def test_the_second_world_is_refused(tmp_path, capsys, look):
     assert cli.main(["diagnose", *look, "--world", "holdout", "--work", str(tmp_path),
                      "--twin", os.environ.get("ALACS_TWIN", "/bin/true")]) == 2
@@ -396,6 +397,57 @@ def test_the_sphere_fit_of_the_diameter_diagnosis_finds_a_known_cap():
     _, r_lsq = diameter.fit_sphere(noisy, centre, 40.0, huber_mm=0.0)
     assert abs(r_huber - radius) < 0.5 * abs(r_lsq - radius)
     assert abs(r_huber - radius) < 1.0
+
+
+def test_two_builds_side_by_side_each_on_its_own_second_pass(tmp_path):
+    tw = _twin()
+    cfg = diagnose.Config(world="benchmark-hard", seed=3, count=0, work=tmp_path, twin=tw, quiet=True, worst=0)
+    # The same build against itself: nothing moves, and its figures are diagnose --loc's.
+    same = compare.run(cfg, tw, per_cell=1)
+    assert same["changed"] == [] and same["summary"]["against"] == same["summary"]["this build"]
+    assert same["rendered_again"] == {"against": 0, "this build": 0}
+    alone = diagnose.run_loc(cfg, per_cell=1)
+    mine = same["summary"]["this build"]
+    assert mine["scans"] == alone["scans"] == 8 and mine["no_result"] == alone["no_result"]
+    assert mine["within20"] == round(alone["within20"] * 8)
+    assert mine["cells"] == pytest.approx(alone["cells"], nan_ok=True)
+    # A build whose second pass goes elsewhere (a fit more than 1σ of the rough position's
+    # error from it counts as far, and the new stops go round the rough position): its scans are rendered again, by it, into a directory of its own, and then
+    # lack no stop; the scans of this build's set are left as they were.
+    other = tmp_path / "other-twin"
+    other.write_text(f"#!/bin/sh\ncmd=$1; shift\ncase $cmd in generate|process) exec {tw} $cmd "
+                     f"--follow-up-far-sigmas 1 \"$@\";; esac\nexec {tw} $cmd \"$@\"\n")
+    other.chmod(0o755)
+    before = {p.name: p.stat().st_mtime_ns for p in (tmp_path / "benchmark-hard-3" / "loc").glob("d*/manifest.json")}
+    res = compare.run(cfg, other, per_cell=1)
+    assert res["rendered_again"]["against"] > 0 and res["rendered_again"]["this build"] == 0
+    assert res["stops_lacking"] == {"against": 0, "this build": 0}
+    assert len(list((tmp_path / "benchmark-hard-3" / "loc-against").glob("d*"))) == res["rendered_again"]["against"]
+    after = {p.name: p.stat().st_mtime_ns for p in (tmp_path / "benchmark-hard-3" / "loc").glob("d*/manifest.json")}
+    assert after == before
+    assert res["summary"]["this build"] == mine
+    for c in res["changed"]:
+        a, b = c["against"], c["this build"]
+        assert (a is None) != (b is None) or abs(a["approach"] - b["approach"]) > compare.CHANGED_MM
+    text = compare.text(res)
+    assert "second passes rendered again" in text and f"rendered again (the build asked for stops the scans " \
+        f"lack): against {res['rendered_again']['against']}, this build 0" in text
+    assert "still lacking" not in text
+
+
+def test_the_two_builds_summary_counts_what_it_says():
+    rows = {"d1000_occ1_0000": {"approach": 25.0, "sigma": 10.0, "confidence": 85.0},
+            "d1000_occ1_0001": {"approach": 3.0, "sigma": 1.0, "confidence": 90.0},
+            "d1600_occ0_0000": {"approach": 1.0, "sigma": 1.0, "confidence": 99.0},
+            "d1600_occ0_0001": None}
+    s = compare.summary(rows)
+    assert (s["scans"], s["no_result"], s["within20"], s["within2sigma"], s["confident_misses"]) == (4, 1, 2, 1, 1)
+    assert s["cells"]["occluded 1000"] == 14.0 and s["cells"]["clear 1600"] == 1.0
+    assert math.isnan(s["cells"]["clear 1000"])
+    after = dict(rows, d1000_occ1_0001={"approach": 5.5, "sigma": 1.0, "confidence": 90.0},
+                 d1600_occ0_0000={"approach": 2.9, "sigma": 1.0, "confidence": 99.0},
+                 d1600_occ0_0001={"approach": 2.0, "sigma": 1.0, "confidence": 99.0})
+    assert [c["case"] for c in compare.changed(rows, after)] == ["d1000_occ1_0001", "d1600_occ0_0001"]
 
 
 def test_a_generator_option_reaches_the_render_and_the_processing(tmp_path, monkeypatch, capsys):

@@ -18,7 +18,7 @@ import sys
 import time
 from pathlib import Path
 
-from alacs_eval import calibration, diagnose, diameter, evaluate, report, stack, twin, worlds
+from alacs_eval import calibration, compare, diagnose, diameter, evaluate, report, stack, twin, worlds
 
 ROOT = twin.ROOT
 
@@ -101,6 +101,11 @@ def _diagnose(a: argparse.Namespace) -> int:
             raise ValueError("--stack goes with --loc (and not with --diameter or --matched-filter)")
         if a.stack_gain_db is not None and a.stack is None:
             raise ValueError("--stack-gain-db goes with --stack")
+        if a.against is not None:
+            if not a.loc or a.diameter or a.matched_filter or a.stack is not None:
+                raise ValueError("--against goes with --loc (and not with --diameter, --matched-filter or --stack)")
+            print(compare.text(compare.run(cfg, twin.find_twin(a.against), a.per_cell)))
+            return 0
         if a.matched_filter:
             print(diagnose.text_matched_filter(diagnose.matched_filter(cfg)))
             return 0
@@ -112,7 +117,7 @@ def _diagnose(a: argparse.Namespace) -> int:
             print(diameter.text(diameter.run(cfg, cases, both + cfg.process_args), a.worst))
             return 0
         res = diagnose.run_loc(cfg, a.per_cell) if a.loc else diagnose.run(cfg)
-    except ValueError as e:
+    except (ValueError, FileNotFoundError) as e:
         print(f"alacs-eval diagnose: {e}", file=sys.stderr)
         return 2
     print(diagnose.text_loc(res) if a.loc else diagnose.text(res))
@@ -182,6 +187,10 @@ def main(argv: list[str] | None = None) -> int:
     g.add_argument("--stack-gain-db", type=float, metavar="G",
                    help="--stack: both renders with the sensor at G dB analogue gain, the exposure scaled to keep "
                         "the same DN")
+    g.add_argument("--against", metavar="TWIN",
+                   help="--loc: the same scans through another build's alacs-twin as well (one made before a change), "
+                        "side by side; the scans whose second pass a build moves are rendered again by that build "
+                        "(alacs_eval/compare.py)")
     g.add_argument("--work", help="default build/diagnose")
     g.add_argument("--twin", help="the alacs-twin binary (default $ALACS_TWIN or the newest build/*/tools/twin)")
     g.add_argument("--jobs", type=int, default=2)

@@ -580,7 +580,9 @@ RULES = [
     "occluded round fruit's diameter error comes from\"); `diagnose --loc --stack N [--stack-gain-db G]` "
     "renders the occluded scans in sun again with N frames of each stop averaged (and the sensor at G dB), beside a "
     "one-frame control, to measure what more light per decision would recover (docs/lle.md, \"Stacked frames and a "
-    "lower gain\"). All of them refuse `--world holdout`.",
+    "lower gain\"); `diagnose --loc --against TWIN` runs the same scans through another build of `alacs-twin` as "
+    "well (one made before a change), each build on second passes it rendered itself, and lists every scan whose "
+    "result moved (alacs_eval/compare.py). All of them refuse `--world holdout`.",
 ]
 
 
