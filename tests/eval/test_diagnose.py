@@ -426,13 +426,19 @@ def test_two_builds_side_by_side_each_on_its_own_second_pass(tmp_path):
     after = {p.name: p.stat().st_mtime_ns for p in (tmp_path / "benchmark-hard-3" / "loc").glob("d*/manifest.json")}
     assert after == before
     assert res["summary"]["this build"] == mine
-    for c in res["changed"]:
-        a, b = c["against"], c["this build"]
-        assert (a is None) != (b is None) or abs(a["approach"] - b["approach"]) > compare.CHANGED_MM
     text = compare.text(res)
     assert "second passes rendered again" in text and f"rendered again (the build asked for stops the scans " \
         f"lack): against {res['rendered_again']['against']}, this build 0" in text
     assert "still lacking" not in text
+
+
+def test_a_build_that_is_no_twin_is_refused_with_a_reason(tmp_path, capsys, monkeypatch):
+    monkeypatch.setattr(twin, "generate", lambda *a, **k: [{"case": "d1000_occ0_0000", "dir": str(tmp_path / "x")}])
+    for against, why in (("/bin/true", "gave no result line for 1 of 1 scans"), ("/bin/false", "failed with status 1"),
+                         ("", "--against needs")):
+        assert cli.main(["diagnose", "--loc", "--per-cell", "1", "--work", str(tmp_path), "--twin", "/bin/true",
+                         "--against", against]) == 2
+        assert why in capsys.readouterr().err
 
 
 def test_the_two_builds_summary_counts_what_it_says():

@@ -102,6 +102,8 @@ def _diagnose(a: argparse.Namespace) -> int:
         if a.stack_gain_db is not None and a.stack is None:
             raise ValueError("--stack-gain-db goes with --stack")
         if a.against is not None:
+            if not a.against:
+                raise ValueError("--against needs the other build's alacs-twin")
             if not a.loc or a.diameter or a.matched_filter or a.stack is not None:
                 raise ValueError("--against goes with --loc (and not with --diameter, --matched-filter or --stack)")
             print(compare.text(compare.run(cfg, twin.find_twin(a.against), a.per_cell)))
@@ -117,7 +119,7 @@ def _diagnose(a: argparse.Namespace) -> int:
             print(diameter.text(diameter.run(cfg, cases, both + cfg.process_args), a.worst))
             return 0
         res = diagnose.run_loc(cfg, a.per_cell) if a.loc else diagnose.run(cfg)
-    except (ValueError, FileNotFoundError) as e:
+    except (ValueError, OSError, RuntimeError) as e:
         print(f"alacs-eval diagnose: {e}", file=sys.stderr)
         return 2
     print(diagnose.text_loc(res) if a.loc else diagnose.text(res))

@@ -42,6 +42,15 @@ def errors(scan: Scan, estimate: dict) -> dict[str, float] | None:
             "sigma": float(estimate["sigma_mm"]), "confidence": float(estimate["confidence_pct"])}
 
 
+def _process_all(tw: Path, dirs: list[str], cfg: diagnose.Config, desc: str, extra: tuple[str, ...]) -> dict[str, dict]:
+    """`process` by `tw` on `dirs`, every one of which must come back (else it is no alacs-twin)."""
+    raw = twin.process(tw, dirs, cfg.jobs, desc, quiet=cfg.quiet, extra=extra)
+    lost = [d for d in dirs if d not in raw]
+    if lost:
+        raise ValueError(f"{tw} process gave no result line for {len(lost)} of {len(dirs)} scans (is it alacs-twin?)")
+    return raw
+
+
 def _processed(cfg: diagnose.Config, tw: Path, tag: str, cases: list[dict], per_cell: int,
                both: tuple[str, ...]) -> tuple[dict[str, dict | None], int, int]:
     """Each case's errors by the build `tw` (None: no result); the cases whose second pass it
@@ -49,7 +58,7 @@ def _processed(cfg: diagnose.Config, tw: Path, tag: str, cases: list[dict], per_
     stops its results still lack (0 unless the renders went wrong)."""
     desc = f"{cfg.world}: {tag}"
     extra = both + cfg.process_args
-    raw = twin.process(tw, [c["dir"] for c in cases], cfg.jobs, desc, quiet=cfg.quiet, extra=extra)
+    raw = _process_all(tw, [c["dir"] for c in cases], cfg, desc, extra)
     where = {c["case"]: c["dir"] for c in cases}
     moved = [c["case"] for c in cases if int(raw.get(c["dir"], {}).get("follow_up_missing", 0)) > 0]
     if moved:
@@ -61,7 +70,7 @@ def _processed(cfg: diagnose.Config, tw: Path, tag: str, cases: list[dict], per_
                str(per_cell), "--seed", str(cfg.seed), "--jobs", str(cfg.jobs), "--only", ",".join(moved), *both]
         twin.run_lines(cmd, len(moved), f"{desc}: second passes rendered again", cfg.quiet)
         where.update({m: str(again / m) for m in moved})
-        raw.update(twin.process(tw, [where[m] for m in moved], cfg.jobs, desc, quiet=cfg.quiet, extra=extra))
+        raw.update(_process_all(tw, [where[m] for m in moved], cfg, desc, extra))
     out = {name: errors(Scan.load(d), raw.get(d, {}).get("multi", {})) for name, d in where.items()}
     lacking = sum(int(raw.get(d, {}).get("follow_up_missing", 0)) for d in where.values())
     return out, len(moved), lacking
