@@ -16,6 +16,15 @@ from alacs_eval import cli, metrics
 ROOT = Path(__file__).resolve().parents[2]
 
 
+@pytest.mark.parametrize("cmd", [["report", "--small"], ["worlds", "--small"], ["calibration", "--quick"]],
+                         ids=["report", "worlds", "calibration"])
+def test_a_twin_that_fails_is_named_with_its_status_not_a_traceback(tmp_path, capsys, cmd):
+    assert cli.main([*cmd, "--quiet", "--twin", "/bin/false", "--work", str(tmp_path)]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"alacs-eval {cmd[0]}: /bin/false ") and "failed with status 1" in err
+    assert "Traceback" not in err
+
+
 @pytest.fixture(scope="module")
 def report(tmp_path_factory) -> Path:
     twin = os.environ.get("ALACS_TWIN")

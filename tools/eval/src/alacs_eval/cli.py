@@ -224,7 +224,13 @@ def main(argv: list[str] | None = None) -> int:
     w.add_argument("--figures", help="default docs/figures")
     w.set_defaults(func=_render)
     a = p.parse_args(argv)
-    return a.func(a)
+    try:
+        return a.func(a)
+    except (OSError, RuntimeError) as e:
+        # A tool that is missing or fails (alacs-twin, alacs_calibrate), a file that cannot be
+        # read or written: the reason, not a traceback.
+        print(f"alacs-eval {a.cmd}: {e}", file=sys.stderr)
+        return 2
 
 
 if __name__ == "__main__":
