@@ -412,8 +412,9 @@ def test_two_builds_side_by_side_each_on_its_own_second_pass(tmp_path):
     assert mine["within20"] == round(alone["within20"] * 8)
     assert mine["cells"] == pytest.approx(alone["cells"], nan_ok=True)
     # A build whose second pass goes elsewhere (a fit more than 1σ of the rough position's
-    # error from it counts as far, and the new stops go round the rough position): its scans are rendered again, by it, into a directory of its own, and then
-    # lack no stop; the scans of this build's set are left as they were.
+    # error from it counts as far, and the new stops go round the rough position): its scans
+    # are rendered again, by it, into a directory of its own, and then lack no stop; the
+    # scans of this build's set are left as they were.
     other = tmp_path / "other-twin"
     other.write_text(f"#!/bin/sh\ncmd=$1; shift\ncase $cmd in generate|process) exec {tw} $cmd "
                      f"--follow-up-far-sigmas 1 \"$@\";; esac\nexec {tw} $cmd \"$@\"\n")

@@ -119,7 +119,7 @@ def _diagnose(a: argparse.Namespace) -> int:
             print(diameter.text(diameter.run(cfg, cases, both + cfg.process_args), a.worst))
             return 0
         res = diagnose.run_loc(cfg, a.per_cell) if a.loc else diagnose.run(cfg)
-    except (ValueError, OSError, RuntimeError) as e:
+    except ValueError as e:
         print(f"alacs-eval diagnose: {e}", file=sys.stderr)
         return 2
     print(diagnose.text_loc(res) if a.loc else diagnose.text(res))

@@ -27,19 +27,10 @@ from typing import Any
 import numpy as np
 
 from alacs_eval import diagnose, evaluate, twin
-from alacs_eval.scans import Scan, target_truth
+from alacs_eval.scans import Scan
 
 BUILDS = ("against", "this build")
 CHANGED_MM = 2.0  # an approach error that moved by more than this is listed
-
-
-def errors(scan: Scan, estimate: dict) -> dict[str, float] | None:
-    """The approach-point error, σ and confidence of one `process` estimate; None: no result."""
-    if not estimate.get("ok"):
-        return None
-    _, _, approach = target_truth(scan)
-    return {"approach": float(np.linalg.norm(np.asarray(estimate["approach_mm"]) - approach)),
-            "sigma": float(estimate["sigma_mm"]), "confidence": float(estimate["confidence_pct"])}
 
 
 def _process_all(tw: Path, dirs: list[str], cfg: diagnose.Config, desc: str, extra: tuple[str, ...]) -> dict[str, dict]:
@@ -60,7 +51,7 @@ def _processed(cfg: diagnose.Config, tw: Path, tag: str, cases: list[dict], per_
     extra = both + cfg.process_args
     raw = _process_all(tw, [c["dir"] for c in cases], cfg, desc, extra)
     where = {c["case"]: c["dir"] for c in cases}
-    moved = [c["case"] for c in cases if int(raw.get(c["dir"], {}).get("follow_up_missing", 0)) > 0]
+    moved = [c["case"] for c in cases if int(raw[c["dir"]].get("follow_up_missing", 0)) > 0]
     if moved:
         again = cfg.work / f"{cfg.world}-{cfg.seed}" / ("loc-" + tag.replace(" ", "-"))
         if again.exists():
@@ -71,8 +62,8 @@ def _processed(cfg: diagnose.Config, tw: Path, tag: str, cases: list[dict], per_
         twin.run_lines(cmd, len(moved), f"{desc}: second passes rendered again", cfg.quiet)
         where.update({m: str(again / m) for m in moved})
         raw.update(_process_all(tw, [where[m] for m in moved], cfg, desc, extra))
-    out = {name: errors(Scan.load(d), raw.get(d, {}).get("multi", {})) for name, d in where.items()}
-    lacking = sum(int(raw.get(d, {}).get("follow_up_missing", 0)) for d in where.values())
+    out = {name: diagnose.estimate_errors(Scan.load(d), raw[d].get("multi", {})) for name, d in where.items()}
+    lacking = sum(int(raw[d].get("follow_up_missing", 0)) for d in where.values())
     return out, len(moved), lacking
 
 

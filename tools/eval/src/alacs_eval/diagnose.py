@@ -316,6 +316,15 @@ def _what_was_fitted(centre: np.ndarray, scene: dict, target_id: int) -> str:
     return "the target" if best["id"] == target_id else "a neighbour"
 
 
+def estimate_errors(scan: Scan, estimate: dict) -> dict[str, float] | None:
+    """The approach-point error, σ and confidence of one `process` estimate; None: no result."""
+    if not estimate.get("ok"):
+        return None
+    _, _, approach = target_truth(scan)
+    return {"approach": float(np.linalg.norm(np.asarray(estimate["approach_mm"]) - approach)),
+            "sigma": float(estimate["sigma_mm"]), "confidence": float(estimate["confidence_pct"])}
+
+
 def loc_cases(cfg: Config, per_cell: int) -> tuple[list[dict], tuple[str, ...], Path]:
     """A tuning world's five-stop scans (generated, or reused from cfg.work), the options
     their generation took that `process` must take too, and where they are."""
@@ -339,18 +348,15 @@ def run_loc(cfg: Config, per_cell: int = 40) -> dict[str, Any]:
     for c in cases:
         d = c["dir"]
         s = Scan.load(d)
-        centre, _, approach = target_truth(s)
         r = raw.get(d, {})
-        e, first = r.get("multi", {}), r.get("first_pass", r.get("multi", {}))
+        e, first = r.get("multi", {}), estimate_errors(s, r.get("first_pass", r.get("multi", {})))
         row = {"case": c["case"], "occluded": bool(c["occluded"]), "distance": int(c["distance_mm"]),
                "note": s.note, "stops": int(r.get("follow_up_stops", 0)), "ok": bool(e.get("ok")),
-               "first": (float(np.linalg.norm(np.asarray(first["approach_mm"]) - approach))
-                         if first.get("ok") else math.nan)}
+               "first": first["approach"] if first else math.nan}
         if e.get("ok"):
             fitted, scene = np.asarray(e["center_mm"]), s.truth_scene()
-            row.update({"approach": float(np.linalg.norm(np.asarray(e["approach_mm"]) - approach)),
-                        "sigma": float(e["sigma_mm"]), "confidence": float(e["confidence_pct"]),
-                        "lines": int(e["lines_used"]), "doubt": e.get("doubt", "NONE"),
+            row.update(estimate_errors(s, e))
+            row.update({"lines": int(e["lines_used"]), "doubt": e.get("doubt", "NONE"),
                         # No line used: the rough position stands in (FAR_FROM_ROUGH, or no fit).
                         "fitted": (_what_was_fitted(fitted, scene, s.target_id) if int(e["lines_used"]) > 0
                                    else "nothing (the rough position stands in)"),
