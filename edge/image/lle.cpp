@@ -37,6 +37,7 @@ Status LleParams::validate() const {
     return bad(Error::kInvalidArgument, "matchedSeedSigmas must be in 2..50");
   if (!(matchedJoinSigmas >= 1.0 && matchedJoinSigmas <= matchedSeedSigmas))
     return bad(Error::kInvalidArgument, "matchedJoinSigmas must be in 1..matchedSeedSigmas");
+  if (shortLinePct < 0 || shortLinePct > 100) return bad(Error::kInvalidArgument, "shortLinePct must be in 0..100");
   if (weakLineExcessDn < 0 || weakLineExcessDn > 255)
     return bad(Error::kInvalidArgument, "weakLineExcessDn must be in 0..255");
   if (weakThresholdPct < 10 || weakThresholdPct > 100)

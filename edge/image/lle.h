@@ -77,6 +77,13 @@ struct LleParams {
                              // rows below this, DN, or no line), run again with the strong
                              // threshold at weakLineThresholdPct of brceThreshold (0: off, ..255)
   int weakLineThresholdPct = 60;  // (10..100)
+  // ... and so is a short line, however strong: one with fewer kLine rows than this share
+  // of the ROI's height (0: off, ..100). The ROI is planned round the target, so a short
+  // line is a fruit mostly hidden, or a neighbour's line that crosses a few of its rows,
+  // where the target's own fainter light beside it may lie under the strong bar; the
+  // rerun reports it as another segment and the localizer tells them apart in 3D
+  // (docs/lle.md, "A short line is run again too").
+  int shortLinePct = 20;
   // The rerun's threshold instead, when a laser-off frame was subtracted (10..100): ambient
   // light is gone from the difference, so only its noise (1-3 DN in full sun) sets how low
   // it may go (docs/lle.md).
@@ -212,6 +219,9 @@ struct LleWorkspace {
   std::vector<uint8_t> rowAny;       // per ROI row: any candidate left
   std::vector<uint64_t> clearBits;   // columns cleared by noise removal in a band
   std::vector<uint8_t> scratch;      // peaks, segments, fit buffers (typed views)
+  LaserLine held;                    // a short line's first pass, while its rerun runs
+  std::vector<RowSample> mergedRows;  // the first pass's rows and the rerun's segments beside them
+  std::vector<int32_t> segmentMap;    // the rerun's segment -> its index among the first pass's (-1: dropped)
   int roiWidth = -1;
   int brceStep = -1;
 };

@@ -1434,6 +1434,87 @@ int32_t kthSmallest(int32_t* v, int n, int k) {
   return v[k - below];
 }
 
+// A short strong line's rerun (LleParams::shortLinePct) adds to its first pass and replaces
+// nothing: the first pass's line, its fit and segments stay as they were, and each of the
+// rerun's segments that crosses none of the first pass's samples (no sample of it within
+// kCrossPx of one in the same row) joins them as another segment (kSegment; kEdge rows stay
+// invalid). A rerun's lower bar lets other pieces into a line and its fit then drops rows
+// of the target's own (docs/lle.md, "A short line is run again too"). A row keeps at most
+// maxPeaksPerRow samples and the segments their reserved capacity: no frame allocates once
+// the workspace has seen the ROI.
+constexpr float kCrossPx = 3.0F;
+
+void markCrossingSegments(const LaserLine& first, const LaserLine& rerun, std::vector<int32_t>& map) {
+  map.reserve(rerun.segments.capacity());
+  map.assign(rerun.segments.size(), 0);
+  size_t i = 0;
+  for (const RowSample& r : rerun.rows) {
+    if (r.segment < 0) continue;
+    while (i < first.rows.size() && first.rows[i].row < r.row) ++i;
+    for (size_t j = i; j < first.rows.size() && first.rows[j].row == r.row; ++j)
+      if (std::abs(first.rows[j].column - r.column) < kCrossPx) map[static_cast<size_t>(r.segment)] = -1;
+  }
+}
+
+// `out` holds the first pass, `rerun` the rerun's result; ws.mergedRows and ws.segmentMap are
+// the workspace's.
+void addRerunSegments(const LaserLine& rerun, const LleParams& p, LleWorkspace& ws, LaserLine& out) {
+  std::vector<int32_t>& map = ws.segmentMap;
+  markCrossingSegments(out, rerun, map);
+  const size_t nOld = out.segments.size();
+  size_t added = 0;
+  for (size_t k = 0; k < rerun.segments.size(); ++k) {
+    if (map[k] < 0 || rerun.segments[k].rows == 0 || nOld + added >= out.segments.capacity()) {
+      map[k] = -1;
+      continue;
+    }
+    LineSegment seg = rerun.segments[k];
+    seg.onLine = false;
+    out.segments.push_back(seg);
+    map[k] = static_cast<int32_t>(nOld + added++);
+  }
+  if (added == 0) return;
+  // Indices by first row, the older segment first on a tie (as addMatchedSegments numbers them).
+  const auto newBefore = [&](int firstRow) {
+    int32_t n = 0;
+    for (size_t j = nOld; j < out.segments.size(); ++j) n += out.segments[j].firstRow < firstRow ? 1 : 0;
+    return n;
+  };
+  const auto olderUpTo = [&](int firstRow) {
+    int32_t n = 0;
+    for (size_t j = 0; j < nOld; ++j) n += out.segments[j].firstRow <= firstRow ? 1 : 0;
+    return n;
+  };
+  for (RowSample& r : out.rows)
+    if (r.segment >= 0) r.segment += newBefore(out.segments[static_cast<size_t>(r.segment)].firstRow);
+  for (int32_t& m : map)
+    if (m >= 0) m = m - static_cast<int32_t>(nOld) + olderUpTo(out.segments[static_cast<size_t>(m)].firstRow);
+  // Rows merged by row: the first pass's samples of a row first, then the rerun's.
+  std::vector<RowSample>& merged = ws.mergedRows;
+  merged.clear();
+  merged.reserve(out.rows.capacity());
+  size_t i = 0;
+  for (size_t j = 0; j <= rerun.rows.size(); ++j) {
+    const int row = j < rerun.rows.size() ? rerun.rows[j].row : INT32_MAX;
+    while (i < out.rows.size() && out.rows[i].row <= row) merged.push_back(out.rows[i++]);
+    if (j == rerun.rows.size()) break;
+    const RowSample& r = rerun.rows[j];
+    if (r.segment < 0 || map[static_cast<size_t>(r.segment)] < 0) continue;
+    if (!merged.empty() && merged.back().row == row) {
+      int n = 0;
+      for (size_t b = merged.size(); b > 0 && merged[b - 1].row == row; --b) ++n;
+      if (n >= p.maxPeaksPerRow) continue;
+    }
+    RowSample sm = r;
+    sm.segment = map[static_cast<size_t>(r.segment)];
+    sm.inlier = false;
+    if (sm.status != RowStatus::kEdge) sm.status = RowStatus::kSegment;
+    merged.push_back(sm);
+  }
+  out.rows.swap(merged);
+  placeMatchedSegments(out);
+}
+
 template <class A>
 void extractRobust(const ImageView& frame, const ImageView* laserOff, const Roi& roi, const LleParams& p,
                    const SimdKernels* kernels, LleWorkspace& ws, LaserLine& out) {
@@ -1442,7 +1523,11 @@ void extractRobust(const ImageView& frame, const ImageView* laserOff, const Roi&
   // With the laser-off frame subtracted, what is left besides the line is noise, not
   // ambient texture: the rerun may go lower there (docs/lle.md "weak line").
   const int lowPct = laserOff != nullptr ? p.subtractedLineThresholdPct : p.weakLineThresholdPct;
-  if (p.weakLineExcessDn <= 0 || strength >= p.weakLineExcessDn || lowPct >= p.robustThresholdPct) return;
+  const bool weak = strength < p.weakLineExcessDn;
+  const bool shortLine = out.inliers * 100 < p.shortLinePct * roi.height;
+  if (p.weakLineExcessDn <= 0 || (!weak && !shortLine) || lowPct >= p.robustThresholdPct) return;
+  // A strong short line is kept; the rerun only adds the segments beside it (addRerunSegments).
+  if (!weak) std::swap(out, ws.held);
   LleParams low = p;
   low.robustThresholdPct = lowPct;
   reserveOutput(roi, low, out);
@@ -1453,6 +1538,9 @@ void extractRobust(const ImageView& frame, const ImageView* laserOff, const Roi&
   focusRobust<A>(frame, laserOff, roi, low, rows, p.rerunOthersFirm ? p.strongThreshold() : low.strongThreshold(), ws,
                  out);
   if (laserOff != nullptr && p.matchedFilter) matchedFilterRows(frame, *laserOff, roi, p, ws, out);
+  if (weak) return;
+  std::swap(out, ws.held);
+  addRerunSegments(ws.held, p, ws, out);
 }
 
 template <class A>

@@ -327,6 +327,52 @@ TEST_CASE("A weak line is run again at the lower strong threshold; a strong line
   CHECK(run(both, off).rows.size() == s.rows.size());
 }
 
+TEST_CASE("A short strong line is run again as a weak one is: the fainter line beside it joins it", "[lle][robust]") {
+  // A mostly hidden fruit (the hard cases' seed 20, lle_0143): a neighbour's strong line
+  // crosses 12 of the ROI's 120 rows (10 %), and the target's own light beside it, 20 rows,
+  // peaks at 36 DN, under the strong bar (40) and over the rerun's (24).
+  Rgb img(120, 120, 30);
+  addLine(
+      img, [](int) { return 30.0; }, 1.0, 130, 40, 52);
+  addLine(
+      img, [](int) { return 80.0; }, 1.0, 36, 50, 70);
+  const auto samplesNear = [](const LaserLine& l, double column) {
+    int n = 0;
+    for (const auto& r : l.rows) n += r.valid() && std::abs(r.column - column) < 0.3 ? 1 : 0;
+    return n;
+  };
+  LleParams p;
+  p.smoothRows = 0;
+  LleParams off = p;
+  off.shortLinePct = 0;
+  const LaserLine once = run(img, off);
+  CHECK(samplesNear(once, 30.0) == 12);
+  CHECK(samplesNear(once, 80.0) == 0);
+  // 12 rows are under 20 % of 120: run again, and both lines come out.
+  // The first pass's line stays the line, with its fit; the faint one joins as a segment.
+  const LaserLine again = run(img, p);
+  CHECK(samplesNear(again, 30.0) == 12);
+  CHECK(samplesNear(again, 80.0) == 20);
+  CHECK(again.inliers == once.inliers);
+  CHECK(again.columnAt(46) == Approx(once.columnAt(46)));
+  CHECK(rowsWithStatus(again, RowStatus::kSegment) == 20);
+  REQUIRE(again.segments.size() == 2);
+  CHECK(again.segments[0].onLine);
+  CHECK_FALSE(again.segments[1].onLine);
+  // The same strong line over 30 rows (25 %) is not short: one pass, the faint line stays out.
+  Rgb longer(120, 120, 30);
+  addLine(
+      longer, [](int) { return 30.0; }, 1.0, 130, 22, 52);
+  addLine(
+      longer, [](int) { return 80.0; }, 1.0, 36, 50, 70);
+  CHECK(samplesNear(run(longer, p), 80.0) == 0);
+  // The bar is a share of the ROI: in a 50-row ROI round it the short line is 24 % of it.
+  const Roi tight{0, 25, 120, 50};
+  CHECK(samplesNear(run(img, p, &tight), 80.0) == 0);
+  p.shortLinePct = 101;
+  CHECK_FALSE(p.validate().isOk());
+}
+
 TEST_CASE("Smoothing along the line averages row noise and keeps the row's own centroid", "[lle]") {
   std::mt19937 rng(7);
   std::normal_distribution<double> jitter(0.0, 0.3);

@@ -173,6 +173,8 @@ bool setParam(image::LleParams& p, const std::string& kv) {
   else if (k == "robustpct") p.robustThresholdPct = iv;
   else if (k == "weakline") p.weakLineExcessDn = iv;
   else if (k == "weaklinepct") p.weakLineThresholdPct = iv;
+  else if (k == "shortline")
+    p.shortLinePct = iv;
   else if (k == "subtractedpct")
     p.subtractedLineThresholdPct = iv;
   else if (k == "subtractedrows")

@@ -97,6 +97,10 @@ int parseArgs(int argc, char** argv, Options& o) {
       ->capture_default_str();
   app.add_option("--weak-excess", p.weakLineExcessDn, "a line weaker than this is run again at --weak-pct; 0: off")
       ->capture_default_str();
+  app.add_option(
+         "--short-pct", p.shortLinePct,
+         "a line with fewer rows than this share of the ROI's height (%) is run again at --weak-pct too; 0: off")
+      ->capture_default_str();
   app.add_option("--weak-pct", p.weakLineThresholdPct, "the threshold of the weak-line rerun, % of --th")
       ->capture_default_str();
   app.add_option("--subtracted-pct", p.subtractedLineThresholdPct,

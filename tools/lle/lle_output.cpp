@@ -49,6 +49,7 @@ Json lleDocument(const LleRun& run, int frameWidth, int frameHeight, const image
                    {"robust_threshold_pct", p.robustThresholdPct},
                    {"weak_line_excess_dn", p.weakLineExcessDn},
                    {"weak_line_threshold_pct", p.weakLineThresholdPct},
+                   {"short_line_pct", p.shortLinePct},
                    {"subtracted_line_threshold_pct", p.subtractedLineThresholdPct},
                    {"subtracted_rows", p.subtractedRows},
                    {"rerun_others_firm", p.rerunOthersFirm},

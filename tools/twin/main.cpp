@@ -321,6 +321,8 @@ int main(int argc, char** argv) {
                {"lle-edge-ratio", Kind::kInteger, "LleParams::edgeRatio (default LleParams')"},
                {"lle-weak-line-pct", Kind::kInteger, "LleParams::weakLineThresholdPct (default LleParams')"},
                {"lle-subtracted-line-pct", Kind::kInteger, "LleParams::subtractedLineThresholdPct"},
+               {"lle-short-line-pct", Kind::kInteger,
+                "LleParams::shortLinePct: a line shorter than this share of the ROI is run again (0: off)"},
                {"lle-subtracted-rows", Kind::kInteger, "LleParams::subtractedRows: 1 (the row alone) or 3"},
                {"lle-rerun-others-firm", Kind::kInteger,
                 "LleParams::rerunOthersFirm: 1, a rerun's other segments need the first pass's bar"},

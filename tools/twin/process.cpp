@@ -132,6 +132,7 @@ int processMain(const Args& args) {
   lle.smoothRows = static_cast<int>(args.integer("lle-smooth-rows", lle.smoothRows));
   lle.edgeRatio = static_cast<int>(args.integer("lle-edge-ratio", lle.edgeRatio));
   lle.weakLineThresholdPct = static_cast<int>(args.integer("lle-weak-line-pct", lle.weakLineThresholdPct));
+  lle.shortLinePct = static_cast<int>(args.integer("lle-short-line-pct", lle.shortLinePct));
   lle.subtractedLineThresholdPct =
       static_cast<int>(args.integer("lle-subtracted-line-pct", lle.subtractedLineThresholdPct));
   lle.subtractedRows = static_cast<int>(args.integer("lle-subtracted-rows", lle.subtractedRows));
