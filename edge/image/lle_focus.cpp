@@ -1313,8 +1313,9 @@ void addMatchedSegments(int h, int roiY, const MatchedArrays& a, LaserLine& out)
   }
 }
 
-// The new segments (appended by addMatchedSegments, in order of first row) moved into their
-// places by first row, after the older segments that start no later: the indices it gave. A
+// The new segments (appended by addMatchedSegments or addRerunSegments, in order of first
+// row) moved into their places by first row, after the older segments that start no later:
+// the indices those gave. A
 // stable insertion sort (in place: std::stable_sort may allocate); both parts were in order.
 void placeMatchedSegments(LaserLine& out) {
   auto& segs = out.segments;
