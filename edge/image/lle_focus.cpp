@@ -1268,6 +1268,29 @@ int keepMatchedRuns(int h, int runs, int minRows, int smoothRows, const MatchedA
   return kept;
 }
 
+// New segments appended to out.segments after its first nOld, in order of first row, take
+// their places by first row, an older segment first on a tie (placeMatchedSegments() then
+// moves them there). renumberOlderRows: the rows of the older segments (out.rows holds no
+// other yet) move down by the new ones that start before theirs. newSegmentIndex: the final
+// index of the k-th new one, its order among the new ones after every older one starting no
+// later.
+void renumberOlderRows(LaserLine& out, size_t nOld) {
+  const auto newBefore = [&](int firstRow) {
+    int32_t n = 0;
+    for (size_t j = nOld; j < out.segments.size(); ++j) n += out.segments[j].firstRow < firstRow ? 1 : 0;
+    return n;
+  };
+  for (RowSample& r : out.rows)
+    if (r.segment >= 0) r.segment += newBefore(out.segments[static_cast<size_t>(r.segment)].firstRow);
+}
+
+int32_t newSegmentIndex(const LaserLine& out, size_t nOld, int32_t k) {
+  const int first = out.segments[nOld + static_cast<size_t>(k)].firstRow;
+  int32_t older = 0;
+  for (size_t i = 0; i < nOld; ++i) older += out.segments[i].firstRow <= first ? 1 : 0;
+  return k + older;
+}
+
 // One new segment per kept run (appended to out.segments, in order of first row; runs beyond
 // the segments' reserved capacity join the last new one, so that no frame allocates), the
 // line's rows renumbered for their place among them, and each kept run's final segment
@@ -1295,28 +1318,15 @@ void addMatchedSegments(int h, int roiY, const MatchedArrays& a, LaserLine& out)
     seg.lastRow = roiY + y;
     ++seg.rows;
   }
-  // The older segments move down by the new ones that start before them.
-  const auto newBefore = [&](int firstRow) {
-    int32_t n = 0;
-    for (size_t j = nOld; j < out.segments.size(); ++j) n += out.segments[j].firstRow < firstRow ? 1 : 0;
-    return n;
-  };
-  for (RowSample& r : out.rows)
-    if (r.segment >= 0) r.segment += newBefore(out.segments[static_cast<size_t>(r.segment)].firstRow);
-  // A new segment's index: its order among the new ones, after every older one starting no later.
-  for (int run = 0; run < h; ++run) {
-    if (a.segOf[run] < 0) continue;
-    const int first = out.segments[nOld + static_cast<size_t>(a.segOf[run])].firstRow;
-    int32_t older = 0;
-    for (size_t i = 0; i < nOld; ++i) older += out.segments[i].firstRow <= first ? 1 : 0;
-    a.segOf[run] += older;
-  }
+  renumberOlderRows(out, nOld);
+  for (int run = 0; run < h; ++run)
+    if (a.segOf[run] >= 0) a.segOf[run] = newSegmentIndex(out, nOld, a.segOf[run]);
 }
 
 // The new segments (appended by addMatchedSegments or addRerunSegments, in order of first
 // row) moved into their places by first row, after the older segments that start no later:
-// the indices those gave. A
-// stable insertion sort (in place: std::stable_sort may allocate); both parts were in order.
+// the indices newSegmentIndex gave. A stable insertion sort (in place: std::stable_sort may
+// allocate); both parts were in order.
 void placeMatchedSegments(LaserLine& out) {
   auto& segs = out.segments;
   for (size_t j = 1; j < segs.size(); ++j) {
@@ -1472,24 +1482,12 @@ void addRerunSegments(const LaserLine& rerun, const LleParams& p, LleWorkspace& 
     LineSegment seg = rerun.segments[k];
     seg.onLine = false;
     out.segments.push_back(seg);
-    map[k] = static_cast<int32_t>(nOld + added++);
+    map[k] = static_cast<int32_t>(added++);
   }
   if (added == 0) return;
-  // Indices by first row, the older segment first on a tie (as addMatchedSegments numbers them).
-  const auto newBefore = [&](int firstRow) {
-    int32_t n = 0;
-    for (size_t j = nOld; j < out.segments.size(); ++j) n += out.segments[j].firstRow < firstRow ? 1 : 0;
-    return n;
-  };
-  const auto olderUpTo = [&](int firstRow) {
-    int32_t n = 0;
-    for (size_t j = 0; j < nOld; ++j) n += out.segments[j].firstRow <= firstRow ? 1 : 0;
-    return n;
-  };
-  for (RowSample& r : out.rows)
-    if (r.segment >= 0) r.segment += newBefore(out.segments[static_cast<size_t>(r.segment)].firstRow);
+  renumberOlderRows(out, nOld);
   for (int32_t& m : map)
-    if (m >= 0) m = m - static_cast<int32_t>(nOld) + olderUpTo(out.segments[static_cast<size_t>(m)].firstRow);
+    if (m >= 0) m = newSegmentIndex(out, nOld, m);
   // Rows merged by row: the first pass's samples of a row first, then the rerun's.
   std::vector<RowSample>& merged = ws.mergedRows;
   merged.clear();

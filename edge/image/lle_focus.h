@@ -84,8 +84,10 @@ struct FloatArith {
 
 // kRobust from the bRCE candidate mask to `out` (stages 1-5): when the line found at the
 // strong threshold is weak (its median peak excess below weakLineExcessDn, or no line) or
-// short (fewer kLine rows than shortLinePct of the ROI's height), the frame is run again with the strong threshold at
-// weakLineThresholdPct of brceThreshold. Inputs validated and `out` reserved by the caller (reserveOutput).
+// short (fewer kLine rows than shortLinePct of the ROI's height), the frame is run again
+// with the strong threshold at weakLineThresholdPct of brceThreshold (a short line's first
+// pass kept, the rerun's segments beside it added). Inputs validated and `out` reserved by
+// the caller (reserveOutput).
 template <class A>
 void extractRobust(const ImageView& frame, const ImageView* laserOff, const Roi& roi, const LleParams& p,
                    const SimdKernels* kernels, LleWorkspace& ws, LaserLine& out);
