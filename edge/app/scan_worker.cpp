@@ -234,12 +234,46 @@ WorkerEvent ScanWorker::doHome(const WorkerJob& job) {
     positionSteps_.store(0);
     homed_.store(true);
     ev.status = Status::ok();
+    learnCameraPace();
     return ev;
   }
   ev.status = r.status.isOk() ? Status(Error::kFault, "homing failed") : r.status;
   if (r.outcome == motion::MoveOutcome::kCancelled) return ev;
   ev.faultBit = r.outcome == motion::MoveOutcome::kIoError ? protocol::kFaultInternal : protocol::kFaultHomingTimeout;
   return ev;
+}
+
+void ScanWorker::learnCameraPace() {
+  // A replayed scan's frames are its recording's, each for one stop: none to spare.
+  if (!deps_.learnPaceAtHome || deps_.frameSlideMm) return;
+  // The laser is off here (every job ends with it off, and these captures never switch it on).
+  int taken = 0;
+  TimeNs firstNs = 0;
+  while (!paceSettled() && taken < motion::CaptureTimes::kFrames && !cancel_.load()) {
+    const TimeNs askedNs = deps_.clock->now();
+    frameReadSinceNs_.store(askedNs);
+    Result<ports::CapturedFrame> f = deps_.camera->capture(deps_.capture, {});
+    frameReadSinceNs_.store(0);
+    markProgress();
+    if (!f) {
+      // The slide is homed all the same; the first scan finds the camera's fault and names it.
+      ALACS_LOG_WARN("camera", "learning the camera's pace after homing: %s", f.status().toString().c_str());
+      return;
+    }
+    recordCapture(askedNs, f->info);
+    if (taken++ == 0) firstNs = deps_.clock->now() - askedNs;
+  }
+  // Until a scan has metered, its metering is expected to take one laser-off frame (as it
+  // does in every light but the sun's): a sweep then meters in its run-up from the first scan on.
+  if (taken == 0) return;
+  if (meterNs_ == 0) meterNs_ = firstNs;
+  ALACS_LOG_INFO(
+      "camera", "after homing: %d laser-off frames, %.1f ms a capture, the sensor's period %.1f ms (0: none)", taken,
+      static_cast<double>(capturePaceNs()) / 1e6, static_cast<double>(sensorClock_.periodNs().value_or(0)) / 1e6);
+}
+
+bool ScanWorker::paceSettled() const {
+  return captures_.waitsOnClock(sensorClock_.periodNs()) || captures_.count() >= motion::CaptureTimes::kFrames;
 }
 
 Status ScanWorker::moveTo(double mm, WorkerEvent& ev, const std::function<void()>& meanwhile) {

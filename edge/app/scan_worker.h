@@ -60,6 +60,8 @@ struct WorkerDeps {
   // pace and the frame nearest each stop): camera.frame_clock_jitter_us, as the libcamera
   // source's own clock.
   FrameClockParams frameClock;
+  // After homing, laser-off frames until the camera's pace is known (ScanWorker::learnCameraPace).
+  bool learnPaceAtHome = true;
   std::string debugDir;                // overlay PNGs go here when not empty
   // alacsd --replay: the slide position the frame just captured was recorded at, used
   // instead of the worker's own (unset or NaN: the worker's). Called on the worker thread.
@@ -104,6 +106,13 @@ class ScanWorker final : public ScanJobs {
  private:
   void run();
   WorkerEvent doHome(const WorkerJob& job);
+  // After homing, laser-off frames until the sweep's pace no longer rests on how few
+  // captures the worker knows (paceSettled(), at most CaptureTimes::kFrames): the first
+  // localize after a start then sweeps as fast as the later ones (docs/daemon.md, "The
+  // camera's pace, learnt at homing"). None when replaying a recording.
+  void learnCameraPace();
+  // The sensor's clock is learnt and the captures wait on it, or kFrames captures are known.
+  bool paceSettled() const;
   WorkerEvent doLocalize(const WorkerJob& job);
   WorkerEvent doScanAll(const WorkerJob& job);
   // Laser on, expose (with retries), laser off. On failure `ev` holds the fault. When

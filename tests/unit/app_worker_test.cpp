@@ -8,6 +8,7 @@
 #include <sys/mman.h>
 #include <unistd.h>
 
+#include <atomic>
 #include <catch2/catch.hpp>
 #include <functional>
 #include <mutex>
@@ -38,8 +39,10 @@ class DarkCamera final : public ports::FrameSource {
   const char* name() const override { return "dark"; }
   std::function<void()> onCapture;   // called on the worker thread as each exposure begins
   std::vector<int64_t> requestedUs;  // the exposure of each capture asked for
+  int captures = 0;                  // captures asked for, failed ones too
   std::vector<double> requestedGain;  // and its analogue gain (0: the camera's own)
   double ownGain = 0.0;               // the gain reported when none is asked for (0: none reported)
+  Status failure;                     // not ok: every capture fails with it, before any exposure
   // The red of every pixel from now on (BGR888: the third byte), whatever the exposure.
   void setRed(uint8_t red) {
     for (size_t i = 2; i < frame_.size(); i += 3) frame_[i] = red;
@@ -47,6 +50,8 @@ class DarkCamera final : public ports::FrameSource {
 
  private:
   Result<ports::CapturedFrame> doCapture(const ports::CaptureRequest& r, const ports::ExposureHooks& hooks) override {
+    ++captures;
+    if (!failure) return failure;
     if (Status s = hooks.beginNow(); !s) return s;
     if (onCapture) onCapture();
     requestedUs.push_back(r.exposureUs);
@@ -121,6 +126,10 @@ struct Rig {
     deps.laser = &laser;
     deps.camera = &camera;
     deps.capture.exposureUs = 1000;
+    // The tests follow a worker's first scans as they go without the camera's pace learnt
+    // at homing (as when the camera failed then): the metering before the first sweep, its
+    // pace from the metering frame. The tests of that learning switch it on.
+    deps.learnPaceAtHome = false;
     efd = ::eventfd(0, EFD_CLOEXEC | EFD_NONBLOCK);
   }
   ~Rig() { ::close(efd); }
@@ -604,6 +613,8 @@ struct SceneRun {
   std::vector<double> followUpMm;  // what the localizer asks for after the first pass
   std::vector<ports::Edge> laserEdges;
   double finalMm = 0.0;
+  int homingCaptures = 0;       // frames the camera gave while the worker homed
+  size_t homingLaserEdges = 0;  // the laser's switchings meanwhile
 };
 
 // A real sensor's timing: free-running with a frame period (ports::FrameSlotSource), and
@@ -618,6 +629,23 @@ struct SensorTiming {
   TimeNs laserLeadNs = 0;
   TimeNs stampJitterNs = 0;                // the timestamps scatter by up to this about the sensor's clock
   TimeNs workerJitterNs = 300 * kNsPerUs;  // WorkerDeps::frameClock.maxJitterNs (camera.frame_clock_jitter_us)
+  bool learnPaceAtHome = false;            // WorkerDeps::learnPaceAtHome
+};
+
+// Counts the frames a source gives.
+class CountingSource final : public ports::FrameSource {
+ public:
+  explicit CountingSource(ports::FrameSource& inner) : inner_(inner) {}
+  const char* name() const override { return inner_.name(); }
+  std::atomic<int> frames{0};
+
+ private:
+  Result<ports::CapturedFrame> doCapture(const ports::CaptureRequest& r, const ports::ExposureHooks& hooks) override {
+    Result<ports::CapturedFrame> f = inner_.capture(r, hooks);
+    if (f) frames.fetch_add(1);
+    return f;
+  }
+  ports::FrameSource& inner_;
 };
 
 // A source whose frame timestamps scatter about the sensor's clock by -1, 0 or +1 times
@@ -675,6 +703,9 @@ SceneRun localizeOnScene(const localize::ScanParams& sp, protocol::ScanMode mode
     rig.deps.timestampAtExposureEnd = timing.stampsExposureEnd && timing.workerToldStamp;
     rig.deps.slotLeadNs = app::slotLeadFor(timing.laser == ports::LaserTiming::kFrameClock, timing.laserLeadNs);
   }
+  CountingSource counted(*rig.deps.camera);
+  rig.deps.camera = &counted;
+  rig.deps.learnPaceAtHome = timing.learnPaceAtHome;
   rig.deps.capture.exposureUs = sim::autoExposureUs(scene);
   const localize::Localizer loc(scene.truth, image::LleParams{}, sp);
   app::ScanWorker worker(rig.deps, loc, rig.efd);
@@ -682,6 +713,8 @@ SceneRun localizeOnScene(const localize::ScanParams& sp, protocol::ScanMode mode
   worker.submit(jobOf(app::WorkerJob::Kind::kHome));
   std::optional<app::WorkerEvent> homed = rig.next(worker);
   if (!homed || !homed->status.isOk()) return run;
+  run.homingCaptures = counted.frames.load();
+  run.homingLaserEdges = rig.laserLine.edges().size();
   const Eigen::Vector3d roughMm = scene.apples[0].centerMm + Eigen::Vector3d(-12, 9, -20);
   Result<localize::ScanPlan> plan = loc.plan(roughMm, rig.limits().strokeMm);
   if (!plan) return run;
@@ -836,6 +869,42 @@ TEST_CASE("A sweep no faster than the camera takes each frame at its own stop", 
     CHECK(lateMm > -0.5 * slotMm - 0.5);
     CHECK(lateMm < std::min(gapMm, 0.5 * gapMm + slotMm));
   }
+}
+
+TEST_CASE("Homing learns the camera's pace: the first sweep after a start runs as fast as the camera allows",
+          "[app][worker][render][sweep]") {
+  // A 30 fps sensor. A worker that has not captured knows one capture when its first sweep
+  // starts (the metering frame) and allows it twice that: about 135 mm/s. Homing now takes
+  // laser-off frames until the sensor's clock is learnt (four), and the first sweep runs
+  // at the pace a worker that has scanned keeps: two frame periods a capture (a frame is
+  // delivered a readout after its slot, by when the next slot has begun).
+  SensorTiming timing{kSensorPeriodNs};
+  const SceneRun first = localizeOnScene(localize::ScanParams{}, protocol::ScanMode::kContinuous, timing);
+  timing.learnPaceAtHome = true;
+  const SceneRun learnt = localizeOnScene(localize::ScanParams{}, protocol::ScanMode::kContinuous, timing);
+  const std::vector<double> stops = firstPassStops(learnt);
+  (void)firstPassStops(first);
+  const double paced = motion::sweepSpeedMmPerS(motion::SlideLimits{}, stops, 2 * kSensorPeriodNs);
+  INFO("first sweep " << first.event->sweepSpeedMmPerS << " mm/s; after the pace learnt at homing "
+                      << learnt.event->sweepSpeedMmPerS << " mm/s; two periods a capture allow " << paced << " mm/s");
+  CHECK(first.homingCaptures == 0);
+  CHECK(learnt.homingCaptures >= FrameClockParams{}.minFrames);
+  CHECK(learnt.homingCaptures <= motion::CaptureTimes::kFrames);
+  CHECK(learnt.homingLaserEdges == 0);  // laser-off frames: the laser never went on while homing
+  CHECK(first.event->sweepSpeedMmPerS < 0.75 * paced);
+  CHECK(learnt.event->sweepSpeedMmPerS == Approx(paced).epsilon(0.01));
+  // And the frames still at their stops: after each by at most a slot's travel and half a gap.
+  const std::vector<app::ExposureWindow>& ex = learnt.event->exposures;
+  const bool forward = ex[stops.size() - 1].slideMm > ex[0].slideMm;
+  const double slotMm = paced * 1e-9 * static_cast<double>(kSensorPeriodNs);
+  for (size_t i = 0; i < stops.size(); ++i) {
+    const double lateMm = forward ? ex[i].slideMm - stops[i] : stops[i] - ex[i].slideMm;
+    INFO("stop " << stops[i] << " mm, frame at " << ex[i].slideMm << " mm");
+    CHECK(lateMm > -0.5 * slotMm - 0.5);
+    CHECK(lateMm < 0.5 * std::abs(stops[1] - stops[0]) + slotMm);
+  }
+  REQUIRE(learnt.event->estimates.size() == 1);
+  CHECK((learnt.event->estimates[0].centerMm - sim::defaultScene().apples[0].centerMm).norm() < 2.0);
 }
 
 TEST_CASE("A sweep asks for the frame nearest each stop once it knows the sensor's clock",
@@ -1048,6 +1117,39 @@ TEST_CASE("STOP while a sweep meters: ABORTED, no laser frame, the laser low; ho
   CHECK(rig.slide.positionSteps() < Rig::limits().stepsFor(20.0));  // before the first stop
   CHECK_FALSE(worker.homed());
   CHECK(!worker.takeEvent());
+}
+
+TEST_CASE(
+    "Homing's laser-off frames: as many as the pace needs, none from a recording, and a camera fault is the scan's",
+    "[app][worker]") {
+  Rig rig(2.0);
+  rig.deps.learnPaceAtHome = true;
+  const localize::Localizer loc(sim::defaultScene().truth, image::LleParams{}, localize::ScanParams{});
+  SECTION("a camera that exposes on request, with no clock to learn: the captures kept for the pace") {
+    app::ScanWorker worker(rig.deps, loc, rig.efd);
+    rig.home(worker);
+    CHECK(worker.homed());
+    CHECK(rig.camera.captures == motion::CaptureTimes::kFrames);
+    CHECK(rig.camera.requestedUs == std::vector<int64_t>(motion::CaptureTimes::kFrames, 1000));
+    CHECK(rig.laserLine.edges().empty());
+    // Homing again: the pace is known, no more frames.
+    rig.home(worker);
+    CHECK(rig.camera.captures == motion::CaptureTimes::kFrames);
+  }
+  SECTION("a replayed recording: its frames are its stops'") {
+    rig.deps.frameSlideMm = [] { return 10.0; };
+    app::ScanWorker worker(rig.deps, loc, rig.efd);
+    rig.home(worker);
+    CHECK(rig.camera.captures == 0);
+  }
+  SECTION("a camera that fails: the slide is homed all the same, and the first scan meets the fault") {
+    rig.camera.failure = Status(Error::kTimeout, "no frame");
+    app::ScanWorker worker(rig.deps, loc, rig.efd);
+    rig.home(worker);
+    CHECK(worker.homed());
+    CHECK(rig.camera.captures == 1);
+    CHECK(rig.laserLine.edges().empty());
+  }
 }
 
 TEST_CASE("STOP while metering: the scan ends ABORTED before any move, and the slide stays homed", "[app][worker]") {

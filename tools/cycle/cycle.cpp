@@ -33,6 +33,7 @@
 #include <cstdio>
 #include <cstdlib>
 #include <cstring>
+#include <functional>
 #include <memory>
 #include <string>
 #include <vector>
@@ -79,6 +80,7 @@ struct Options {
   double lineTimeUs = 0.0;   // a rolling shutter's line time (0: a global shutter)
   int workerLineTime = 1;    // 1: the worker is told the line time (config camera.line_time_us), 0: not
   int nearestFrame = 1;  // --virtual-time: 1: a sweep asks for the frame nearest each stop (alacsd's), 0: as it passes
+  int learnPace = 1;     // 1: homing learns the camera's pace from laser-off frames (alacsd's), 0: the first scan does
   std::string laserTiming = "frame-clock";  // --virtual-time: how the camera switches the laser (ports::LaserTiming)
   double laserLeadUs = 1000.0;
   int globalShutter = 0;  // --virtual-time, frame-clock: the camera is told the sensor has a global shutter
@@ -162,8 +164,9 @@ app::WorkerEvent runJob(app::ScanWorker& worker, int efd, const app::WorkerJob& 
 }
 
 // Home, park at `parkMm`, then run `job` timed from its submission.
+// `atStart` (optional) runs just before: homing may take frames (the camera's pace).
 Trial timeJob(app::ScanWorker& worker, int efd, const Clock& clock, double parkMm, app::WorkerJob job,
-              const Eigen::Vector3d* truthCentreMm) {
+              const Eigen::Vector3d* truthCentreMm, const std::function<void()>& atStart = {}) {
   app::WorkerJob home;
   home.kind = app::WorkerJob::Kind::kHome;
   (void)runJob(worker, efd, home);
@@ -171,6 +174,7 @@ Trial timeJob(app::ScanWorker& worker, int efd, const Clock& clock, double parkM
   park.kind = app::WorkerJob::Kind::kMoveTo;
   park.moveToMm = parkMm;
   (void)runJob(worker, efd, park);
+  if (atStart) atStart();
   const TimeNs t0 = clock.now();
   job.commandTimeNs = t0;
   const app::WorkerEvent ev = runJob(worker, efd, job);
@@ -380,6 +384,7 @@ int simulatedCycle(const Options& o) {
       ports::FrameSource& camera = o.virtualTime ? static_cast<ports::FrameSource&>(sensor) : rendered;
       app::WorkerDeps deps = workerDeps(clock, sleeper, limits, slide, laser, camera);
       deps.lineTimeNs = o.workerLineTime != 0 ? lineTimeNs : 0;
+      deps.learnPaceAtHome = o.learnPace != 0;
       // The modelled sensor free-runs: the sweep asks for each stop's nearest frame, as
       // alacsd does with libcamera (platform.cpp).
       if (o.virtualTime && o.nearestFrame != 0)
@@ -400,12 +405,17 @@ int simulatedCycle(const Options& o) {
       // A daemon's worker has scanned before: it knows how long its metering takes, and a
       // sweep overlaps the metering with its run-up (ScanWorker::sweepStops).
       if (o.warmUp != 0) (void)timeJob(worker, efd, clock, parkMm, job, nullptr);
-      const double renderBeforeMs = rendered.renderMs();
-      const int framesBefore = rendered.frames();
-      const TimeNs laserOnBeforeNs = laser.totalOnNs();
-      Trial t = timeJob(worker, efd, clock, parkMm, job, &truth);
+      double renderBeforeMs = 0.0;
+      int framesBefore = 0;
+      TimeNs laserOnBeforeNs = 0;
+      Trial t = timeJob(worker, efd, clock, parkMm, job, &truth, [&] {
+        renderBeforeMs = rendered.renderMs();
+        framesBefore = rendered.frames();
+        laserOnBeforeNs = laser.totalOnNs();
+      });
       const TimeNs laserOnNs = laser.totalOnNs() - laserOnBeforeNs;
-      // Homing and parking take no frames: what the camera rendered was the job's.
+      // What the camera rendered from the job's start on was the job's (homing's frames, the
+      // camera's pace, come before).
       t.renderMs = rendered.renderMs() - renderBeforeMs;
       t.frames = rendered.frames() - framesBefore;
       if (o.verbose)
@@ -632,6 +642,11 @@ int main(int argc, char** argv) {
                  "--virtual-time: 1: a sweep asks for the sensor's frame nearest each stop, once it knows the sensor's "
                  "clock (alacsd's way), 0: for the next frame as the slide passes each stop (to compare)")
       ->capture_default_str();
+  app.add_option("--learn-pace", o.learnPace,
+                 "1: homing takes laser-off frames until the camera's pace is known, as alacsd does (default); 0: the "
+                 "first scan after a start paces itself on its own metering frame")
+      ->capture_default_str()
+      ->check(CLI::Range(0, 1));
   app.add_option("--laser-timing", o.laserTiming,
                  "--virtual-time: frame-clock (the daemon's default: the laser just around each frame) or request "
                  "(on from the request to the delivery)")
