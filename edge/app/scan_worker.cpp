@@ -232,9 +232,11 @@ WorkerEvent ScanWorker::doHome(const WorkerJob& job) {
   ev.maxStepLatenessNs = r.maxLatenessNs;
   if (r.outcome == motion::MoveOutcome::kSwitchReached) {
     positionSteps_.store(0);
+    // Homed (the status bit) once the job is done: a LOCALIZE sent on seeing it is not
+    // refused as busy while the camera's frames are still being taken.
+    learnCameraPace();
     homed_.store(true);
     ev.status = Status::ok();
-    learnCameraPace();
     return ev;
   }
   ev.status = r.status.isOk() ? Status(Error::kFault, "homing failed") : r.status;
