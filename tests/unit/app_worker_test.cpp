@@ -1149,6 +1149,12 @@ TEST_CASE(
     CHECK(worker.homed());
     CHECK(rig.camera.captures == 1);
     CHECK(rig.laserLine.edges().empty());
+    worker.submit(twoStopScan());
+    std::optional<app::WorkerEvent> ev = rig.next(worker);
+    REQUIRE(ev);
+    CHECK_FALSE(ev->status.isOk());
+    CHECK(ev->faultBit == protocol::kFaultCameraTimeout);
+    CHECK(rig.laserLine.level() == false);
   }
 }
 
