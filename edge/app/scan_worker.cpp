@@ -246,8 +246,11 @@ WorkerEvent ScanWorker::doHome(const WorkerJob& job) {
 }
 
 void ScanWorker::learnCameraPace() {
-  // A replayed scan's frames are its recording's, each for one stop: none to spare.
-  if (!deps_.learnPaceAtHome || deps_.frameSlideMm) return;
+  // Only a camera that runs free (the board's: deps_.slotLeadNs known) has a pace to learn
+  // that a first sweep would miss; a simulated one renders each frame on request, which
+  // costs its start seconds on a slow machine. A replayed scan's frames are its
+  // recording's, each for one stop: none to spare.
+  if (!deps_.learnPaceAtHome || deps_.slotLeadNs < 0 || deps_.frameSlideMm) return;
   // The laser is off here (every job ends with it off, and these captures never switch it on).
   int taken = 0;
   TimeNs firstNs = 0;

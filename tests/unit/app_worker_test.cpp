@@ -1120,12 +1120,21 @@ TEST_CASE("STOP while a sweep meters: ABORTED, no laser frame, the laser low; ho
 }
 
 TEST_CASE(
-    "Homing's laser-off frames: as many as the pace needs, none from a recording, and a camera fault is the scan's",
+    "Homing's laser-off frames: as many as the pace needs, none from a simulated camera or a recording, and a camera "
+    "fault is the scan's",
     "[app][worker]") {
   Rig rig(2.0);
   rig.deps.learnPaceAtHome = true;
+  rig.deps.slotLeadNs = 0;  // a camera that runs free, as alacsd's libcamera one
   const localize::Localizer loc(sim::defaultScene().truth, image::LleParams{}, localize::ScanParams{});
-  SECTION("a camera that exposes on request, with no clock to learn: the captures kept for the pace") {
+  SECTION("a simulated camera that exposes on request (slotLeadNs unknown): none, its first scan paces itself") {
+    rig.deps.slotLeadNs = -1;
+    app::ScanWorker worker(rig.deps, loc, rig.efd);
+    rig.home(worker);
+    CHECK(worker.homed());
+    CHECK(rig.camera.captures == 0);
+  }
+  SECTION("a free-running camera whose clock is not learnt (no sequence numbers): the captures kept for the pace") {
     app::ScanWorker worker(rig.deps, loc, rig.efd);
     rig.home(worker);
     CHECK(worker.homed());
