@@ -60,7 +60,8 @@ struct WorkerDeps {
   // pace and the frame nearest each stop): camera.frame_clock_jitter_us, as the libcamera
   // source's own clock.
   FrameClockParams frameClock;
-  // After homing, laser-off frames until the camera's pace is known (ScanWorker::learnCameraPace).
+  // After homing, laser-off frames until the camera's pace is known, from a camera that runs
+  // free (slotLeadNs >= 0; ScanWorker::learnCameraPace). false: the first scan learns it.
   bool learnPaceAtHome = true;
   std::string debugDir;                // overlay PNGs go here when not empty
   // alacsd --replay: the slide position the frame just captured was recorded at, used
@@ -109,7 +110,8 @@ class ScanWorker final : public ScanJobs {
   // After homing, laser-off frames until the sweep's pace no longer rests on how few
   // captures the worker knows (paceSettled(), at most CaptureTimes::kFrames): the first
   // localize after a start then sweeps as fast as the later ones (docs/daemon.md, "The
-  // camera's pace, learnt at homing"). None when replaying a recording.
+  // camera's pace, learnt at homing"). Only from a camera that runs free
+  // (WorkerDeps::slotLeadNs known); none when replaying a recording.
   void learnCameraPace();
   // The sensor's clock is learnt and the captures wait on it, or kFrames captures are known.
   bool paceSettled() const;
