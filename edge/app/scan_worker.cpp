@@ -255,18 +255,15 @@ void ScanWorker::learnCameraPace() {
   int taken = 0;
   TimeNs firstNs = 0;
   while (!paceSettled() && taken < motion::CaptureTimes::kFrames && !cancel_.load()) {
-    const TimeNs askedNs = deps_.clock->now();
-    frameReadSinceNs_.store(askedNs);
-    Result<ports::CapturedFrame> f = deps_.camera->capture(deps_.capture, {});
-    frameReadSinceNs_.store(0);
+    TimeNs tookNs = 0;
+    Result<ports::CapturedFrame> f = captureRecorded(deps_.capture, {}, &tookNs);
     markProgress();
     if (!f) {
       // The slide is homed all the same; the first scan finds the camera's fault and names it.
       ALACS_LOG_WARN("camera", "learning the camera's pace after homing: %s", f.status().toString().c_str());
       return;
     }
-    recordCapture(askedNs, f->info);
-    if (taken++ == 0) firstNs = deps_.clock->now() - askedNs;
+    if (taken++ == 0) firstNs = tookNs;
   }
   // Until a scan has metered, its metering is expected to take one laser-off frame (as it
   // does in every light but the sun's): a sweep then meters in its run-up from the first scan on.
@@ -394,11 +391,20 @@ void writeOverlay(const std::string& dir, int scanIndex, const image::ImageView&
 }
 }  // namespace
 
-void ScanWorker::recordCapture(TimeNs askedNs, const ports::FrameInfo& info) {
-  captures_.record(deps_.clock->now() - askedNs);
+Result<ports::CapturedFrame> ScanWorker::captureRecorded(const ports::CaptureRequest& request,
+                                                         const ports::ExposureHooks& hooks, TimeNs* tookNs) {
+  const TimeNs askedNs = deps_.clock->now();
+  frameReadSinceNs_.store(askedNs);
+  Result<ports::CapturedFrame> f = deps_.camera->capture(request, hooks);
+  frameReadSinceNs_.store(0);
+  if (!f) return f;
+  const TimeNs capturedNs = deps_.clock->now() - askedNs;
+  captures_.record(capturedNs);
+  if (tookNs != nullptr) *tookNs = capturedNs;
   // The frames' timestamps as the camera gives them (a start, or an exposure's end), as the
   // libcamera source learns its clock: it picks the frame a request gets from those.
-  if (info.exposureStartNs > 0) sensorClock_.observe(info.sequence, info.exposureStartNs);
+  if (f->info.exposureStartNs > 0) sensorClock_.observe(f->info.sequence, f->info.exposureStartNs);
+  return f;
 }
 
 std::optional<TimeNs> ScanWorker::nearestFrameAskNs(TimeNs exposureMidNs, const image::Roi& window,
@@ -444,12 +450,8 @@ Result<ports::CapturedFrame> ScanWorker::exposeStop(size_t stop, const ports::Ca
           (void)deps_.laser->off();
           endMm = positionMm();
         });
-    const TimeNs askedNs = deps_.clock->now();
-    frameReadSinceNs_.store(askedNs);
-    frame = deps_.camera->capture(capture, laser);
-    frameReadSinceNs_.store(0);
+    frame = captureRecorded(capture, laser);
     (void)deps_.laser->off();
-    if (frame) recordCapture(askedNs, frame->info);
     if (!laserRefused) {
       ev.status = laserRefused;
       ev.faultBit = protocol::kFaultLaserOvertime;
@@ -667,13 +669,9 @@ void ScanWorker::meterExposure(const localize::ScanPlan& plan, ports::CaptureReq
     ports::CaptureRequest req = capture;
     req.exposureUs = exposureUs;
     if (analogueGain > 0.0) req.analogueGain = analogueGain;
-    const TimeNs askedNs = deps_.clock->now();
-    frameReadSinceNs_.store(askedNs);
-    Result<ports::CapturedFrame> f = deps_.camera->capture(req, {});
-    frameReadSinceNs_.store(0);
+    Result<ports::CapturedFrame> f = captureRecorded(req, {});
     markProgress();
     if (!f) return f.status();
-    recordCapture(askedNs, f->info);
     ++ev.laserOffFrames;
     return localize::LaserOffFrame{f->view, f->info.exposureUs, f->info.analogueGain};
   };

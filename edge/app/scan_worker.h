@@ -203,7 +203,12 @@ class ScanWorker final : public ScanJobs {
   // The sensor's frame clock, from the delivered frames' timestamps: its period bounds the
   // worst capture when the recent ones did not show it (CaptureTimes::paceNs). Worker thread only.
   FrameClock sensorClock_{deps_.frameClock};  // after deps_
-  void recordCapture(TimeNs askedNs, const ports::FrameInfo& info);
+  // One capture with its bookkeeping: the watchdog told a frame is being read meanwhile
+  // (frameReadSinceNs_), and a delivered frame's time, request to delivery, recorded for the
+  // sweep's pace and its timestamp for the sensor's frame clock. `tookNs`, when given, gets
+  // that time (untouched when the capture failed).
+  Result<ports::CapturedFrame> captureRecorded(const ports::CaptureRequest& request, const ports::ExposureHooks& hooks,
+                                               TimeNs* tookNs = nullptr);
   TimeNs capturePaceNs() const { return captures_.paceNs(sensorClock_.periodNs()); }
   // When to ask for the frame whose window is exposed nearest `exposureMidNs` (the sensor's
   // clock learnt and waited on, deps_.slotLeadNs known); nullopt: as the slide passes the stop.

@@ -312,9 +312,20 @@ def test_alacsd_localizes_through_vimc_honestly(tmp_path, alacsd, vimc) -> None:
     finally:
         assert sensor.stop() == 0, sensor.log
     # Once, when the clock is learnt.
-    rate = [line for line in sensor.log.splitlines() if "frames every" in line]
+    lines = sensor.log.splitlines()
+    rate = [line for line in lines if "frames every" in line]
     print("alacsd on vimc: " + (rate[0] if rate else "no rate logged"))
     assert len(rate) == 1 and "camera.frame_duration_us 33333 not applied" in rate[0], sensor.log
+    # Homing learnt the camera's pace from laser-off frames of the real pipeline (a camera
+    # that runs free: docs/daemon.md "The camera's pace, learnt at homing"), before the
+    # first scan metered; at most CaptureTimes::kFrames of them.
+    homing = [i for i, line in enumerate(lines) if "after homing:" in line]
+    metering = [i for i, line in enumerate(lines) if "metering:" in line]
+    assert len(homing) == 1 and metering and homing[0] < metering[0], sensor.log
+    taken = int(re.search(r"after homing: (\d+) laser-off frames", lines[homing[0]]).group(1))
+    assert 1 <= taken <= 8, lines[homing[0]]
+    learnt_at = "homing" if lines.index(rate[0]) < metering[0] else "the first scan"
+    print(f"alacsd on vimc: {lines[homing[0]].split('after homing: ', 1)[1]}; the clock learnt at {learnt_at}")
 
 
 def test_stop_mid_scan_aborts_at_once_with_the_laser_off(tmp_path, alacsd, vimc) -> None:
