@@ -145,6 +145,8 @@ struct Trial {
   double offStopMm = -1;        // the first pass: its frames' largest distance from their stops (-1: none)
   protocol::ResultStatus status = protocol::ResultStatus::kFailed;  // as the bus would say it
   double confidencePct = 0;                                         // the estimate's, when ok
+  double sigmaMm = 0;                                               // its 1σ of the approach point
+  int linesUsed = 0;
 };
 
 // ResultStatus as the DBC's value table names it (can_protocol/spec.py), for the log.
@@ -206,7 +208,11 @@ Trial timeJob(app::ScanWorker& worker, int efd, const Clock& clock, double parkM
   t.tailMs = static_cast<double>(ev.processingTailNs) / 1e6;
   t.ok = ev.status.isOk() && !ev.estimates.empty();
   t.status = ev.resultStatus;
-  if (t.ok) t.confidencePct = ev.estimates[0].confidencePct;
+  if (t.ok) {
+    t.confidencePct = ev.estimates[0].confidencePct;
+    t.sigmaMm = ev.estimates[0].sigmaMm;
+    t.linesUsed = ev.estimates[0].linesUsed;
+  }
   t.followUpStops = ev.followUpStops;
   t.laserOffFrames = ev.laserOffFrames;
   t.sweepSpeedMmPerS = ev.sweepSpeedMmPerS;
@@ -454,12 +460,14 @@ int simulatedCycle(const Options& o) {
       if (o.verbose)
         std::printf(
             "    %s case %2d: %4.0f mm away, parked %+5.1f mm from the first stop: cycle %4.0f ms, last exposure "
-            "ends %4.0f ms, tail %5.1f ms, %s (%s, confidence %.0f %%), centre error %.2f mm, approach point's %.2f "
-            "mm, stops %.1f-%.1f mm, second pass %d stops, first pass's frames at most %.1f mm off their stops, "
+            "ends %4.0f ms, tail %5.1f ms, %s (%s, confidence %.0f %%, sigma %.1f mm, %d lines), centre error %.2f mm, "
+            "approach point's %.2f mm, stops %.1f-%.1f mm, second pass %d stops, first pass's frames at most %.1f mm "
+            "off their stops, "
             "sweep %.0f mm/s\n",
             mode, c, caseDistanceMm(c), parkMm - plan->stopsMm.front(), t.cycleMs, t.lastFrameMs, t.tailMs,
-            t.ok ? "found" : "not found", statusName(t.status), t.confidencePct, t.centreErrMm, t.approachErrMm,
-            plan->stopsMm.front(), plan->stopsMm.back(), t.followUpStops, t.offStopMm, t.sweepSpeedMmPerS);
+            t.ok ? "found" : "not found", statusName(t.status), t.confidencePct, t.sigmaMm, t.linesUsed, t.centreErrMm,
+            t.approachErrMm, plan->stopsMm.front(), plan->stopsMm.back(), t.followUpStops, t.offStopMm,
+            t.sweepSpeedMmPerS);
       trials.push_back(t);
       laserOffFrames.push_back(t.laserOffFrames);
       if (t.frames > t.laserOffFrames)
