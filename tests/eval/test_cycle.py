@@ -51,3 +51,29 @@ def test_rolling_shutter_costs_little_when_the_worker_knows_the_line_time() -> N
     assert untold["found"] == 5
     assert told["err_median_mm"] < glob["err_median_mm"] + 2.0
     assert untold["err_median_mm"] > 10.0  # the target's rows placed 5 mm of travel off
+
+
+CASE = re.compile(r"case\s+\d+: .* (found|not found) \((\w+), confidence (\d+) %, sigma ([\d.]+) mm, (\d+) lines\), "
+                  r"centre error ([\d.]+) mm, approach point's ([\d.]+) mm")
+HONEST = re.compile(r"beyond 20 mm (\d+) \(at confidence >= 80 %: (\d+)\)")
+
+
+def test_each_result_says_its_bus_status_and_the_summary_counts_confident_misses() -> None:
+    # The bar for honest uncertainty, measured in the worker's own sweep: the summary
+    # counts the results beyond 20 mm on the approach point (as docs/evaluation.md does) and
+    # those of them at 80 % confidence or more; it must agree with the cases it summarises.
+    out, res = _continuous("--verbose", cases=3)
+    cases = [m.groups() for m in map(CASE.search, out.splitlines()) if m]
+    assert len(cases) == 3, out
+    statuses = {"MEASURED", "NOT_FOUND", "ROUGH_ONLY", "FAILED", "ABORTED", "AMBIGUOUS"}
+    for found, status, conf, sigma, lines, _centre, _approach in cases:
+        assert status in statuses
+        assert 0 <= int(conf) <= 100 and float(sigma) > 0
+        assert (found == "found") == (status != "NOT_FOUND")
+        # Only MEASURED or AMBIGUOUS results come from a sphere fit through two lines or more.
+        assert int(lines) >= 2 or status not in ("MEASURED", "AMBIGUOUS")
+    beyond = [c for c in cases if c[0] == "found" and float(c[6]) > 20.0]
+    honest = next(m for m in map(HONEST.search, out.splitlines()) if m)
+    assert int(honest.group(1)) == len(beyond)
+    assert int(honest.group(2)) == sum(int(c[2]) >= 80 for c in beyond)
+    assert res["found"] == 3
