@@ -575,11 +575,20 @@ size_t otherPointsInGate(const std::vector<LineObservation>& lines, const AppleE
   }
   return n;
 }
+
+// The confidence is the chance of the end effector's tolerance: it cannot exceed that chance
+// at the σ the estimate reports. (Until here it was the fit's chance at the fit's own σ, times
+// the support and the chance of the target; the systematic, shape and mixture terms widen the
+// σ after it.) Bites only on a σ past about 12 mm (20 mm at 16 mm: 78 %).
+Result<AppleEstimate> boundedBySigma(Result<AppleEstimate> est) {
+  if (est) est->confidencePct = std::min(est->confidencePct, 100.0 * withinProbability(kToleranceMm, est->sigmaMm));
+  return est;
+}
 }  // namespace
 
 Result<AppleEstimate> Localizer::estimate(const ScanPlan& plan, const std::vector<LineObservation>& observed) const {
   std::vector<LineObservation> lines = uniqueStops(observed);
-  Result<AppleEstimate> est = estimateLines(plan, lines);
+  Result<AppleEstimate> est = boundedBySigma(estimateLines(plan, lines));
   // The lines left the target unseen (the rough position stands in, or one line at most):
   // the sunlit arcs the subtracted frames showed (ScanParams::weakArcMinZ) join them, and
   // that estimate goes out when it rests on more lines and is more confident.
@@ -591,7 +600,7 @@ Result<AppleEstimate> Localizer::estimate(const ScanPlan& plan, const std::vecto
     l.pointsMm.insert(l.pointsMm.end(), l.arcPointsMm.begin(), l.arcPointsMm.end());
     l.pixels.insert(l.pixels.end(), l.arcPixels.begin(), l.arcPixels.end());
   }
-  Result<AppleEstimate> withArcs = estimateLines(plan, lines);
+  Result<AppleEstimate> withArcs = boundedBySigma(estimateLines(plan, lines));
   if (withArcs && withArcs->linesUsed > linesBefore && withArcs->confidencePct > (est ? est->confidencePct : 0.0)) {
     withArcs->fromWeakArcs = true;
     return withArcs;
