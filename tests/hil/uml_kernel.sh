@@ -32,6 +32,13 @@ readonly kOptions=(
     MEDIA_SUPPORT MEDIA_SUPPORT_FILTER MEDIA_TEST_SUPPORT MEDIA_CAMERA_SUPPORT
     VIDEO_DEV MEDIA_CONTROLLER V4L_TEST_DRIVERS VIDEO_VIMC VIDEOBUF2_VMALLOC
 )
+# Options turned off. VMAP_STACK: with it each kernel stack (and the thread_info at its
+# foot) is vmalloc'd, and UML 6.1 flushes its kernel TLB by unmapping a vmalloc range on
+# the host in batches and mapping back what is present. A host signal that came while a
+# task's stack was so unmapped faulted on it forever, and the whole guest froze
+# (docs/hil.md, "A bench kernel that freezes"). Off, the stacks are pages of physical
+# memory, which no such flush unmaps.
+readonly kDisabled=(VMAP_STACK)
 # Integer options (name=value), set with the booleans above.
 # KERNEL_STACK_ORDER 4 (64 KB): each thread_info and the signal stack's register
 # frame hold a host XSAVE area, up to 16 KB with uml-xstate.patch.
@@ -57,6 +64,9 @@ build_kernel() {
     local -a enable=()
     for opt in "${kOptions[@]}"; do
         enable+=(-e "$opt")
+    done
+    for opt in "${kDisabled[@]}"; do
+        enable+=(-d "$opt")
     done
     for opt in "${kValues[@]}"; do
         enable+=(--set-val "${opt%%=*}" "${opt#*=}")
@@ -89,6 +99,11 @@ verify_config() {
             "${missing[*]}" >&2
         return 1
     fi
+    for opt in "${kDisabled[@]}"; do
+        grep -qx "CONFIG_${opt}=y" "$config" || continue
+        echo "uml_kernel.sh: still on after olddefconfig: $opt" >&2
+        return 1
+    done
 }
 
 main() {
@@ -101,7 +116,7 @@ main() {
     local key
     key=$(
         {
-            printf "%s\n" "${kOptions[@]}" "${kValues[@]}"
+            printf "%s\n" "${kOptions[@]}" "${kValues[@]}" "off: ${kDisabled[*]}"
             echo "$kSourcePackage $version"
             declare -f build_kernel
             cat "$kPatch"
