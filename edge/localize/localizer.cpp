@@ -579,7 +579,8 @@ size_t otherPointsInGate(const std::vector<LineObservation>& lines, const AppleE
 // The confidence is the chance of the end effector's tolerance: it cannot exceed that chance
 // at the σ the estimate reports. (Until here it was the fit's chance at the fit's own σ, times
 // the support and the chance of the target; the systematic, shape and mixture terms widen the
-// σ after it.) Bites only on a σ past about 12 mm (20 mm at 16 mm: 78 %).
+// σ after it.) It bites only where σ is past about 10 mm (the chance is 99 % at 10 mm, 80 %
+// at 16 mm).
 Result<AppleEstimate> boundedBySigma(Result<AppleEstimate> est) {
   if (est) est->confidencePct = std::min(est->confidencePct, 100.0 * withinProbability(kToleranceMm, est->sigmaMm));
   return est;
