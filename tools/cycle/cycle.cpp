@@ -34,11 +34,11 @@
 #include <cstdlib>
 #include <cstring>
 #include <functional>
-#include <iterator>
 #include <memory>
 #include <string>
 #include <vector>
 
+#include "alacs_names.h"
 #include "app/laser_guard.h"
 #include "app/process_memory.h"
 #include "app/scan_worker.h"
@@ -150,10 +150,15 @@ struct Trial {
 };
 
 // ResultStatus as the DBC's value table names it (can_protocol/spec.py), for the log.
+// The DBC's name for a status (can_protocol/generated/alacs_names.h, from spec.py).
 const char* statusName(protocol::ResultStatus s) {
-  static constexpr const char* kNames[] = {"MEASURED", "NOT_FOUND", "ROUGH_ONLY", "FAILED", "ABORTED", "AMBIGUOUS"};
-  const auto i = static_cast<size_t>(s);
-  return i < std::size(kNames) ? kNames[i] : "?";
+  switch (static_cast<unsigned>(s)) {
+#define ALACS_NAME_CASE(value, name) \
+  case value: return name;
+    ALACS_RESULT_STATUS_NAMES(ALACS_NAME_CASE)
+#undef ALACS_NAME_CASE
+    default: return "?";
+  }
 }
 
 // The bar for honest uncertainty: no result beyond the end-effector's 20 mm at a
