@@ -431,12 +431,18 @@ void Sensor::publishScanResult(const WorkerEvent& ev, TimeNs now) {
     o.linesUsed = e.linesUsed;
     o.pointsUsed = e.pointsUsed;
     objects.push_back(o);
-    ALACS_LOG_INFO("scan", "%s %u: centre (%.1f, %.1f, %.1f) mm, d %.1f mm, sigma %.2f mm, %d lines, cycle %u ms",
+    ALACS_LOG_INFO("scan",
+                   "%s %u: centre (%.1f, %.1f, %.1f) mm, d %.1f mm, sigma %.2f mm, confidence %.0f %%, %d lines",
                    h.mode == 1 ? "object" : "target", h.mode == 1 ? o.index : h.targetId, e.centerMm.x(),
-                   e.centerMm.y(), e.centerMm.z(), e.diameterMm, e.sigmaMm, e.linesUsed, lastLatencyMs_);
+                   e.centerMm.y(), e.centerMm.z(), e.diameterMm, e.sigmaMm, e.confidencePct, e.linesUsed);
   }
   if (!why) ALACS_LOG_WARN("scan", "target %u: %s", h.targetId, why.toString().c_str());
   h.objectCount = static_cast<uint8_t>(objects.size());
+  // What the bus says of it, in the DBC's names: a technician reading the journal sees a
+  // ROUGH_ONLY or NOT_FOUND as such, not only the numbers of the line above.
+  ALACS_LOG_INFO("scan", "result %u (%s, target %u): %s (%s), %u object(s), cycle %u ms", h.measCounter,
+                 h.mode == 1 ? "SCAN_ALL" : "LOCALIZE", h.targetId, protocol::resultStatusName(h.status),
+                 protocol::resultReasonName(h.reason), h.objectCount, lastLatencyMs_);
   if (ports_.observer != nullptr) ports_.observer->scanFinished(ev);
   // LOCALIZE is answered by its ACK and then this one result (docs/can-protocol.md).
   node_.publishResult(h, objects);

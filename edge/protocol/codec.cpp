@@ -6,6 +6,7 @@
 
 extern "C" {
 #include "alacs.h"
+#include "alacs_names.h"
 #include "alacs_protocol.h"
 }
 
@@ -342,5 +343,24 @@ uint8_t errorRegister(uint16_t faults) {
   const uint16_t canFaults = kFaultCanBusOff | kFaultCanTxOverflow;
   return static_cast<uint8_t>((faults != 0 ? 0x01U : 0U) | ((faults & canFaults) != 0 ? 0x10U : 0U));
 }
+
+#define ALACS_NAME_CASE(value, name) \
+  case value: return name;
+
+const char* resultStatusName(ResultStatus status) {
+  switch (static_cast<unsigned>(status)) {
+    ALACS_RESULT_STATUS_NAMES(ALACS_NAME_CASE)
+    default: return "?";
+  }
+}
+
+const char* resultReasonName(ResultReason reason) {
+  switch (static_cast<unsigned>(reason)) {
+    ALACS_RESULT_REASON_NAMES(ALACS_NAME_CASE)
+    default: return "?";
+  }
+}
+
+#undef ALACS_NAME_CASE
 
 }  // namespace alacs::protocol

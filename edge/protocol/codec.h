@@ -128,6 +128,12 @@ enum class ResultReason : uint8_t {
   kBrightAmbient = 13,
 };
 
+// The DBC's names of a status and a reason ("ROUGH_ONLY", "FAR_FROM_ROUGH"), for logs and
+// tools: generated from spec.py (can_protocol/generated/alacs_names.h); "?" for a value the
+// DBC does not name.
+const char* resultStatusName(ResultStatus status);
+const char* resultReasonName(ResultReason reason);
+
 struct ResultHeader {
   uint16_t measCounter = 0;
   uint8_t objectCount = 0;  // 0..16 (5 bits on the bus)

@@ -26,6 +26,9 @@ def test_no_line_in_direct_sun_is_named_on_the_bus(tmp_path, alacsd):
     assert ex.result.status == ac.ResultStatus.NOT_FOUND, (ex.result, ex.alacsd_log)
     assert ex.result.reason == ac.ResultReason.BRIGHT_AMBIENT, (ex.result, ex.alacsd_log)
     assert ex.result.object_count == 0
+    # The journal names it as the bus does, not as a measurement.
+    assert re.search(r"result \d+ \(LOCALIZE, target \d+\): NOT_FOUND \(BRIGHT_AMBIENT\), 0 object", ex.alacsd_log), \
+        ex.alacsd_log
     assert gpio_sim.read_output("LASER") == 0
 
 
@@ -37,6 +40,9 @@ def test_localize_over_vcan(tmp_path, alacsd, seed):
     assert ex.result.status == ac.ResultStatus.MEASURED, ex.result
     assert ex.result.object_count == 1
     obj = ex.result.objects[0]
+    assert re.search(r"result \d+ \(LOCALIZE, target \d+\): MEASURED \(NONE\), 1 object", ex.alacsd_log), ex.alacsd_log
+    logged = re.search(r"target \d+: centre .*, confidence (\d+) %", ex.alacsd_log)
+    assert logged and abs(int(logged.group(1)) - obj.quality.confidence_pct) <= 1, ex.alacsd_log
     assert obj.complete
     # The walking skeleton's bar: within 5 mm of the simulation's truth.
     assert ex.center_error_mm < 5.0, (ex.center_error_mm, obj.center_mm, ex.truth_center_mm)

@@ -124,6 +124,29 @@ TEST_CASE("Golden vectors: the C++ encoders produce the DBC's bytes", "[protocol
   CHECK(progress >= 1);
 }
 
+TEST_CASE("A result's status and reason are named as the DBC names them", "[protocol][golden]") {
+  // The golden vectors carry cantools' names of each value, read from the DBC itself.
+  cv::FileStorage fs = golden();
+  int checked = 0;
+  for (const auto& v : fs["vectors"]) {
+    if (static_cast<std::string>(v["message"]) != "ALACS_ResultHeader") continue;
+    const cv::FileNode status = v["signals"]["ResultStatus"];
+    const cv::FileNode reason = v["signals"]["ResultReason"];
+    INFO(static_cast<std::string>(v["name"]));
+    CHECK(std::string(resultStatusName(static_cast<ResultStatus>(static_cast<int>(status["raw"])))) ==
+          static_cast<std::string>(status["choice"]));
+    CHECK(std::string(resultReasonName(static_cast<ResultReason>(static_cast<int>(reason["raw"])))) ==
+          static_cast<std::string>(reason["choice"]));
+    ++checked;
+  }
+  CHECK(checked >= 3);
+  CHECK(std::string(resultStatusName(ResultStatus::kAmbiguous)) == "AMBIGUOUS");
+  CHECK(std::string(resultReasonName(ResultReason::kFarFromRough)) == "FAR_FROM_ROUGH");
+  // A value the DBC does not name (the nibble's 15, the byte's 200) is not given another's name.
+  CHECK(std::string(resultStatusName(static_cast<ResultStatus>(15))) == "?");
+  CHECK(std::string(resultReasonName(static_cast<ResultReason>(200))) == "?");
+}
+
 TEST_CASE("Result objects round to the DBC's resolution and saturate", "[protocol]") {
   ResultObject o;
   o.centerMm = {12.34, -5.66, 1234.56};

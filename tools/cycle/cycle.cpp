@@ -38,13 +38,13 @@
 #include <string>
 #include <vector>
 
-#include "alacs_names.h"
 #include "app/laser_guard.h"
 #include "app/process_memory.h"
 #include "app/scan_worker.h"
 #include "common/log.h"
 #include "common/virtual_timeline.h"
 #include "ports/frame_slot_source.h"
+#include "protocol/codec.h"
 #include "replay/replay_source.h"
 #include "replay/scan_dir.h"
 #include "sim/orchard.h"
@@ -150,16 +150,6 @@ struct Trial {
 };
 
 // ResultStatus as the DBC's value table names it (can_protocol/spec.py), for the log.
-// The DBC's name for a status (can_protocol/generated/alacs_names.h, from spec.py).
-const char* statusName(protocol::ResultStatus s) {
-  switch (static_cast<unsigned>(s)) {
-#define ALACS_NAME_CASE(value, name) \
-  case value: return name;
-    ALACS_RESULT_STATUS_NAMES(ALACS_NAME_CASE)
-#undef ALACS_NAME_CASE
-    default: return "?";
-  }
-}
 
 // The bar for honest uncertainty: no result beyond the end-effector's 20 mm at a
 // confidence of 80 % or more.
@@ -470,8 +460,8 @@ int simulatedCycle(const Options& o) {
             "off their stops, "
             "sweep %.0f mm/s\n",
             mode, c, caseDistanceMm(c), parkMm - plan->stopsMm.front(), t.cycleMs, t.lastFrameMs, t.tailMs,
-            t.ok ? "found" : "not found", statusName(t.status), t.confidencePct, t.sigmaMm, t.linesUsed, t.centreErrMm,
-            t.approachErrMm, plan->stopsMm.front(), plan->stopsMm.back(), t.followUpStops, t.offStopMm,
+            t.ok ? "found" : "not found", protocol::resultStatusName(t.status), t.confidencePct, t.sigmaMm, t.linesUsed,
+            t.centreErrMm, t.approachErrMm, plan->stopsMm.front(), plan->stopsMm.back(), t.followUpStops, t.offStopMm,
             t.sweepSpeedMmPerS);
       trials.push_back(t);
       laserOffFrames.push_back(t.laserOffFrames);
