@@ -137,6 +137,7 @@ def test_what_any_stop_could_light_splits_the_scans(run):
     for world in ("benchmark",):  # the second world's per-case results are not opened
         cases = [json.loads(line) for line in (run / world / "cases.jsonl").read_text().splitlines()]
         loc = [c for c in cases if "reach" in c]
+        assert loc, "no localization case carries its reach"  # else the checks below hold vacuously
         # A target that two of the scan's own stops light on 8 rows is lit at some position
         # of the sweep, and a clear one over more than a second-pass spacing.
         assert all(c["reach"] != worlds.REACH_CLASSES[0] for c in loc if c["measurable"])

@@ -6,6 +6,7 @@
 
 #include <catch2/catch.hpp>
 #include <fstream>
+#include <set>
 
 #include "app/config.h"
 #include "common/json_file.h"
@@ -193,6 +194,73 @@ TEST_CASE("Config: the frame timeout cannot hide behind the laser's on-time limi
   const auto round = app::loadConfig(write(app::configToJson(app::DaemonConfig{}).dump()));
   REQUIRE(round.isOk());
   CHECK(app::configToJson(*round) == app::configToJson(app::DaemonConfig{}));
+}
+
+namespace {
+// Values near `v` of its own type to set a config key to: one of them is within the key's
+// range and passes the rules between fields.
+std::vector<Json> besides(const Json& v) {
+  if (v.is_boolean()) return {!v.get<bool>()};
+  if (v.is_number_integer()) return {v.get<int64_t>() + 1, v.get<int64_t>() - 1, v.get<int64_t>() * 2};
+  if (v.is_number_float()) {
+    const double d = v.get<double>();
+    return {d * 1.25 + 0.125, d * 0.8, d + 1.0, d - 0.125};
+  }
+  if (v.is_string()) return {v.get<std::string>() + "1", "x"};
+  return {};
+}
+
+void leaves(const Json& j, const Json::json_pointer& at, std::vector<Json::json_pointer>& out) {
+  if (!j.is_object()) {
+    out.push_back(at);
+    return;
+  }
+  for (const auto& [key, value] : j.items()) leaves(value, at / key, out);
+}
+}  // namespace
+
+TEST_CASE("Config: every key written is read back, each set away from its default", "[config]") {
+  // The round trip of the defaults alone cannot see a key the loader ignores (it starts from
+  // the defaults) or one configToJson forgets to write: here each key in turn is set to
+  // another value, loaded, and written out again.
+  const Json defaults = Json::parse(app::configToJson(app::DaemonConfig{}).dump());
+  std::vector<Json::json_pointer> keys;
+  leaves(defaults, Json::json_pointer(), keys);
+  CHECK(keys.size() >= 40);
+  // ... and it writes every key the shipped file has, no more (a key it forgot would never
+  // be set below).
+  std::ifstream shippedFile(std::string(ALACS_SOURCE_DIR) + "/firmware/config/alacsd.json");
+  std::vector<Json::json_pointer> shippedKeys;
+  leaves(Json::parse(shippedFile), Json::json_pointer(), shippedKeys);
+  const auto names = [](const std::vector<Json::json_pointer>& ps) {
+    std::set<std::string> out;
+    for (const auto& p : ps) out.insert(p.to_string());
+    return out;
+  };
+  CHECK(names(keys) == names(shippedKeys));
+  std::vector<std::string> neverSet;
+  for (const Json::json_pointer& key : keys) {
+    bool set = false;
+    for (const Json& value : besides(defaults[key])) {
+      Json doc = defaults;
+      doc[key] = value;
+      const auto loaded = app::loadConfig(write(doc.dump()));
+      if (!loaded) continue;  // out of its range, or against a rule between fields
+      const Json back = Json::parse(app::configToJson(*loaded).dump());
+      INFO(key.to_string() << " set to " << value.dump() << ", written back as " << back[key].dump());
+      if (value.is_number_float())
+        CHECK(back[key].get<double>() == Approx(value.get<double>()).epsilon(1e-9));
+      else
+        CHECK(back[key] == value);
+      set = true;
+      break;
+    }
+    if (!set) neverSet.push_back(key.to_string());
+  }
+  std::string list;
+  for (const std::string& k : neverSet) list += k + " ";
+  INFO("keys no nearby value could be set to: " << list);
+  CHECK(neverSet.empty());
 }
 
 TEST_CASE("Calibration: JSON round trip, deep nesting and typed errors", "[calibration]") {

@@ -734,10 +734,23 @@ TEST_CASE("Edge cases give a result or a clear error, never a crash", "[lle][edg
     }
   }
   SECTION("a line at the frame border") {
-    const Rgb img = lineImage(64, 32, [](int) { return 1.0; }, 1.0, 150, 20);
-    auto line = extractLine(img.view(), {0, 0, 64, 32}, p, ws);
-    REQUIRE(line.isOk());
-    for (const auto& r : line->rows) CHECK(r.column >= 0.0F);
+    // Within bRCE's step (4) of the border a pixel has no neighbour on that side to compare
+    // with: no sample there (none invented beyond the frame), and no crash.
+    for (double (*column)(int) : {+[](int) { return 1.0; }, +[](int) { return 62.0; }}) {
+      const Rgb img = lineImage(64, 32, column, 1.0, 150, 20);
+      auto line = extractLine(img.view(), {0, 0, 64, 32}, p, ws);
+      REQUIRE(line.isOk());
+      CHECK(line->rows.empty());
+    }
+    // Just within its reach on either side, every row is found where the line is.
+    REQUIRE(p.brceStep == 4);
+    for (double (*column)(int) : {+[](int) { return 6.0; }, +[](int) { return 57.0; }}) {
+      const Rgb img = lineImage(64, 32, column, 1.0, 150, 20);
+      auto line = extractLine(img.view(), {0, 0, 64, 32}, p, ws);
+      REQUIRE(line.isOk());
+      CHECK(line->rows.size() >= 28);
+      for (const auto& r : line->rows) CHECK(std::abs(r.column - column(r.row)) < 0.3);
+    }
   }
 }
 

@@ -275,7 +275,7 @@ def test_physical_ranges(db: Database) -> None:
 def test_cycle_times(db: Database) -> None:
     cycles = {m.name: m.cycle_time for m in db.messages}
     assert cycles["ALACS_Status"] == 100
-    assert cycles["Heartbeat"] == c.DEFAULT_HEARTBEAT_MS
+    assert cycles["Heartbeat"] == c.DEFAULT_HEARTBEAT_MS == 1000
     assert all(not cycles[n] for n in cycles if n not in ("ALACS_Status", "Heartbeat"))
 
 

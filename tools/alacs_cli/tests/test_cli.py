@@ -472,5 +472,8 @@ def test_bus_arg_parsing() -> None:
     assert _bus_arg("port=29536") == ("port", 29536)
     assert _bus_arg("host=10.0.0.5") == ("host", "10.0.0.5")
     assert _bus_arg("fd=true") == ("fd", True)
-    with pytest.raises(Exception):
+    import argparse
+    with pytest.raises(argparse.ArgumentTypeError, match="KEY=VALUE"):
         _bus_arg("nokey")
+    with pytest.raises(argparse.ArgumentTypeError, match="KEY=VALUE"):
+        _bus_arg("=5")
