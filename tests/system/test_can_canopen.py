@@ -11,6 +11,7 @@ from __future__ import annotations
 import os
 import signal
 import subprocess
+import statistics
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -133,7 +134,10 @@ def test_canopen_master_boot_heartbeat_sdo_nmt(sensor: Alacsd, network: canopen.
     time.sleep(1.5)
     periods = [b - a for a, b in zip(stamps, stamps[1:])]
     assert len(periods) >= 5, stamps
-    assert all(0.17 < p < 0.23 for p in periods), periods
+    # Judged on the median: the stamps are taken where this process receives the frames, so a
+    # stall of the bench's host bunches them (a short gap behind a long one) without the
+    # sensor's period being off.
+    assert 0.19 < statistics.median(periods) < 0.21, periods
 
     # Settings objects: the same values and checks as SET_CONFIG.
     acq = node.sdo["Acquisition settings"]
