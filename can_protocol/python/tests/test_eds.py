@@ -45,6 +45,29 @@ def test_heartbeat_object_default_is_the_protocol_default() -> None:
     assert hb.default == alacs_can.DEFAULT_HEARTBEAT_MS == 1000
 
 
+def test_golden_sdo_uploads_answer_what_the_eds_says() -> None:
+    """Every golden upload of an existing entry is an expedited answer (CiA 301: 0x43, 0x47,
+    0x4B or 0x4F by size) with the EDS's default as canopen reads it from the committed file:
+    a check of the golden answers that does not go through the reference server that made them."""
+    golden = json.loads((ROOT / "vectors" / "golden.json").read_text())
+    od = canopen.import_od(str(ROOT / "alacs.eds"), 0x10)
+    checked = 0
+    for ex in golden["sdo_exchanges"]:
+        req, rsp = bytes.fromhex(ex["request"]), bytes.fromhex(ex["response"])
+        if req[0] != 0x40 or not rsp or rsp[0] == 0x80:
+            continue
+        index, sub = int.from_bytes(req[1:3], "little"), req[3]
+        obj = od[index]
+        var = obj if isinstance(obj, canopen.objectdictionary.ODVariable) else obj[sub]
+        size = len(var.encode_raw(var.default))
+        assert rsp[0] == 0x43 | ((4 - size) << 2), ex["name"]
+        assert rsp[1:4] == req[1:4], ex["name"]
+        assert int.from_bytes(rsp[4:4 + size], "little") == var.default, ex["name"]
+        assert not any(rsp[4 + size:]), ex["name"]
+        checked += 1
+    assert checked >= 20
+
+
 def test_golden_sdo_exchanges_follow_the_reference_server() -> None:
     golden = json.loads((ROOT / "vectors" / "golden.json").read_text())
     exchanges = golden["sdo_exchanges"]
