@@ -8,13 +8,13 @@ from __future__ import annotations
 
 import argparse
 import functools
-import sys
 from collections.abc import Iterable, Sequence
 
 import cantools
 from cantools.database import Database
 
 from . import constants as c
+from .output import write_text
 from .spec import MESSAGES, MessageSpec, SignalSpec
 
 _NS = (
@@ -184,11 +184,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = parser.parse_args(argv)
     text = dbc_text(args.node_id)
     load_database(args.node_id)  # fail here, not in a consumer, if the spec is broken
-    if args.output:
-        with open(args.output, "w", encoding="ascii", newline="\n") as f:
-            f.write(text)
-    else:
-        sys.stdout.write(text)
+    write_text(text, args.output)
     return 0
 
 

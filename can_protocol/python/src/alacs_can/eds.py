@@ -9,10 +9,10 @@ Both are deterministic (no time stamps), so ``generate.sh --check`` can compare 
 from __future__ import annotations
 
 import argparse
-import sys
 from collections.abc import Sequence
 
 from . import constants as c
+from .output import write_text
 from .spec import OBJECTS, OD_ENTRIES, OD_PRODUCT_CODE, OD_REVISION, OD_VENDOR_ID, OdEntry
 
 # Fixed, so that the file does not change on every run; bump with the OD.
@@ -155,11 +155,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("-o", "--output", help="file to write (default: stdout)")
     args = parser.parse_args(argv)
     text = eds_text() if args.what == "eds" else od_header_text()
-    if args.output:
-        with open(args.output, "w", encoding="ascii", newline="") as f:
-            f.write(text)
-    else:
-        sys.stdout.write(text)
+    write_text(text, args.output)
     return 0
 
 

@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 from collections.abc import Sequence
 from typing import Any
 
@@ -29,6 +28,7 @@ from .codec import (
 )
 from .crc import CRC8_J1850_INIT, CRC8_J1850_POLY, CRC8_J1850_XOROUT, crc8_j1850
 from .dbc import load_database
+from .output import write_text
 from .spec import OD_ENTRIES
 
 FORMAT_VERSION = 1
@@ -355,11 +355,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("-o", "--output", help="file to write (default: stdout)")
     args = parser.parse_args(argv)
     text = golden_json()
-    if args.output:
-        with open(args.output, "w", encoding="ascii", newline="\n") as f:
-            f.write(text)
-    else:
-        sys.stdout.write(text)
+    write_text(text, args.output)
     return 0
 
 

@@ -13,6 +13,7 @@ import re
 from collections.abc import Sequence
 from enum import IntEnum
 
+from .output import write_text
 from .spec import MESSAGES
 
 
@@ -53,10 +54,5 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description="Write the C header of the DBC's value-table names.")
     parser.add_argument("-o", "--output", help="file to write (default: stdout)")
     args = parser.parse_args(argv)
-    text = names_header_text()
-    if args.output:
-        with open(args.output, "w", encoding="ascii", newline="") as f:
-            f.write(text)
-    else:
-        print(text, end="")
+    write_text(names_header_text(), args.output)
     return 0
