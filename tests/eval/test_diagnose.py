@@ -15,19 +15,43 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from alacs_eval import cli, compare, diagnose, diameter, evaluate, metrics, stack, twin, worlds
+from alacs_eval import cli, compare, diagnose, diameter, evaluate, exposure, metrics, stack, twin, worlds
 from alacs_eval.scans import Scan, target_truth
 
 
 @pytest.mark.parametrize("look", [["--count", "2"], ["--loc", "--per-cell", "1"], ["--diameter", "--per-cell", "1"],
                                   ["--loc", "--stack", "2", "--per-cell", "1"],
+                                  ["--loc", "--exposures", "1,2", "--per-cell", "1"],
                                   ["--loc", "--against", "/bin/true", "--per-cell", "1"]],
-                         ids=["lle", "localization", "diameter", "stack", "two builds"])
+                         ids=["lle", "localization", "diameter", "stack", "exposures", "two builds"])
 def test_the_second_world_is_refused(tmp_path, capsys, look):
     assert cli.main(["diagnose", *look, "--world", "holdout", "--work", str(tmp_path),
                      "--twin", os.environ.get("ALACS_TWIN", "/bin/true")]) == 2
     assert "kept out of tuning" in capsys.readouterr().err
     assert not any(tmp_path.iterdir())  # nothing generated
+
+
+def test_exposures_prototype_counts_the_targets_lit_rows_it_finds(tmp_path, capsys):
+    """`diagnose --loc --exposures`: its factors start at the metered exposure; a row counts
+    as found where the target is visible and lit (flags 0) and a valid sample lies within
+    2 px; a row of another apple, a hidden row, a far sample or an invalid one does not."""
+    assert exposure.parse_factors("1,2,4") == (1.0, 2.0, 4.0)
+    for bad in ("2,4", "1", "1,1", "1,x", "1,40"):
+        with pytest.raises(ValueError, match="--exposures"):
+            exposure.parse_factors(bad)
+    assert cli.main(["diagnose", "--exposures", "1,2", "--world", "benchmark-hard", "--work", str(tmp_path),
+                     "--twin", "/bin/true"]) == 2
+    assert "--exposures goes with --loc" in capsys.readouterr().err
+    truth_csv = tmp_path / "t.csv"
+    truth_csv.write_text("apple_id,row,column_px,x_mm,y_mm,z_mm,flags\n"
+                         "1,510,120.5,0,0,0,0\n1,511,121.0,0,0,0,0\n1,512,121.5,0,0,0,1\n"
+                         "2,513,140.0,0,0,0,0\n1,514,122.5,0,0,0,0\n")
+    truth = exposure.target_rows(truth_csv, 1, 100, 500)
+    assert truth == {10: 20.5, 11: 21.0, 14: 22.5}
+    lle = {"rows": [{"row": 10, "column": 21.9, "valid": True}, {"row": 11, "column": 23.5, "valid": True},
+                    {"row": 13, "column": 40.0, "valid": True}, {"row": 14, "column": 22.5, "valid": False},
+                    {"row": 12, "column": 21.5, "valid": True}, {"row": 15, "column": None, "valid": False}]}
+    assert exposure.found_rows(lle, truth) == {10}
 
 
 def _twin():

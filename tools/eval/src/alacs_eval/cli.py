@@ -18,7 +18,7 @@ import sys
 import time
 from pathlib import Path
 
-from alacs_eval import calibration, compare, diagnose, diameter, evaluate, report, stack, twin, worlds
+from alacs_eval import calibration, compare, diagnose, diameter, evaluate, exposure, report, stack, twin, worlds
 
 ROOT = twin.ROOT
 
@@ -101,6 +101,8 @@ def _diagnose(a: argparse.Namespace) -> int:
             raise ValueError("--stack goes with --loc (and not with --diameter or --matched-filter)")
         if a.stack_gain_db is not None and a.stack is None:
             raise ValueError("--stack-gain-db goes with --stack")
+        if a.exposures is not None and (not a.loc or a.diameter or a.matched_filter or a.stack is not None):
+            raise ValueError("--exposures goes with --loc (and not with --diameter, --matched-filter or --stack)")
         if a.against is not None:
             if not a.against:
                 raise ValueError("--against needs the other build's alacs-twin")
@@ -113,6 +115,9 @@ def _diagnose(a: argparse.Namespace) -> int:
             return 0
         if a.stack is not None:
             print(stack.text(stack.run(cfg, a.per_cell, a.stack, a.stack_gain_db)))
+            return 0
+        if a.exposures is not None:
+            print(exposure.text(exposure.run(cfg, a.per_cell, exposure.parse_factors(a.exposures))))
             return 0
         if a.diameter:
             cases, both, _ = diagnose.loc_cases(cfg, a.per_cell)
@@ -189,6 +194,10 @@ def main(argv: list[str] | None = None) -> int:
     g.add_argument("--stack-gain-db", type=float, metavar="G",
                    help="--stack: both renders with the sensor at G dB analogue gain, the exposure scaled to keep "
                         "the same DN")
+    g.add_argument("--exposures", metavar="1,K,...",
+                   help="--loc: each first-pass stop of the occluded scans in sun rendered again at these factors of "
+                        "its metered exposure (1 first), the target's lit rows alacs_lle finds at each, and with the "
+                        "metered frame together (a prototype, not the product: alacs_eval/exposure.py)")
     g.add_argument("--against", metavar="TWIN",
                    help="--loc: the same scans through another build's alacs-twin as well (one made before a change), "
                         "side by side; the scans whose second pass a build moves are rendered again by that build "

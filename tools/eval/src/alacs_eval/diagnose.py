@@ -106,7 +106,7 @@ def _line_on(raw: dict, scan: Scan, target_truth: np.ndarray) -> str:
     return best if 2 * n >= len(line) else "another surface"
 
 
-def _refuse_second_world(world: str) -> None:
+def refuse_second_world(world: str) -> None:
     if world not in TUNING_WORLDS:
         raise ValueError(f"diagnose looks at tuning worlds only ({', '.join(TUNING_WORLDS)}); "
                          f"'{world}' is kept out of tuning (docs/evaluation.md \"The second world\")")
@@ -114,7 +114,7 @@ def _refuse_second_world(world: str) -> None:
 
 def _lle_set(cfg: Config) -> tuple[list[dict], list[str], dict[str, dict]]:
     """The world's LLE frames (generated or reused) and `alacs-twin process --rows` on them."""
-    _refuse_second_world(cfg.world)
+    refuse_second_world(cfg.world)
     out = cfg.work / f"{cfg.world}-{cfg.seed}" / "lle"
     cases = twin.generate(cfg.twin, out, "lle", {"world": cfg.world, "count": cfg.count, "seed": cfg.seed,
                                                  "jobs": cfg.jobs},
@@ -328,7 +328,7 @@ def estimate_errors(scan: Scan, estimate: dict) -> dict[str, float] | None:
 def loc_cases(cfg: Config, per_cell: int) -> tuple[list[dict], tuple[str, ...], Path]:
     """A tuning world's five-stop scans (generated, or reused from cfg.work), the options
     their generation took that `process` must take too, and where they are."""
-    _refuse_second_world(cfg.world)
+    refuse_second_world(cfg.world)
     out = cfg.work / f"{cfg.world}-{cfg.seed}" / "loc"
     total = per_cell * len(evaluate.DISTANCES) * 2
     cases = twin.generate(cfg.twin, out, "loc", {"world": cfg.world, "count": per_cell, "seed": cfg.seed,
