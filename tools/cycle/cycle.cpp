@@ -149,8 +149,6 @@ struct Trial {
   int linesUsed = 0;
 };
 
-// ResultStatus as the DBC's value table names it (can_protocol/spec.py), for the log.
-
 // The bar for honest uncertainty: no result beyond the end-effector's 20 mm at a
 // confidence of 80 % or more.
 constexpr double kToleranceMm = 20.0;

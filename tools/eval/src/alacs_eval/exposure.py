@@ -33,7 +33,7 @@ from typing import Any
 from tqdm import tqdm
 
 from alacs_eval import diagnose, twin, worlds
-from alacs_eval.scans import Scan, target_truth
+from alacs_eval.scans import Scan
 from alacs_eval.stack import sunlit_occluded
 
 ON_TARGET_PX = worlds.ON_TARGET_PX
