@@ -81,3 +81,22 @@ def test_five_lines_localize_within_the_tolerance(report):
     cases = res["loc_cases"]
     assert sum(math.isfinite(c["ours_multi_approach"]) for c in cases) >= 22
     assert sum(math.isfinite(c["paper_multi_approach"]) for c in cases) >= 20
+
+
+def test_the_clis_default_envelope_is_the_twins_own_sensor(report):
+    """`alacs envelope` without a calibration uses a Python copy of the simulator's sensor
+    (edge/sim/scene.cpp); it must be the calibration the twin itself writes into its scans."""
+    import dataclasses
+
+    from alacs_cli import envelope
+
+    cals = sorted(report.rglob("calibration.json"))
+    assert cals, "the small set wrote no calibration.json"
+    twin_geo = envelope.Geometry.from_calibration(cals[0])
+    default = envelope.Geometry.default()
+    for f in dataclasses.fields(default):
+        if f.name == "source":
+            continue
+        assert getattr(twin_geo, f.name) == pytest.approx(getattr(default, f.name), rel=1e-9, abs=1e-9), f.name
+    for p in ((0.0, 0.0, 1000.0), (-100.0, 50.0, 1200.0), (150.0, -80.0, 1600.0)):
+        assert default.slide_for_point(p) == pytest.approx(twin_geo.slide_for_point(p), abs=1e-6)
