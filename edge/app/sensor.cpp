@@ -441,7 +441,7 @@ void Sensor::publishScanResult(const WorkerEvent& ev, TimeNs now) {
   // What the bus says of it, in the DBC's names: a technician reading the journal sees a
   // ROUGH_ONLY or NOT_FOUND as such, not only the numbers of the line above.
   ALACS_LOG_INFO("scan", "result %u (%s, target %u): %s (%s), %u object(s), cycle %u ms", h.measCounter,
-                 h.mode == 1 ? "SCAN_ALL" : "LOCALIZE", h.targetId, protocol::resultStatusName(h.status),
+                 protocol::resultModeName(h.mode), h.targetId, protocol::resultStatusName(h.status),
                  protocol::resultReasonName(h.reason), h.objectCount, lastLatencyMs_);
   if (ports_.observer != nullptr) ports_.observer->scanFinished(ev);
   // LOCALIZE is answered by its ACK and then this one result (docs/can-protocol.md).

@@ -361,6 +361,13 @@ const char* resultReasonName(ResultReason reason) {
   }
 }
 
+const char* resultModeName(uint8_t mode) {
+  switch (static_cast<unsigned>(mode)) {
+    ALACS_RESULT_MODE_NAMES(ALACS_NAME_CASE)
+    default: return "?";
+  }
+}
+
 #undef ALACS_NAME_CASE
 
 }  // namespace alacs::protocol

@@ -133,6 +133,8 @@ enum class ResultReason : uint8_t {
 // DBC does not name.
 const char* resultStatusName(ResultStatus status);
 const char* resultReasonName(ResultReason reason);
+// ALACS_ResultHeader.ResultMode's name ("LOCALIZE", "SCAN_ALL") of ResultHeader::mode.
+const char* resultModeName(uint8_t mode);
 
 struct ResultHeader {
   uint16_t measCounter = 0;

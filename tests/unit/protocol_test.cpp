@@ -132,16 +132,21 @@ TEST_CASE("A result's status and reason are named as the DBC names them", "[prot
     if (static_cast<std::string>(v["message"]) != "ALACS_ResultHeader") continue;
     const cv::FileNode status = v["signals"]["ResultStatus"];
     const cv::FileNode reason = v["signals"]["ResultReason"];
+    const cv::FileNode mode = v["signals"]["ResultMode"];
     INFO(static_cast<std::string>(v["name"]));
     CHECK(std::string(resultStatusName(static_cast<ResultStatus>(static_cast<int>(status["raw"])))) ==
           static_cast<std::string>(status["choice"]));
     CHECK(std::string(resultReasonName(static_cast<ResultReason>(static_cast<int>(reason["raw"])))) ==
           static_cast<std::string>(reason["choice"]));
+    CHECK(std::string(resultModeName(static_cast<uint8_t>(static_cast<int>(mode["raw"])))) ==
+          static_cast<std::string>(mode["choice"]));
     ++checked;
   }
   CHECK(checked >= 3);
   CHECK(std::string(resultStatusName(ResultStatus::kAmbiguous)) == "AMBIGUOUS");
   CHECK(std::string(resultReasonName(ResultReason::kFarFromRough)) == "FAR_FROM_ROUGH");
+  CHECK(std::string(resultModeName(0)) == "LOCALIZE");
+  CHECK(std::string(resultModeName(1)) == "SCAN_ALL");
   // A value the DBC does not name (the nibble's 15, the byte's 200) is not given another's name.
   CHECK(std::string(resultStatusName(static_cast<ResultStatus>(15))) == "?");
   CHECK(std::string(resultReasonName(static_cast<ResultReason>(200))) == "?");

@@ -32,7 +32,7 @@ def test_every_value_table_of_the_dbc_is_in_the_header_with_its_names() -> None:
     by_signal = {f"{m.name}.{s.name}": s for m in db.messages for s in m.signals}
     checked = 0
     for enum, users in names.value_tables():
-        table = tables[re.sub(r"(?<=[a-z0-9])(?=[A-Z])", "_", enum.__name__).upper()]
+        table = tables[names.macro_name(enum)]
         for user in users:
             choices = {int(v): str(n) for v, n in by_signal[user].choices.items()}
             assert table == choices, user

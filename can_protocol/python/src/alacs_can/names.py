@@ -17,8 +17,8 @@ from .output import write_text
 from .spec import MESSAGES
 
 
-def _macro(enum: type[IntEnum]) -> str:
-    """ResultStatus -> RESULT_STATUS, NmtState -> NMT_STATE."""
+def macro_name(enum: type[IntEnum]) -> str:
+    """ResultStatus -> RESULT_STATUS, NmtState -> NMT_STATE: the header's ALACS_<this>_NAMES."""
     return re.sub(r"(?<=[a-z0-9])(?=[A-Z])", "_", enum.__name__).upper()
 
 
@@ -44,7 +44,7 @@ def names_header_text() -> str:
         "#define ALACS_NAMES_H",
     ]
     for enum, users in value_tables():
-        out += ["", f"/* {', '.join(users)} */", f"#define ALACS_{_macro(enum)}_NAMES(X) \\"]
+        out += ["", f"/* {', '.join(users)} */", f"#define ALACS_{macro_name(enum)}_NAMES(X) \\"]
         out.append(" \\\n".join(f"    X({int(v)}u, \"{v.name}\")" for v in enum))
     out += ["", "#endif /* ALACS_NAMES_H */", ""]
     return "\n".join(out)

@@ -83,21 +83,24 @@ def _one_stop(tw: Path, lle: Path, scan_dir: Path, frame: dict, factors: tuple[f
     gain = float(frame.get("analogue_gain", 1.0))
     gain_db = 20.0 * math.log10(gain) if gain > 0 else 0.0
     out: dict[float, Any] = {}
-    truth: dict[int, float] = {}
+    truth: dict[int, float] | None = None
+    # The truth does not change with the exposure (the slide stands still): the first render
+    # writes it, and it is read once.
     for k in factors:
         stem = tmp / f"{scan_dir.name}_{frame['index']}_{k:g}"
         common = [str(tw), "render", "--scene", str(scene), "--slide", repr(float(frame["slide_mm"])),
                   "--exposure-us", str(max(1, round(int(frame["exposure_us"]) * k))), "--gain-db", repr(gain_db),
                   "--roi", f"{x},{y},{w},{h}"]
-        subprocess.run(common + ["--frame", str(SEED_ON), "--out", f"{stem}_on.png", "--truth", f"{stem}.csv"],
-                       check=True, capture_output=True)
+        subprocess.run(common + ["--frame", str(SEED_ON), "--out", f"{stem}_on.png"]
+                       + (["--truth", f"{stem}.csv"] if truth is None else []), check=True, capture_output=True)
         subprocess.run(common + ["--laser", "0", "--frame", str(SEED_OFF), "--out", f"{stem}_off.png"],
                        check=True, capture_output=True)
         subprocess.run([str(lle), f"{stem}_on.png", "--laser-off", f"{stem}_off.png", "--json", f"{stem}.json",
                         "--overlay", "none"], check=True, capture_output=True)
-        truth = target_rows(Path(f"{stem}.csv"), target_id, x, y)  # the same at every factor
+        if truth is None:
+            truth = target_rows(Path(f"{stem}.csv"), target_id, x, y)
         out[k] = found_rows(json.loads(Path(f"{stem}.json").read_text()), truth)
-    out["lit"] = len(truth)
+    out["lit"] = len(truth or {})
     return out
 
 
