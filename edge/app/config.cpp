@@ -127,6 +127,7 @@ Status configFromJson(const Json& json, DaemonConfig& c) {
     m->integer("subtract_above_dn", c.metering.subtractAboveDn, Need::kOptional, 0, 255);
     m->integer("min_exposure_us", c.metering.minExposureUs, Need::kOptional, 1, 1000000);
     m->number("bright_analogue_gain", c.metering.brightAnalogueGain, Need::kOptional, 0, 64);
+    m->number("second_exposure_factor", c.metering.secondExposureFactor, Need::kOptional, 0, 8);
     m->finish();
   }
   if (auto cam = root.object("camera")) {
@@ -216,7 +217,8 @@ OrderedJson configToJson(const DaemonConfig& c) {
                    {"max_frames", c.metering.maxFrames},
                    {"subtract_above_dn", c.metering.subtractAboveDn},
                    {"min_exposure_us", c.metering.minExposureUs},
-                   {"bright_analogue_gain", c.metering.brightAnalogueGain}};
+                   {"bright_analogue_gain", c.metering.brightAnalogueGain},
+                   {"second_exposure_factor", c.metering.secondExposureFactor}};
   j["camera"] = {{"exposure_us", c.exposureUs},
                  {"analogue_gain", c.analogueGain},
                  {"frame_timeout_ms", c.frameTimeoutMs},

@@ -2,6 +2,7 @@
 
 #include <sys/mman.h>
 
+#include <cmath>
 #include <cstring>
 #include <new>
 
@@ -55,25 +56,40 @@ void copyRoi(const image::ImageView& frame, const image::Roi& roi, uint8_t* to) 
 }
 }  // namespace
 
+namespace {
+// `frame`'s `roi` into `buffer` (mapped to the frame's size), and a view of it.
+image::ImageView keepRoi(const image::ImageView& frame, const image::Roi& roi, auto& buffer) {
+  const size_t bytes = frame.strideBytes * static_cast<size_t>(frame.height);
+  if (buffer.bytes() != bytes) buffer.reset(bytes);
+  buffer.dropPages();
+  copyRoi(frame, roi, buffer.data());
+  image::ImageView v = frame;
+  v.data = buffer.data();
+  return v;
+}
+}  // namespace
+
 void FramePipeline::setLaserOff(const image::ImageView& frame, const image::Roi& roi, bool brightAmbient) {
   (void)finish();
   std::lock_guard<std::mutex> lock(mu_);
-  const size_t bytes = frame.strideBytes * static_cast<size_t>(frame.height);
-  if (laserOffBuffer_.bytes() != bytes) laserOffBuffer_.reset(bytes);
-  laserOffBuffer_.dropPages();
-  copyRoi(frame, roi, laserOffBuffer_.data());
-  image::ImageView v = frame;
-  v.data = laserOffBuffer_.data();
-  laserOff_ = v;
+  laserOff_ = keepRoi(frame, roi, laserOffBuffer_);
   brightAmbient_ = brightAmbient;
+}
+
+void FramePipeline::setSecondLaserOff(const image::ImageView& frame, const image::Roi& roi) {
+  (void)finish();
+  std::lock_guard<std::mutex> lock(mu_);
+  secondLaserOff_ = keepRoi(frame, roi, secondLaserOffBuffer_);
 }
 
 void FramePipeline::clearLaserOff() {
   (void)finish();
   std::lock_guard<std::mutex> lock(mu_);
   laserOff_.reset();
+  secondLaserOff_.reset();
   brightAmbient_ = false;
   laserOffBuffer_.dropPages();
+  secondLaserOffBuffer_.dropPages();
 }
 
 bool FramePipeline::hasLaserOff() const {
@@ -81,7 +97,7 @@ bool FramePipeline::hasLaserOff() const {
   return laserOff_.has_value();
 }
 
-void FramePipeline::push(const image::ImageView& frame, double slideMm, double slideMmPerRow) {
+void FramePipeline::push(const image::ImageView& frame, double slideMm, double slideMmPerRow, Exposure exposure) {
   std::unique_lock<std::mutex> lock(mu_);
   cv_.wait(lock, [&] { return !bufferBusy_[0] || !bufferBusy_[1]; });
   const size_t b = bufferBusy_[0] ? 1 : 0;
@@ -92,7 +108,7 @@ void FramePipeline::push(const image::ImageView& frame, double slideMm, double s
   copyRoi(frame, plan_.roi, buffers_[b].data());
   bufferBusy_[b] = true;
   lastBuffer_ = b;
-  queue_.push_back({b, slideMm, slideMmPerRow});
+  queue_.push_back({b, slideMm, slideMmPerRow, exposure});
   ++inFlight_;
   cv_.notify_all();
 }
@@ -124,15 +140,22 @@ void FramePipeline::run() {
       queue_.pop_front();
       view = shape_;
       view.data = buffers_[task.buffer].data();
-      laserOff = laserOff_;
+      laserOff = task.exposure == Exposure::kFirst ? laserOff_ : secondLaserOff_;
       bright = brightAmbient_;
     }
-    // The localizer, plan and laser-off frame only change in begin() and setLaserOff(),
-    // which first wait for this work.
+    // The localizer, plan and laser-off frames only change in begin() and setLaserOff()
+    // (and setSecondLaserOff), which first wait for this work.
     Result<localize::LineObservation> obs = localizer_->observe(
         view, plan_, task.slideMm, ws_, laserOff ? &*laserOff : nullptr, task.slideMmPerRow, bright);
     std::lock_guard<std::mutex> lock(mu_);
-    if (obs) {
+    // A stop's second exposure joins its first frame's observation, the last one (frames
+    // are processed in push order), when that was taken at the same place.
+    const bool merge = obs && task.exposure == Exposure::kSecondMerged && !results_.empty() &&
+                       std::abs(results_.back().slideMm - task.slideMm) <= 0.05;
+    if (merge) {
+      const size_t joined = localize::Localizer::mergeSecondExposure(results_.back(), *obs);
+      ALACS_LOG_DEBUG("scan", "frame at %.2f mm, second exposure: %zu points joined", task.slideMm, joined);
+    } else if (obs) {
       ALACS_LOG_DEBUG("scan", "frame at %.2f mm: %zu rows, %zu points", task.slideMm, obs->line.rows.size(),
                       obs->pointsMm.size());
       results_.push_back(std::move(*obs));

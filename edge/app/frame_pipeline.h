@@ -21,6 +21,19 @@ namespace alacs::app {
 
 class FramePipeline {
  public:
+  // How a frame joins the scan's observations (MeteringParams::secondExposureFactor).
+  enum class Exposure {
+    kFirst,  // a stop's frame: setLaserOff()'s frame subtracted
+    // The same stop's second exposure, at the same position: setSecondLaserOff()'s frame
+    // subtracted, its rows joined to the previous frame's where that has none
+    // (Localizer::mergeSecondExposure); a line of its own when the previous frame was
+    // taken elsewhere or failed.
+    kSecondMerged,
+    // A second exposure at a position of its own (a sweep's): setSecondLaserOff()'s frame
+    // subtracted, a line of its own.
+    kSecondLine,
+  };
+
   FramePipeline();
   ~FramePipeline();
   FramePipeline(const FramePipeline&) = delete;
@@ -34,12 +47,17 @@ class FramePipeline {
   // the frames already queued (they keep the previous setting). `brightAmbient`: the
   // metering found direct sun (Localizer::observe's matched filter for the rows LLE leaves).
   void setLaserOff(const image::ImageView& frame, const image::Roi& roi, bool brightAmbient = false);
+  // The laser-off frame at the stops' second exposure (its `roi` copied), subtracted from
+  // the frames pushed as a second exposure; until clearLaserOff().
+  void setSecondLaserOff(const image::ImageView& frame, const image::Roi& roi);
+  // Forgets both laser-off frames.
   void clearLaserOff();
   bool hasLaserOff() const;
   // Queues `frame` (copied: the caller may reuse its buffer at once), taken at `slideMm`
   // (with a rolling shutter in a sweep: for the ROI's middle row, moving `slideMmPerRow`
   // a row; Localizer::observe).
-  void push(const image::ImageView& frame, double slideMm, double slideMmPerRow = 0.0);
+  void push(const image::ImageView& frame, double slideMm, double slideMmPerRow = 0.0,
+            Exposure exposure = Exposure::kFirst);
   // Waits until every queued frame is processed; the observations in push order (frames
   // whose LLE failed are logged and left out).
   std::vector<localize::LineObservation> finish();
@@ -51,6 +69,7 @@ class FramePipeline {
     size_t buffer;
     double slideMm;
     double slideMmPerRow;
+    Exposure exposure;
   };
   void run();
 
@@ -81,6 +100,8 @@ class FramePipeline {
   Mapping buffers_[2];
   Mapping laserOffBuffer_;
   std::optional<image::ImageView> laserOff_;  // a view of laserOffBuffer_ when set
+  Mapping secondLaserOffBuffer_;
+  std::optional<image::ImageView> secondLaserOff_;  // a view of secondLaserOffBuffer_ when set
   bool brightAmbient_ = false;                // with laserOff_ (setLaserOff)
   bool bufferBusy_[2] = {false, false};
   size_t lastBuffer_ = 0;

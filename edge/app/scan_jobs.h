@@ -64,6 +64,9 @@ struct WorkerEvent {
   int laserOffFrames = 0;
   bool laserOffSubtracted = false;
   bool brightAmbient = false;  // the metering found the ambient bright (MeteringDecision::bright)
+  // Each stop's second exposure (MeteringDecision::secondExposureUs, its laser-off frame
+  // taken), us; 0: one exposure per stop.
+  int64_t secondExposureUs = 0;
   // A continuous scan's result is posted as soon as it is known, while the slide still
   // brakes past the last stop; if that braking then ends badly (limit switch, I/O error,
   // STOP), a second event of the same job follows with this set: the result stands, only

@@ -426,8 +426,8 @@ std::optional<TimeNs> ScanWorker::nearestFrameAskNs(TimeNs exposureMidNs, const 
   return span.startNs - deps_.slotLeadNs - kAskMarginNs;
 }
 
-Result<ports::CapturedFrame> ScanWorker::exposeStop(size_t stop, const ports::CaptureRequest& capture,
-                                                     WorkerEvent& ev, double* midSlideMm) {
+Result<ports::CapturedFrame> ScanWorker::exposeStop(size_t stop, const ports::CaptureRequest& capture, WorkerEvent& ev,
+                                                    double* midSlideMm, bool second) {
   // Timeouts and corrupted frames are retried (the camera switches the laser around each
   // attempt's frame), then become a fault with the last reason.
   Result<ports::CapturedFrame> frame = Status(Error::kInternal, "no capture attempted");
@@ -461,7 +461,7 @@ Result<ports::CapturedFrame> ScanWorker::exposeStop(size_t stop, const ports::Ca
     if (midSlideMm != nullptr) *midSlideMm = 0.5 * (startMm + endMm);
     markProgress();
     if (frame) {
-      stopsDone_.fetch_add(1);
+      if (!second) stopsDone_.fetch_add(1);
       break;
     }
     if (cancel_.load()) break;  // interrupted by STOP: not a dropped frame
@@ -693,14 +693,30 @@ void ScanWorker::meterExposure(const localize::ScanPlan& plan, ports::CaptureReq
     pipeline_.setLaserOff(run.laserOff.view, plan.roi, d.bright);
     ev.laserOffSubtracted = true;
   }
+  // Each stop's second exposure in sun (metering.second_exposure_factor) needs a laser-off
+  // frame of its own; without it, one exposure per stop.
+  if (run.hasLaserOff && d.secondExposureUs > 0 && !cancel_.load()) {
+    Result<localize::LaserOffFrame> off = take(d.secondExposureUs, d.analogueGain, localize::LaserOffUse::kSubtraction);
+    if (off && off->exposureUs == d.secondExposureUs) {
+      pipeline_.setSecondLaserOff(off->view, plan.roi);
+      ev.secondExposureUs = d.secondExposureUs;
+    } else {
+      ALACS_LOG_WARN("scan", "metering: no laser-off frame at the second exposure (%s): one exposure per stop",
+                     off ? "the camera gave another exposure" : off.status().toString().c_str());
+    }
+  }
+  const std::string second = ev.secondExposureUs > 0
+                                 ? ", a second exposure of " + std::to_string(ev.secondExposureUs) + " us at each stop"
+                                 : std::string();
+  lastSecondExposure_ = ev.secondExposureUs > 0;
   ALACS_LOG_INFO("scan",
                  "metering: red p%.0f %d DN at %lld us gain %s%s -> exposure %lld us gain %s (red ~%d DN), %s, "
-                 "%d laser-off frames",
+                 "%d laser-off frames%s",
                  deps_.metering.percentile, d.meteredDn, static_cast<long long>(d.meteredUs),
                  gainText(d.meteredGain).c_str(), d.saturated ? " (saturated)" : "",
                  static_cast<long long>(d.exposureUs),
                  gainText(d.analogueGain > 0.0 ? d.analogueGain : d.meteredGain).c_str(), d.ambientDn,
-                 ev.laserOffSubtracted ? "laser-off subtracted" : "no subtraction", ev.laserOffFrames);
+                 ev.laserOffSubtracted ? "laser-off subtracted" : "no subtraction", ev.laserOffFrames, second.c_str());
 }
 
 namespace {
@@ -720,6 +736,16 @@ Status ScanWorker::stopAndGo(const localize::ScanPlan& plan, const ports::Captur
     const double slideMm = recordedOr(deps_, positionMm());
     ev.exposures.back().slideMm = slideMm;
     pipeline_.push(frame->view, slideMm);
+    if (ev.secondExposureUs > 0 && !cancel_.load()) {
+      // In sun, the same stop again at the second exposure (metering.second_exposure_factor).
+      ports::CaptureRequest longer = capture;
+      longer.exposureUs = ev.secondExposureUs;
+      frame = exposeStop(i, longer, ev, nullptr, true);
+      if (!frame) return frame.status();
+      const double secondMm = recordedOr(deps_, positionMm());
+      ev.exposures.back().slideMm = secondMm;
+      pipeline_.push(frame->view, secondMm, 0.0, FramePipeline::Exposure::kSecondMerged);
+    }
     if (cancel_.load()) return aborted(ev);
   }
   return Status::ok();
@@ -814,6 +840,27 @@ TimeNs ScanWorker::awaitStop(const Sweep& sw, TimeNs moveStartNs, int64_t fromSt
   return passNs;
 }
 
+Status ScanWorker::sweptFrame(const SweptStop& at, const ports::CaptureRequest& capture, WorkerEvent& ev, bool second) {
+  double sampledMm = 0.0;
+  const TimeNs askedNs = deps_.clock->now();
+  Result<ports::CapturedFrame> frame = exposeStop(at.stop, capture, ev, &sampledMm, second);
+  if (!frame) return frame.status();
+  if (!second)
+    ALACS_LOG_DEBUG(
+        "scan", "stop %zu: the slide passes at %.1f ms; asked at %.1f ms, stamped %.1f ms, delivered %.1f ms", at.stop,
+        static_cast<double>(at.passNs) / 1e6, static_cast<double>(askedNs) / 1e6,
+        static_cast<double>(frame->info.exposureStartNs) / 1e6, static_cast<double>(deps_.clock->now()) / 1e6);
+  FramePlace place = sweptFramePlace(at.sweep.log, at.fromSteps, at.forward, at.lim, frame->info, at.roi, deps_,
+                                     askedNs, deps_.clock->now(), sampledMm);
+  // A replayed frame has its recorded position, for the frame as a whole.
+  if (const double recordedMm = recordedOr(deps_, std::numeric_limits<double>::quiet_NaN()); std::isfinite(recordedMm))
+    place = {recordedMm, 0.0};
+  ev.exposures.back().slideMm = place.slideMm;
+  pipeline_.push(frame->view, place.slideMm, place.slideMmPerRow,
+                 second ? FramePipeline::Exposure::kSecondLine : FramePipeline::Exposure::kFirst);
+  return Status::ok();
+}
+
 Status ScanWorker::sweepStops(const localize::ScanPlan& plan, ports::CaptureRequest& capture, WorkerEvent& ev,
                               const std::function<void()>& runUp) {
   // One move through every stop; each frame is exposed as the slide passes its stop, and
@@ -831,8 +878,16 @@ Status ScanWorker::sweepStops(const localize::ScanPlan& plan, ports::CaptureRequ
   // passes it, and a stop passed before the last frame was delivered would be taken late,
   // and every stop after it later (motion/sweep_speed.h). The camera's time is its recent
   // captures' (a first scan's own metering frames are among them: asked again below).
+  // In sun each stop takes a second exposure (ev.secondExposureUs) at the camera's next
+  // frame, a line of its own: two captures a stop. With the metering in the run-up the
+  // pace is planned before it is known, as the last scan's metering found; a sweep not
+  // paced for them takes none.
   motion::SlideLimits lim = deps_.limits;
-  const auto pace = [&] { lim.maxSpeedMmPerS = motion::sweepSpeedMmPerS(deps_.limits, stops, capturePaceNs()); };
+  bool pacedForTwo = false;
+  const auto pace = [&] {
+    pacedForTwo = ev.laserOffFrames > 0 ? ev.secondExposureUs > 0 : lastSecondExposure_;
+    lim.maxSpeedMmPerS = motion::sweepSpeedMmPerS(deps_.limits, stops, capturePaceNs() * (pacedForTwo ? 2 : 1));
+  };
   pace();
   Result<bool> started = toSweepStart(stops, lim.maxSpeedMmPerS, runUp, ev);
   if (!started) return started.status();
@@ -863,8 +918,13 @@ Status ScanWorker::sweepStops(const localize::ScanPlan& plan, ports::CaptureRequ
   // already out.
   const double brakingMm = lim.maxSpeedMmPerS * lim.maxSpeedMmPerS / (2.0 * lim.accelMmPerS2);
   const double rowsS = static_cast<double>(deps_.lineTimeNs) * 1e-9 * (plan.roi.y + plan.roi.height);
+  // (A second exposure after the last stop's frame: a capture and that exposure more.)
+  const double secondUs = ev.secondExposureUs > 0 ? static_cast<double>(ev.secondExposureUs)
+                                                  : static_cast<double>(capture.exposureUs) *
+                                                        std::max(1.0, deps_.metering.secondExposureFactor);
+  const double secondS = pacedForTwo ? static_cast<double>(capturePaceNs()) * 1e-9 + secondUs * 1e-6 : 0.0;
   const double overrunMm =
-      lim.maxSpeedMmPerS * (static_cast<double>(capture.exposureUs) * 1e-6 + rowsS) + 0.5 + brakingMm;
+      lim.maxSpeedMmPerS * (static_cast<double>(capture.exposureUs) * 1e-6 + rowsS + secondS) + 0.5 + brakingMm;
   const double endMm = std::clamp(stops.back() + (forward ? overrunMm : -overrunMm), 0.0, lim.strokeMm);
   Result<motion::TrapezoidMove> move = motion::planMove(lim, from, lim.stepsFor(endMm));
   if (!move) return move.status();
@@ -889,27 +949,16 @@ Status ScanWorker::sweepStops(const localize::ScanPlan& plan, ports::CaptureRequ
   }
   for (size_t i = 0; i < stops.size() && status.isOk(); ++i) {
     const TimeNs passNs = awaitStop(*sw, moveStart, from, lim, stops[i], plan.roi, capture.exposureUs);
-    double sampledMm = 0.0;
-    const TimeNs askedNs = deps_.clock->now();
-    Result<ports::CapturedFrame> frame = exposeStop(i, capture, ev, &sampledMm);
-    if (!frame) {
-      status = frame.status();
-      cancel_.store(true);  // stop the sweep: the scan has failed
-      break;
+    const SweptStop at{*sw, from, forward, lim, plan.roi, i, passNs};
+    status = sweptFrame(at, capture, ev, false);
+    // In sun the stop again at the second exposure, at the camera's next frame.
+    if (status.isOk() && pacedForTwo && ev.secondExposureUs > 0 && !cancel_.load()) {
+      ports::CaptureRequest longer = capture;
+      longer.exposureUs = ev.secondExposureUs;
+      status = sweptFrame(at, longer, ev, true);
     }
-    ALACS_LOG_DEBUG(
-        "scan", "stop %zu: the slide passes at %.1f ms; asked at %.1f ms, stamped %.1f ms, delivered %.1f ms", i,
-        static_cast<double>(passNs) / 1e6, static_cast<double>(askedNs) / 1e6,
-        static_cast<double>(frame->info.exposureStartNs) / 1e6, static_cast<double>(deps_.clock->now()) / 1e6);
-    FramePlace place = sweptFramePlace(sw->log, from, forward, lim, frame->info, plan.roi, deps_, askedNs,
-                                       deps_.clock->now(), sampledMm);
-    // A replayed frame has its recorded position, for the frame as a whole.
-    if (const double recordedMm = recordedOr(deps_, std::numeric_limits<double>::quiet_NaN());
-        std::isfinite(recordedMm))
-      place = {recordedMm, 0.0};
-    ev.exposures.back().slideMm = place.slideMm;
-    pipeline_.push(frame->view, place.slideMm, place.slideMmPerRow);
-    if (cancel_.load()) status = aborted(ev);
+    if (!status) cancel_.store(true);  // stop the sweep: the scan has failed
+    if (status.isOk() && cancel_.load()) status = aborted(ev);
   }
   if (status.isOk() && sw->moving.load()) {
     // Every frame taken: the slide brakes while the result is made and posted (run()).

@@ -120,10 +120,13 @@ class ScanWorker final : public ScanJobs {
   // Laser on, expose (with retries), laser off. On failure `ev` holds the fault. When
   // `midSlideMm` is given it receives the slide's position at mid-exposure (the mean of
   // the counted positions at exposure start and end).
+  // `second`: the stop's second exposure (WorkerEvent::secondExposureUs), not counted as
+  // a stop done.
   Result<ports::CapturedFrame> exposeStop(size_t stop, const ports::CaptureRequest& capture, WorkerEvent& ev,
-                                          double* midSlideMm = nullptr);
+                                          double* midSlideMm = nullptr, bool second = false);
   // Laser off, meters the exposure for `plan`'s laser frames into `capture.exposureUs` and
-  // hands the pipeline the laser-off frame to subtract, when the meter asks for one. Never
+  // hands the pipeline the laser-off frame to subtract, when the meter asks for one, and
+  // the one at the stops' second exposure (ev.secondExposureUs) when it chose one. Never
   // fails the scan: a frame that cannot be had (a replayed scan without laser-off frames, a
   // camera error) ends metering with what is known, logged.
   void meterExposure(const localize::ScanPlan& plan, ports::CaptureRequest& capture, WorkerEvent& ev);
@@ -140,6 +143,13 @@ class ScanWorker final : public ScanJobs {
                             WorkerEvent& ev);
   Status sweepStops(const localize::ScanPlan& plan, ports::CaptureRequest& capture, WorkerEvent& ev,
                     const std::function<void()>& runUp);
+  // A sweep's stop as sweptFrame() takes it: the sweep, its start and direction, the
+  // limits it runs at, the ROI, the stop's index and when the plan has the slide pass it.
+  struct SweptStop;
+  // Exposes a sweep's stop (its second exposure when `second`), places the frame where the
+  // slide was at its mid-exposure (a replayed frame where it was recorded) and hands it to
+  // the pipeline (a second exposure as a line of its own).
+  Status sweptFrame(const SweptStop& at, const ports::CaptureRequest& capture, WorkerEvent& ev, bool second);
   // Posts `ev` to the loop (queue + eventfd).
   void post(WorkerEvent ev);
   // Waits for the braking after a continuous scan's last frame; a second event when it
@@ -164,6 +174,15 @@ class ScanWorker final : public ScanJobs {
     motion::MoveReport report;
     std::atomic<bool> moving{true};
     std::thread thread;
+  };
+  struct SweptStop {
+    const Sweep& sweep;
+    int64_t fromSteps;
+    bool forward;
+    const motion::SlideLimits& lim;
+    const image::Roi& roi;
+    size_t stop;
+    TimeNs passNs;
   };
   struct Queued {
     WorkerJob job;
@@ -197,6 +216,9 @@ class ScanWorker final : public ScanJobs {
   // How long the last metering took, first request to last delivery (0: none yet): the
   // next one's expected length, to fit it into a sweep's run-up (sweepStops()).
   TimeNs meterNs_ = 0;
+  // Whether the last metering chose a second exposure at each stop: the next sweep's pace
+  // is planned for it when its metering overlaps its run-up (sweepStops()).
+  bool lastSecondExposure_ = false;
   // The camera's recent captures, request to delivery (laser frames and metering frames):
   // how long a sweep must leave between two stops (motion/sweep_speed.h). Worker thread only.
   motion::CaptureTimes captures_;

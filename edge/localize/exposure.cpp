@@ -27,6 +27,8 @@ Status MeteringParams::validate() const {
     return {Error::kInvalidArgument, "metering.min_exposure_us must be in 1..1000000"};
   if (!(brightAnalogueGain == 0.0 || (brightAnalogueGain >= 1.0 && brightAnalogueGain <= 64.0)))
     return {Error::kInvalidArgument, "metering.bright_analogue_gain must be 0 (never changed) or in 1..64"};
+  if (!(secondExposureFactor == 0.0 || (secondExposureFactor >= 1.25 && secondExposureFactor <= 8.0)))
+    return {Error::kInvalidArgument, "metering.second_exposure_factor must be 0 (never) or in 1.25..8"};
   return Status::ok();
 }
 
@@ -87,6 +89,7 @@ Status ExposureMeter::add(const image::ImageView& frame, const image::Roi& roi, 
     choose(us * p_.targetDn / (*level * p_.stepDown), p_.minExposureUs, maxUs_);
     d.ambientDn = p_.targetDn;
     d.subtract = d.ambientDn > p_.subtractAboveDn;
+    chooseSecond();
     nextUs_ = d.frames < p_.maxFrames && shorter < exposureUs ? shorter : 0;
     return Status::ok();
   }
@@ -102,8 +105,17 @@ Status ExposureMeter::add(const image::ImageView& frame, const image::Roi& roi, 
   const double gainRatio = d.analogueGain > 0.0 ? d.analogueGain / analogueGain : 1.0;
   d.ambientDn = static_cast<int>(std::lround(*level * static_cast<double>(d.exposureUs) / us * gainRatio));
   d.subtract = d.ambientDn > p_.subtractAboveDn;
+  chooseSecond();
   nextUs_ = 0;
   return Status::ok();
+}
+
+void ExposureMeter::chooseSecond() {
+  MeteringDecision& d = decision_;
+  d.secondExposureUs = 0;
+  if (!(d.bright && d.subtract && p_.secondExposureFactor > 0.0)) return;
+  const int64_t us = std::min(maxUs_, roundUs(static_cast<double>(d.exposureUs) * p_.secondExposureFactor));
+  if (static_cast<double>(us) >= 1.25 * static_cast<double>(d.exposureUs)) d.secondExposureUs = us;
 }
 
 void ExposureMeter::choose(double wantedUs, int64_t shortestUs, int64_t longestUs) {

@@ -56,6 +56,14 @@ struct MeteringParams {
   // ever lowers: a metering frame at or below it keeps its gain, and one whose gain the
   // source does not report (0) keeps it too. 0: never changed (0, or 1..64).
   double brightAnalogueGain = 1.0;
+  // When the ambient is bright and a laser-off frame is subtracted, each stop takes a
+  // second laser frame at this factor times the chosen exposure (at most the longest), with
+  // a laser-off frame of its own at that exposure, and the rows the first frame's LLE
+  // leaves without a sample are taken from the second (Localizer::mergeSecondExposure).
+  // In a sunlit cluster the metered percentile is often another fruit's skin or a leaf in
+  // full sun; the target's own skin, in part shade, then gets less exposure than it could
+  // bear (docs/lle.md, "A second exposure in sun"). 0: never (0, or 1.25..8).
+  double secondExposureFactor = 0.0;
   Status validate() const;
 };
 
@@ -67,6 +75,10 @@ struct MeteringDecision {
   // Their analogue gain (linear); 0: the metering frames' (the source's own, not asked for).
   double analogueGain = 0.0;
   bool subtract = false;   // take a laser-off frame at exposureUs and subtract it
+  // The second laser frame's exposure at each stop (MeteringParams::secondExposureFactor),
+  // with a laser-off frame at it to subtract; 0: none (not bright, no subtraction, factor
+  // 0, or the longest exposure leaves less than the factor's 1.25).
+  int64_t secondExposureUs = 0;
   int ambientDn = 0;       // metered red (the percentile) at exposureUs, DN (estimated)
   int meteredDn = 0;       // metered red of the last metering frame, DN
   int64_t meteredUs = 0;   // that frame's exposure
@@ -113,6 +125,8 @@ class ExposureMeter {
   // Sets decision_'s exposure (and gain) for an ambient that reaches the target at
   // `wantedUs` at the metered gain, clamped to [shortestUs, longestUs].
   void choose(double wantedUs, int64_t shortestUs, int64_t longestUs);
+  // Sets decision_.secondExposureUs from the rest of the decision.
+  void chooseSecond();
 
   MeteringParams p_;
   int64_t startUs_;

@@ -462,6 +462,46 @@ Result<LineObservation> Localizer::observe(const image::ImageView& frame, const 
   return obs;
 }
 
+size_t Localizer::mergeSecondExposure(LineObservation& first, const LineObservation& second) {
+  std::vector<int> rowsSeen;
+  for (const image::RowSample& r : first.line.rows)
+    if (r.valid()) rowsSeen.push_back(r.row);
+  for (const geometry::PixelPoint& px : first.pixels) rowsSeen.push_back(static_cast<int>(std::lround(px.rowPx)));
+  std::sort(rowsSeen.begin(), rowsSeen.end());
+  std::vector<std::pair<geometry::PixelPoint, Eigen::Vector3d>> merged;
+  merged.reserve(first.pixels.size() + second.pixels.size());
+  for (size_t i = 0; i < first.pixels.size(); ++i) merged.emplace_back(first.pixels[i], first.pointsMm[i]);
+  // Only the second frame's fitted line (its inliers), not its other segments.
+  std::vector<std::pair<int, double>> lineSamples;
+  for (const image::RowSample& r : second.line.rows)
+    if (r.inlier) lineSamples.emplace_back(r.row, static_cast<double>(r.column));
+  std::sort(lineSamples.begin(), lineSamples.end());
+  size_t joined = 0;
+  for (size_t i = 0; i < second.pixels.size(); ++i) {
+    const int row = static_cast<int>(std::lround(second.pixels[i].rowPx));
+    if (std::binary_search(rowsSeen.begin(), rowsSeen.end(), row)) continue;
+    if (!std::binary_search(lineSamples.begin(), lineSamples.end(), std::pair{row, second.pixels[i].columnPx}))
+      continue;
+    merged.emplace_back(second.pixels[i], second.pointsMm[i]);
+    ++joined;
+  }
+  if (joined > 0) {
+    std::stable_sort(merged.begin(), merged.end(),
+                     [](const auto& a, const auto& b) { return a.first.rowPx < b.first.rowPx; });
+    first.pixels.clear();
+    first.pointsMm.clear();
+    for (const auto& [px, p] : merged) {
+      first.pixels.push_back(px);
+      first.pointsMm.push_back(p);
+    }
+  }
+  if (first.arcPointsMm.empty() && !second.arcPointsMm.empty()) {
+    first.arcPointsMm = second.arcPointsMm;
+    first.arcPixels = second.arcPixels;
+  }
+  return joined;
+}
+
 void Localizer::triangulateRows(const ScanPlan& plan, double slideMm, double slideMmPerRow,
                                 const std::vector<geometry::PixelPoint>& pixels, std::vector<Eigen::Vector3d>* gatedMm,
                                 std::vector<geometry::PixelPoint>* gatedPixels,

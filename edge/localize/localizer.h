@@ -297,6 +297,13 @@ class Localizer {
                                   image::LleWorkspace& ws, const image::ImageView* laserOff = nullptr,
                                   double slideMmPerRow = 0.0, bool brightAmbient = false) const;
 
+  // A stop's second exposure (MeteringParams::secondExposureFactor) into its first frame's
+  // observation: the second frame's gated samples of its line (the curve fit's inliers,
+  // not its other segments) on rows where the first frame's LLE has no valid sample join
+  // the first's, kept in row order; where the first has one, it stands. The second's sunlit
+  // arcs are taken only when the first has none. Pure. Returns how many samples joined.
+  static size_t mergeSecondExposure(LineObservation& first, const LineObservation& second);
+
   // The second pass of an adaptive scan (ScanParams "Adaptive scan"): the stops to add
   // after the first pass's `lines` gave `first`; empty when the first pass is enough, when
   // `first` is an error, when following up is off, or when every such stop is outside

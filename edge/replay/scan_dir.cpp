@@ -202,16 +202,28 @@ int nearestFrame(const ScanManifest& m, double slideMm, bool laserOn, int64_t ex
   int best = -1;
   double bestExposureErr = std::numeric_limits<double>::infinity();
   double bestErr = std::numeric_limits<double>::infinity();
+  const auto logRatioOf = [&](const FrameRecord& f) {
+    return exposureUs > 0 && f.exposureUs > 0
+               ? std::abs(std::log(static_cast<double>(f.exposureUs) / static_cast<double>(exposureUs)))
+               : 0.0;
+  };
+  // Laser frames: the recorded exposure nearest the one asked for, those within 20 % of it
+  // counting as one (a stop's second exposure is 1.25 times the first or more), then the
+  // position.
+  double nearestLaserRatio = std::numeric_limits<double>::infinity();
+  if (laserOn)
+    for (const FrameRecord& f : m.frames)
+      if (f.laserOn) nearestLaserRatio = std::min(nearestLaserRatio, logRatioOf(f));
   for (size_t i = 0; i < m.frames.size(); ++i) {
     const FrameRecord& f = m.frames[i];
     if (f.laserOn != laserOn) continue;
     const double gainErr = !laserOn && analogueGain > 0.0 && f.analogueGain > 0.0
                                ? std::abs(std::log(f.analogueGain / analogueGain))
                                : 0.0;
-    const double exposureErr =
-        gainErr + (!laserOn && exposureUs > 0 && f.exposureUs > 0
-                       ? std::abs(std::log(static_cast<double>(f.exposureUs) / static_cast<double>(exposureUs)))
-                       : 0.0);
+    const double logRatio = logRatioOf(f);
+    const double exposureErr = gainErr + (!laserOn                                        ? logRatio
+                                          : logRatio <= nearestLaserRatio + std::log(1.2) ? 0.0
+                                                                                          : logRatio);
     const double err = std::abs(f.slideMm - slideMm);
     if (exposureErr < bestExposureErr - 1e-9 || (exposureErr <= bestExposureErr + 1e-9 && err < bestErr)) {
       bestExposureErr = exposureErr;

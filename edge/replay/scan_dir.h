@@ -77,7 +77,10 @@ Status loadFrameInto(const std::string& dir, const ScanManifest& manifest, const
 // replay; -1: none. Laser-off frames (the ambient, the same at every slide position) are
 // matched by exposure and gain first (the recorded one nearest `exposureUs` and
 // `analogueGain` in ratio, the two ratios' logarithms added; 0: any, or a gain not
-// recorded), then by position; laser-on frames by position only.
+// recorded), then by position; laser-on frames by the recorded exposure nearest
+// `exposureUs` first, frames within 20 % of it counting as one (so that a stop's second
+// exposure, 1.25 times the first or more: MeteringParams::secondExposureFactor, is told
+// apart), then by position.
 int nearestFrame(const ScanManifest& manifest, double slideMm, bool laserOn, int64_t exposureUs = 0,
                  double analogueGain = 0.0);
 // The calibration stored with the scan.

@@ -522,3 +522,45 @@ def test_the_matched_filter_prototype_follows_a_faint_line_and_not_noise():
     assert on_line >= 0.8 * rows, on_line
     assert len(found) - on_line <= 0.05 * rows
     assert len(diagnose._mf_columns(noise)) <= 0.05 * rows
+
+
+def test_a_second_exposure_in_sun_is_recorded_by_the_generator_and_merged_by_process(tmp_path):
+    # metering.second_exposure_factor through the twin: `generate` records a laser-off frame
+    # at the second exposure and a second laser frame (tag "second") at every stop of both
+    # passes, at the stop's position; `process` merges each into its stop's frame, and with
+    # the factor 0 replays the same scan with one exposure a stop.
+    tw = _twin()
+    out = tmp_path / "set"
+    subprocess.run([str(tw), "generate", "--set", "loc", "--out", str(out), "--world", "benchmark-hard",
+                    "--count", "1", "--distance-mm", "1200", "--occluded", "1", "--lighting", "sun", "--seed", "5",
+                    "--meter-second-exposure", "2"], check=True, capture_output=True)
+    (case,) = [json.loads(line) for line in (out / "set.jsonl").read_text().splitlines()]
+    first_us, second_us = case["laser_exposure_us"], case["second_exposure_us"]
+    assert second_us == min(3000, 2 * first_us)
+    frames = json.loads((Path(case["dir"]) / "manifest.json").read_text())["frames"]
+    stops = [f for f in frames if f.get("tag") in ("stop", "follow_up")]
+    seconds = [f for f in frames if f.get("tag") == "second"]
+    assert len(stops) >= 5 and len(seconds) == len(stops)
+    assert all(f["laser_on"] and f["exposure_us"] == second_us for f in seconds)
+    assert sorted(f["slide_mm"] for f in seconds) == pytest.approx(sorted(f["slide_mm"] for f in stops))
+    assert any(not f["laser_on"] and f["exposure_us"] == second_us for f in frames)
+
+    def processed(factor: str) -> dict:
+        run = subprocess.run([str(tw), "process", case["dir"], "--meter-second-exposure", factor], check=True,
+                             capture_output=True, text=True)
+        return json.loads(run.stdout)
+
+    two, one = processed("2"), processed("0")
+    assert two["second_exposure_us"] == second_us and "second_exposure_us" not in one
+    assert two["laser_off_frames"] == one["laser_off_frames"] + 1
+    by_index = {i: f for i, f in enumerate(frames)}
+    taken = [f for f in two["frames"] if f["tag"] in ("stop", "follow_up")]
+    assert len(taken) == len(stops)
+    for f, g in zip(taken, [f for f in one["frames"] if f["tag"] in ("stop", "follow_up")]):
+        # The second frame is the stop's own at the second exposure; its rows only add.
+        second = by_index[f["second_frame"]]
+        assert second["tag"] == "second" and second["slide_mm"] == pytest.approx(by_index[f["frame"]]["slide_mm"])
+        assert f["frame"] == g["frame"]
+        assert f["points"] == g["points"] + f["second_joined"]
+    assert sum(f["second_joined"] for f in taken) > 0
+    assert all("second_frame" not in f for f in one["frames"])

@@ -437,6 +437,124 @@ TEST_CASE("In sun the frame subtracted and the laser frames are taken at the lea
   }
 }
 
+TEST_CASE("In sun each stop of a stop-and-go scan is exposed twice: metered, then longer by the factor",
+          "[app][worker]") {
+  Rig rig(2.0);
+  rig.meterHalving(1000);  // red 200 DN at 1000 us: 200 DN/ms, bright above 150; 500 us chosen
+  rig.deps.metering.brightDnPerMs = 150.0;
+  rig.deps.metering.secondExposureFactor = 2.0;
+  const localize::Localizer loc(sim::defaultScene().truth, image::LleParams{}, localize::ScanParams{});
+  std::vector<bool> seen;  // the laser's level at each capture
+  rig.camera.onCapture = [&] { seen.push_back(rig.laserLine.level()); };
+  for (const double barDnPerMs : {150.0, 250.0}) {
+    const bool bright = barDnPerMs < 200.0;
+    INFO((bright ? "sun" : "not bright"));
+    rig.deps.metering.brightDnPerMs = barDnPerMs;
+    app::ScanWorker worker(rig.deps, loc, rig.efd);
+    rig.home(worker);
+    seen.clear();
+    rig.camera.requestedUs.clear();
+    worker.submit(twoStopScan());
+    std::optional<app::WorkerEvent> ev = rig.next(worker);
+    REQUIRE(ev);
+    CHECK(ev->status.isOk());
+    CHECK(ev->exposureUs == 500);
+    REQUIRE(ev->laserOffSubtracted);
+    const std::vector<int64_t> want = bright ? std::vector<int64_t>{1000, 500, 1000, 500, 1000, 500, 1000}
+                                             // metering, two laser-off, 2 stops × 2
+                                             : std::vector<int64_t>{1000, 500, 500, 500};
+    CHECK(rig.camera.requestedUs == want);
+    CHECK(ev->secondExposureUs == (bright ? 1000 : 0));
+    CHECK(ev->laserOffFrames == (bright ? 3 : 2));
+    // The laser is on for each laser frame (and only then: LaserGuard), off for the others.
+    const size_t offFrames = static_cast<size_t>(ev->laserOffFrames);
+    REQUIRE(seen.size() == want.size());
+    for (size_t i = 0; i < seen.size(); ++i) CHECK(seen[i] == (i >= offFrames));
+    REQUIRE(ev->exposures.size() == want.size() - offFrames);
+    for (size_t i = 0; i < ev->exposures.size(); ++i)
+      CHECK(ev->exposures[i].endNs - ev->exposures[i].startNs == want[offFrames + i] * kNsPerUs);
+    // Progress counts stops, not frames.
+    CHECK(worker.progress().stopsDone == 2);
+  }
+}
+
+TEST_CASE("In sun a sweep takes each stop's second exposure at the next frame, paced for two captures a stop",
+          "[app][worker]") {
+  Rig rig(2.0);
+  rig.meterHalving(1000);  // red 200 DN at 1000 us: 200 DN/ms; 500 us chosen
+  rig.deps.metering.secondExposureFactor = 2.0;
+  const localize::Localizer loc(sim::defaultScene().truth, image::LleParams{}, localize::ScanParams{});
+  std::vector<bool> seen;  // the laser's level at each capture
+  rig.camera.onCapture = [&] { seen.push_back(rig.laserLine.level()); };
+  for (const double barDnPerMs : {250.0, 150.0}) {
+    const bool bright = barDnPerMs < 200.0;
+    rig.deps.metering.brightDnPerMs = barDnPerMs;
+    app::ScanWorker worker(rig.deps, loc, rig.efd);
+    rig.home(worker);
+    // The first sweep meters before it starts; the second while it runs up to its first
+    // stop, paced as the first's metering found.
+    for (int scan = 0; scan < 2; ++scan) {
+      INFO((bright ? "sun" : "not bright") << ", sweep " << scan + 1);
+      seen.clear();
+      rig.camera.requestedUs.clear();
+      worker.submit(threeStopSweep());
+      std::optional<app::WorkerEvent> ev = rig.next(worker);
+      REQUIRE(ev);
+      CHECK(ev->status.isOk());
+      CHECK(ev->secondExposureUs == (bright ? 1000 : 0));
+      const size_t offFrames = static_cast<size_t>(ev->laserOffFrames);
+      std::vector<int64_t> want(rig.camera.requestedUs.begin(),
+                                rig.camera.requestedUs.begin() + static_cast<std::ptrdiff_t>(offFrames));
+      for (int stop = 0; stop < 3; ++stop) {
+        want.push_back(500);
+        if (bright) want.push_back(1000);
+      }
+      CHECK(rig.camera.requestedUs == want);
+      REQUIRE(seen.size() == want.size());
+      for (size_t i = 0; i < seen.size(); ++i) CHECK(seen[i] == (i >= offFrames));
+      CHECK(worker.progress().stopsDone == 3);
+      // Each frame placed where the slide was at its mid-exposure: the stops' on them, each
+      // second exposure past its stop in the sweep's direction, before the next stop.
+      REQUIRE(ev->exposures.size() == want.size() - offFrames);
+      const size_t perStop = bright ? 2 : 1;
+      const double dir = ev->exposures.back().slideMm > ev->exposures.front().slideMm ? 1.0 : -1.0;
+      for (size_t k = 0; k < 3; ++k) {
+        const double stopMm = dir > 0 ? 20.0 + 5.0 * static_cast<double>(k) : 30.0 - 5.0 * static_cast<double>(k);
+        CHECK(ev->exposures[k * perStop].slideMm == Approx(stopMm).margin(0.1));
+        if (!bright) continue;
+        const double pastMm = dir * (ev->exposures[k * perStop + 1].slideMm - stopMm);
+        CHECK(pastMm > 0.01);
+        CHECK(pastMm < 4.9);
+      }
+    }
+  }
+}
+
+TEST_CASE("The frame pipeline merges a stop's second exposure into its first, or keeps it as a line of its own",
+          "[app][worker]") {
+  const int w = 2048, h = 1536;  // the default scene's camera
+  std::vector<uint8_t> frame(static_cast<size_t>(w) * h * 3U, 0);
+  const image::ImageView view{frame.data(), w, h, static_cast<size_t>(w) * 3U, image::PixelFormat::kBgr888};
+  const localize::Localizer loc(sim::defaultScene().truth, image::LleParams{}, localize::ScanParams{});
+  Result<localize::ScanPlan> plan = loc.plan(sim::defaultScene().apples.front().centerMm, 200.0);
+  REQUIRE(plan);
+  const double s0 = plan->stopsMm.front();
+  using E = app::FramePipeline::Exposure;
+  app::FramePipeline pipeline;
+  pipeline.setLaserOff(view, plan->roi, true);
+  pipeline.setSecondLaserOff(view, plan->roi);
+  pipeline.begin(loc, *plan);
+  pipeline.push(view, s0);
+  pipeline.push(view, s0, 0.0, E::kSecondMerged);        // the same stop: merged
+  pipeline.push(view, s0 + 5.0, 0.0, E::kSecondMerged);  // taken elsewhere: a line of its own
+  pipeline.push(view, s0 + 2.5, 0.0, E::kSecondLine);    // a sweep's: a line of its own
+  const std::vector<localize::LineObservation> lines = pipeline.finish();
+  REQUIRE(lines.size() == 3);
+  CHECK(lines[0].slideMm == s0);
+  CHECK(lines[1].slideMm == s0 + 5.0);
+  CHECK(lines[2].slideMm == s0 + 2.5);
+}
+
 TEST_CASE("A sweep meters its exposure while the slide runs up to the first stop, or while it is positioned there",
           "[app][worker]") {
   // Long exposures, so that the metering lasts long enough for steps: 20 ms, then the laser-off

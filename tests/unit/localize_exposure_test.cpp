@@ -169,6 +169,46 @@ TEST_CASE("Bright ambient lengthens the exposure up to the target, dim ambient n
   CHECK_FALSE(lab.decision().bright);
 }
 
+TEST_CASE("In sun with subtraction a stop's second exposure is the factor's, within the longest", "[exposure]") {
+  localize::MeteringParams p;
+  p.targetDn = 220;
+  p.brightDnPerMs = 250.0;
+  p.secondExposureFactor = 2.0;
+  Frame f(64, 32, kRoi, 100);
+  // Sun: 100 DN in 100 us: 220 us for the first frame, twice that for the second.
+  localize::ExposureMeter sun(p, 100, 3000);
+  REQUIRE(sun.add(f.view, kRoi, 100));
+  REQUIRE(sun.decision().subtract);
+  CHECK(sun.decision().exposureUs == 220);
+  CHECK(sun.decision().secondExposureUs == 440);
+  // The longest allowed caps it; below 1.25 times the first there is none.
+  localize::ExposureMeter capped(p, 100, 300);
+  REQUIRE(capped.add(f.view, kRoi, 100));
+  CHECK(capped.decision().exposureUs == 220);
+  CHECK(capped.decision().secondExposureUs == 300);
+  localize::ExposureMeter tight(p, 100, 250);
+  REQUIRE(tight.add(f.view, kRoi, 100));
+  CHECK(tight.decision().exposureUs == 220);
+  CHECK(tight.decision().secondExposureUs == 0);
+  // Not bright (lab), or factor 0: one exposure per stop.
+  localize::ExposureMeter lab(p, 1000, 3000);
+  REQUIRE(lab.add(f.view, kRoi, 1000));
+  REQUIRE(lab.decision().subtract);
+  CHECK(lab.decision().secondExposureUs == 0);
+  p.secondExposureFactor = 0.0;
+  localize::ExposureMeter off(p, 100, 3000);
+  REQUIRE(off.add(f.view, kRoi, 100));
+  CHECK(off.decision().exposureUs == 220);
+  CHECK(off.decision().secondExposureUs == 0);
+  // No subtraction (a dark ROI that still counts as bright at a short exposure): none.
+  p.secondExposureFactor = 2.0;
+  p.subtractAboveDn = 250;
+  localize::ExposureMeter plain(p, 100, 3000);
+  REQUIRE(plain.add(f.view, kRoi, 100));
+  CHECK(plain.decision().bright);
+  CHECK(plain.decision().secondExposureUs == 0);
+}
+
 TEST_CASE("Metering off asks for no frame and keeps the configured exposure", "[exposure]") {
   localize::MeteringParams p;
   p.enabled = false;
@@ -200,6 +240,15 @@ TEST_CASE("Metering parameters are range-checked", "[exposure]") {
   CHECK_FALSE(p.validate());
   p.brightAnalogueGain = 65.0;
   CHECK_FALSE(p.validate());
+  p = {};
+  for (const double ok : {0.0, 1.25, 2.0, 8.0}) {
+    p.secondExposureFactor = ok;
+    CHECK(p.validate());
+  }
+  for (const double bad : {-1.0, 0.5, 1.0, 1.2, 8.5}) {
+    p.secondExposureFactor = bad;
+    CHECK_FALSE(p.validate());
+  }
 }
 
 TEST_CASE("In sun the laser frames take the least gain, the exposure longer by the ratio", "[exposure]") {

@@ -1407,3 +1407,52 @@ TEST_CASE("The sunlit arcs join the fit only when the lines alone leave the targ
     CHECK((est->approachMm - approachTruth).norm() < 1.0);
   }
 }
+
+TEST_CASE("A stop's second exposure fills only the rows its first frame left without a sample, from its line",
+          "[localize]") {
+  // First frame: rows 10..19 with a sample (row 14 an outlier: no sample), 3D at x = row.
+  localize::LineObservation first;
+  for (int row = 10; row < 20; ++row) {
+    image::RowSample r;
+    r.row = row;
+    r.status = row == 14 ? image::RowStatus::kOutlier : image::RowStatus::kLine;
+    first.line.rows.push_back(r);
+    if (row == 14) continue;
+    first.pixels.push_back({100.0, static_cast<double>(row)});
+    first.pointsMm.emplace_back(row, 0.0, 1000.0);
+  }
+  // Second frame, longer: its line on rows 12..25, 3D at x = -row so that its samples are
+  // told apart; row 23 is another segment's (a neighbour's skin, say), not the line's.
+  localize::LineObservation second;
+  for (int row = 12; row < 26; ++row) {
+    image::RowSample r;
+    r.row = row;
+    r.column = 101.0F;
+    r.inlier = row != 23;
+    r.status = row == 23 ? image::RowStatus::kSegment : image::RowStatus::kLine;
+    second.line.rows.push_back(r);
+    second.pixels.push_back({101.0, static_cast<double>(row)});
+    second.pointsMm.emplace_back(-row, 0.0, 1000.0);
+  }
+  second.arcPointsMm.emplace_back(1.0, 2.0, 3.0);
+  second.arcPixels.push_back({5.0, 6.0});
+  const size_t joined = localize::Localizer::mergeSecondExposure(first, second);
+  CHECK(joined == 6);  // row 14 and rows 20..25 but 23
+  REQUIRE(first.pixels.size() == 15);
+  REQUIRE(first.pointsMm.size() == first.pixels.size());
+  for (size_t i = 0; i < first.pixels.size(); ++i) {
+    const int row = 10 + static_cast<int>(i) + (i >= 13 ? 1 : 0);  // row 23 left out
+    INFO("row " << row);
+    CHECK(first.pixels[i].rowPx == row);  // in row order
+    const bool fromSecond = row == 14 || row >= 20;
+    CHECK(first.pointsMm[i].x() == (fromSecond ? -row : row));
+    CHECK(first.pixels[i].columnPx == (fromSecond ? 101.0 : 100.0));
+  }
+  // The first had no sunlit arc: the second's is taken; one it has stands.
+  REQUIRE(first.arcPointsMm.size() == 1);
+  CHECK(first.arcPixels[0].columnPx == 5.0);
+  second.arcPixels[0].columnPx = 9.0;
+  CHECK(localize::Localizer::mergeSecondExposure(first, second) == 0);  // merged once: every row has its sample
+  CHECK(first.pixels.size() == 15);
+  CHECK(first.arcPixels[0].columnPx == 5.0);
+}

@@ -149,6 +149,7 @@ TEST_CASE("A bad manifest is refused with the field named", "[replay]") {
 }
 
 TEST_CASE("The frame replay serves: laser-off frames by exposure first, then position", "[replay]") {
+  // (Laser frames by position, but a stop's second exposure by its exposure first.)
   replay::ScanManifest m;
   const auto add = [&](double slideMm, bool laserOn, int64_t exposureUs) {
     replay::FrameRecord f;
@@ -180,6 +181,15 @@ TEST_CASE("The frame replay serves: laser-off frames by exposure first, then pos
   CHECK(replay::nearestFrame(m, 49.0, false) == 6);
   CHECK(replay::nearestFrame(m, 18.0, true, 99999) == 4);
   CHECK(replay::nearestFrame(m, 11.0, true) == 0);
+  // A stop's second exposure (twice the first, at the same position): laser frames 1.25
+  // times apart or more are told apart by exposure first; within 20 % they are one.
+  add(10.0, true, 1000);  // 7: frame 0's second exposure
+  CHECK(replay::nearestFrame(m, 10.0, true, 500) == 0);
+  CHECK(replay::nearestFrame(m, 10.0, true, 1000) == 7);
+  CHECK(replay::nearestFrame(m, 18.0, true, 1000) == 7);  // the only frame at it, though further
+  CHECK(replay::nearestFrame(m, 18.0, true, 550) == 4);   // within 20 %: the position
+  CHECK(replay::nearestFrame(m, 18.0, true, 400) == 4);   // nearest 500, and 1000 is not within 20 % of it
+  CHECK(replay::nearestFrame(m, 18.0, true) == 4);        // no exposure asked: the position
   // With gains recorded, a frame at the gain asked for: the metering frame at gain 2 and
   // 500 us, the one subtracted at gain 1 and 1000 us. A frame without a gain recorded
   // matches on exposure alone.

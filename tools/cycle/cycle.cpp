@@ -72,6 +72,7 @@ struct Options {
   double spacingMm = 0.0;                 // 0: ScanParams' default
   int metering = 1;                       // the exposure metered from laser-off frames (the daemon's default)
   double brightAnalogueGain = -1.0;       // metering.bright_analogue_gain; < 0: the daemon's default
+  double secondExposure = -1.0;           // metering.second_exposure_factor; < 0: the daemon's default
   int warmUp = 1;                         // one untimed scan of the case first (the worker's steady state)
   std::string lighting = "overcast";
   std::string world = "benchmark";  // benchmark|benchmark-hard|holdout (sim/orchard.h)
@@ -425,6 +426,7 @@ int simulatedCycle(const Options& o) {
           std::min<int64_t>(std::llround(static_cast<double>(sim::autoExposureUs(scene)) * o.exposureX), 3000);
       deps.metering.enabled = o.metering != 0;
       if (o.brightAnalogueGain >= 0.0) deps.metering.brightAnalogueGain = o.brightAnalogueGain;
+      if (o.secondExposure >= 0.0) deps.metering.secondExposureFactor = o.secondExposure;
       const int efd = ::eventfd(0, EFD_CLOEXEC);
       app::ScanWorker worker(deps, loc, efd);
       app::WorkerJob job;
@@ -653,6 +655,10 @@ int main(int argc, char** argv) {
                  "metering.bright_analogue_gain: the laser frames' gain in sun (0: never changed; default: the "
                  "daemon's)")
       ->check(CLI::Range(0.0, 64.0));
+  app.add_option("--second-exposure", o.secondExposure,
+                 "metering.second_exposure_factor: in sun each stop exposed again this much longer (0: never; "
+                 "default: the daemon's)")
+      ->check(CLI::Range(0.0, 8.0));
   app.add_option("--lighting", o.lighting, "lab|overcast|direct|sun")->capture_default_str();
   app.add_option("--world", o.world, "benchmark|benchmark-hard|holdout: whose orchard cases")->capture_default_str();
   app.add_option("--exposure-x", o.exposureX,
@@ -703,6 +709,8 @@ int main(int argc, char** argv) {
   if ((o.widthPx > 0) != (o.heightPx > 0)) return tools::usageError(app, "--width and --height go together");
   if (o.brightAnalogueGain > 0.0 && o.brightAnalogueGain < 1.0)
     return tools::usageError(app, "--bright-analogue-gain: 0 (never changed) or 1..64 (1: the sensor's least)");
+  if (o.secondExposure > 0.0 && o.secondExposure < 1.25)
+    return tools::usageError(app, "--second-exposure: 0 (never) or 1.25..8");
   if (o.replay && o.dirs.empty()) return tools::usageError(app, "--replay needs DIR...");
   if (o.replay && !o.exportDir.empty()) return tools::usageError(app, "--replay and --export exclude each other");
   if (!o.replay && !o.dirs.empty()) return tools::usageError(app, "DIR... only with --replay");

@@ -19,6 +19,7 @@
 #include <cmath>
 #include <cstdio>
 #include <fstream>
+#include <optional>
 #include <sstream>
 
 #include "localize/exposure.h"
@@ -54,6 +55,9 @@ bool exists(const std::string& path) {
 // Noise seeds of the laser-off frames, apart from the stops' (0, 1, ...), so that a scene
 // whose exposure metering leaves as it was renders its stops exactly as before.
 constexpr uint64_t kLaserOffFrameIndex = 1000;
+// The noise seeds of the stops' second exposures: apart from the first's, so that a scan
+// with them has the same first frames as one without.
+constexpr uint64_t kSecondExposureFrameIndex = 2000;
 constexpr double kFrameIntervalS = 0.05;
 
 struct Metered {
@@ -62,6 +66,8 @@ struct Metered {
   std::vector<uint64_t> frameIndices;      // their noise seeds
   localize::MeteringDecision decision;
   cv::Mat subtract;  // the render region of the frame to subtract (empty: none)
+  // ... and of the one at the stops' second exposure (decision.secondExposureUs; empty: none)
+  cv::Mat secondSubtract;
 };
 
 // The daemon's acquisition (app/scan_worker.cpp, meterExposure): laser-off frames of the
@@ -106,6 +112,11 @@ Metered meterScene(const sim::SimScene& scene, const std::shared_ptr<const sim::
       });
   out.decision = run.decision;  // (a render cannot fail, nor can add(): the ROI is inside the region)
   if (run.hasLaserOff) out.subtract = out.rendered.back();  // the last frame taken (MeteringRun)
+  // The second exposure's laser-off frame, as the scan worker takes it after metering.
+  if (run.hasLaserOff && out.decision.secondExposureUs > 0) {
+    render(out.decision.secondExposureUs, out.decision.analogueGain, "ambient");
+    out.secondSubtract = out.rendered.back();
+  }
   return out;
 }
 
@@ -122,11 +133,11 @@ image::ImageView viewOf(const cv::Mat& m) { return {m.data, m.cols, m.rows, m.st
 // scan holds the second pass's frames where the localizer asks for them: each laser frame
 // the passes take is rendered (the render region) and observed as `process` will read it
 // back (a frame zero outside the region, the laser-off frame subtracted when metering kept
-// one). Returns the renders in the order taken, for exportScan.
+// one; a stop's second exposure, when `take` gives one, merged as the scan worker merges
+// it). Returns the renders in the order taken, for exportScan.
 std::vector<cv::Mat> scanTwoPasses(const sim::SimScene& scene, const std::shared_ptr<const sim::RayTable>& rays,
-                                   const RenderPlan& rp, const cv::Mat& subtract, bool brightAmbient,
-                                   const localize::ScanParams& scan,
-                                   const std::function<FrameTaken(double slideMm, int pass)>& take) {
+                                   const RenderPlan& rp, const Metered& metered, const localize::ScanParams& scan,
+                                   const std::function<std::vector<FrameTaken>(double slideMm, int pass)>& take) {
   std::vector<cv::Mat> renders;
   const localize::Localizer loc(scene.truth, image::LleParams{}, scan);
   Result<localize::ScanPlan> plan = loc.plan(rp.plan.roughMm, 200.0);
@@ -138,28 +149,44 @@ std::vector<cv::Mat> scanTwoPasses(const sim::SimScene& scene, const std::shared
   sim::Renderer renderer(scene, rays);
   const cv::Mat blank(scene.truth.camera.heightPx, scene.truth.camera.widthPx, CV_8UC3, cv::Scalar::all(0));
   cv::Mat full = blank.clone();
-  cv::Mat off;
-  image::ImageView offView{};
-  if (!subtract.empty()) {
-    off = blank.clone();
-    subtract.copyTo(off(rp.region));
-    offView = viewOf(off);
-  }
+  // The laser-off frames as `process` reads them back: zero outside the render region.
+  const auto fullFrame = [&](const cv::Mat& region) {
+    cv::Mat m;
+    if (region.empty()) return m;
+    m = blank.clone();
+    region.copyTo(m(rp.region));
+    return m;
+  };
+  const cv::Mat off = fullFrame(metered.subtract);
+  const cv::Mat secondOff = fullFrame(metered.secondSubtract);
+  const image::ImageView offView = viewOf(off);
+  const image::ImageView secondOffView = viewOf(secondOff);
+  const bool bright = metered.decision.bright;
   image::LleWorkspace ws;
-  twoPassScan(loc, *plan, 200.0, true, [&](double slideMm, int pass) {
-    const FrameTaken f = take(slideMm, pass);
-    sim::FrameRequest req;
-    req.slideStartMm = f.frame.slideStartMm;
-    req.slideEndMm = f.frame.slideEndMm;
-    req.laserFraction = 1.0;
-    req.exposureUs = f.frame.exposureUs > 0 ? f.frame.exposureUs : scene.sensor.exposureUs;
-    req.analogueGain = f.frame.analogueGain;
-    req.frameIndex = f.frameIndex;
-    renders.emplace_back();
-    renderer.renderRegion(req, rp.region, renders.back());
-    renders.back().copyTo(full(rp.region));
-    const double recordedMm = 0.5 * (f.frame.slideStartMm + f.frame.slideEndMm);
-    return loc.observe(viewOf(full), *plan, recordedMm, ws, off.empty() ? nullptr : &offView, 0.0, brightAmbient);
+  twoPassScan(loc, *plan, 200.0, true, [&](double slideMm, int pass) -> Result<localize::LineObservation> {
+    const std::vector<FrameTaken> frames = take(slideMm, pass);
+    std::optional<Result<localize::LineObservation>> first;
+    for (const FrameTaken& f : frames) {
+      sim::FrameRequest req;
+      req.slideStartMm = f.frame.slideStartMm;
+      req.slideEndMm = f.frame.slideEndMm;
+      req.laserFraction = 1.0;
+      req.exposureUs = f.frame.exposureUs > 0 ? f.frame.exposureUs : scene.sensor.exposureUs;
+      req.analogueGain = f.frame.analogueGain;
+      req.frameIndex = f.frameIndex;
+      renders.emplace_back();
+      renderer.renderRegion(req, rp.region, renders.back());
+      renders.back().copyTo(full(rp.region));
+      const double recordedMm = 0.5 * (f.frame.slideStartMm + f.frame.slideEndMm);
+      if (!first) {
+        first = loc.observe(viewOf(full), *plan, recordedMm, ws, off.empty() ? nullptr : &offView, 0.0, bright);
+      } else if (first->isOk() && !secondOff.empty()) {
+        Result<localize::LineObservation> second =
+            loc.observe(viewOf(full), *plan, recordedMm, ws, &secondOffView, 0.0, bright);
+        if (second) localize::Localizer::mergeSecondExposure(first->value(), *second);
+      }
+    }
+    return std::move(*first);
   });
   return renders;
 }
@@ -388,17 +415,18 @@ int generateMain(const Args& args) {
         const double smearMm = motionMmS * static_cast<double>(exposureUs) * 1e-6;
         double t = kFrameIntervalS * static_cast<double>(frames.size());
         uint64_t index = 0;  // the stops' noise seeds, as without metering
-        const auto laserFrame = [&](double startMm, double endMm, const char* tag) {
+        uint64_t secondIndex = kSecondExposureFrameIndex;
+        const auto laserFrame = [&](double startMm, double endMm, const char* tag, int64_t us, bool second = false) {
           sim::ExportFrame f;
           f.slideStartMm = startMm;
           f.slideEndMm = endMm;
           f.laserOn = true;
-          f.exposureUs = exposureUs;
+          f.exposureUs = us;
           f.analogueGain = metered.decision.analogueGain;  // 0: the scene's, as metered
           f.timestampS = t;
           f.tag = tag;
           frames.push_back(f);
-          frameIndices.push_back(index++);
+          frameIndices.push_back(second ? secondIndex++ : index++);
         };
         std::vector<cv::Mat> laserRenders;  // the passes' frames, rendered to observe them
         int followUpFrames = 0;
@@ -408,22 +436,32 @@ int generateMain(const Args& args) {
           const double off = rng.uniform(-0.6, 0.6) * target.radiusMm;
           const double s = scene.truth.laser.slideForPoint(target.centerMm + off * scene.truth.laser.planeNormal);
           info.stopsMm = {s};
-          laserFrame(s - 0.5 * smearMm, s + 0.5 * smearMm, "stop");
+          laserFrame(s - 0.5 * smearMm, s + 0.5 * smearMm, "stop", exposureUs);
         } else {
           info.stopsMm = rp->plan.stopsMm;
           // The first pass at the plan's stops, then the second pass where the localizer
           // asks for one (tag "follow_up"), as the daemon scans.
-          laserRenders = scanTwoPasses(
-              scene, rays, *rp, metered.subtract, metered.decision.bright, scanParams, [&](double s, int pass) {
-                laserFrame(s - 0.5 * smearMm, s + 0.5 * smearMm, pass == 1 ? "stop" : "follow_up");
-                followUpFrames += pass == 2 ? 1 : 0;
-                t += 0.25;  // a stop every 250 ms (move, settle, expose)
-                return FrameTaken{frames.back(), frameIndices.back()};
-              });
+          // A stop's second exposure (metering.second_exposure_factor) right after its
+          // first, at the same position (tag "second").
+          const int64_t secondUs = metered.secondSubtract.empty() ? 0 : metered.decision.secondExposureUs;
+          laserRenders = scanTwoPasses(scene, rays, *rp, metered, scanParams, [&](double s, int pass) {
+            std::vector<FrameTaken> taken;
+            laserFrame(s - 0.5 * smearMm, s + 0.5 * smearMm, pass == 1 ? "stop" : "follow_up", exposureUs);
+            taken.push_back({frames.back(), frameIndices.back()});
+            if (secondUs > 0) {
+              t += kFrameIntervalS;
+              const double secondSmearMm = motionMmS * static_cast<double>(secondUs) * 1e-6;
+              laserFrame(s - 0.5 * secondSmearMm, s + 0.5 * secondSmearMm, "second", secondUs, true);
+              taken.push_back({frames.back(), frameIndices.back()});
+            }
+            followUpFrames += pass == 2 ? 1 : 0;
+            t += 0.25;  // a stop every 250 ms (move, settle, expose)
+            return taken;
+          });
           // The paper's single-line experiment: the laser aimed at the marker on the
           // apple's face (the truth's approach point), not planned from the rough position.
           const double aimed = scene.truth.laser.slideForPoint(sim::approachPoint(target));
-          if (aimed >= 0.0 && aimed <= 200.0) laserFrame(aimed, aimed, "aimed");
+          if (aimed >= 0.0 && aimed <= 200.0) laserFrame(aimed, aimed, "aimed", exposureUs);
         }
         if (!(resume && exists(dir + "/manifest.json"))) {
           sim::ExportOptions opt;
@@ -453,6 +491,8 @@ int generateMain(const Args& args) {
             {"laser_off_frames", metered.laserOff.size()},
             {"laser_off_subtracted", metered.decision.subtract},
             {"follow_up_frames", followUpFrames},
+            {"second_exposure_us",
+             static_cast<long long>(metered.secondSubtract.empty() ? 0 : metered.decision.secondExposureUs)},
             {"bandpass_nm", tools::jsonNumber(scene.sensor.bandpassFwhmNm, "%.0f")},
             {"diameter_mm", tools::jsonNumber(2.0 * target.radiusMm, "%.2f")},
             {"world", sim::worldName(job.spec.world)},

@@ -156,6 +156,7 @@ Result<MeteringArgs> meteringArgs(const Args& args) {
   m.params.targetDn = static_cast<int>(args.integer("meter-target-dn", m.params.targetDn));
   m.params.subtractAboveDn = static_cast<int>(args.integer("meter-subtract-above-dn", m.params.subtractAboveDn));
   m.params.brightAnalogueGain = args.num("meter-bright-gain", m.params.brightAnalogueGain);
+  m.params.secondExposureFactor = args.num("meter-second-exposure", m.params.secondExposureFactor);
   m.maxExposureUs = args.integer("max-exposure-us", m.maxExposureUs);
   if (Status s = m.params.validate(); !s) return s;
   if (m.maxExposureUs < 1) return Status(Error::kInvalidArgument, "--max-exposure-us must be positive");
@@ -294,6 +295,8 @@ int main(int argc, char** argv) {
            {"meter-subtract-above-dn", Kind::kInteger, "metering.subtract_above_dn (default: the daemon's)"},
            {"meter-bright-gain", Kind::kNumber,
             "metering.bright_analogue_gain (default: the daemon's; 0: never changed)"},
+           {"meter-second-exposure", Kind::kNumber,
+            "metering.second_exposure_factor (default: the daemon's; 0: one exposure per stop)"},
            {"max-exposure-us", Kind::kInteger, "the longest exposure metering may choose: camera.exposure_us (3000)"},
            {"follow-up-unseen-max-stops", Kind::kInteger,
             "ScanParams::followUpUnseenMaxStops for the second pass rendered (default ScanParams')"},
@@ -347,6 +350,8 @@ int main(int argc, char** argv) {
                {"meter-subtract-above-dn", Kind::kInteger, "metering.subtract_above_dn (default: the daemon's)"},
                {"meter-bright-gain", Kind::kNumber,
                 "metering.bright_analogue_gain (default: the daemon's; 0: never changed)"},
+               {"meter-second-exposure", Kind::kNumber,
+                "metering.second_exposure_factor (default: the daemon's; 0: one exposure per stop)"},
                {"max-exposure-us", Kind::kInteger, "the longest exposure metering may choose (3000, as generate)"},
                {"jobs", Kind::kInteger, "threads (default 2)"}}),
       declare(app, "examples", "example frames of the conditions, for docs/simulation.md", examplesMain,

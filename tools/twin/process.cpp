@@ -67,6 +67,8 @@ struct Metering {
   localize::MeteringDecision decision;
   int laserOffFrames = 0;
   cv::Mat laserOff;  // the frame to subtract (full frame; its ROI valid), empty: none
+  // The laser-off frame at the stops' second exposure (decision.secondExposureUs), empty: none.
+  cv::Mat secondLaserOff;
   std::string note;
 };
 
@@ -100,9 +102,23 @@ Metering meterReplay(replay::ReplaySource& src, bool& laser, const image::Roi& r
   if (run.status && oneGain && run.decision.bright) out.note = "bright, recorded at one gain: replayed at it";
   if (run.status && src.gainLowered() && run.decision.analogueGain == 0.0)
     out.note = "recorded at a lowered gain, replayed without it";
-  if (run.hasLaserOff) {
-    const image::ImageView& v = run.laserOff.view;
-    out.laserOff = cv::Mat(v.height, v.width, CV_8UC3, const_cast<uint8_t*>(v.data), v.strideBytes).clone();
+  const auto copy = [](const image::ImageView& v) {
+    return cv::Mat(v.height, v.width, CV_8UC3, const_cast<uint8_t*>(v.data), v.strideBytes).clone();
+  };
+  if (run.hasLaserOff) out.laserOff = copy(run.laserOff.view);
+  if (run.hasLaserOff && run.decision.secondExposureUs > 0) {
+    // The second exposure's own laser-off frame, as the scan worker takes it after metering.
+    ports::CaptureRequest req;
+    req.exposureUs = run.decision.secondExposureUs;
+    req.analogueGain = run.decision.analogueGain;
+    Result<ports::CapturedFrame> f = src.capture(req, {});
+    if (f && f->info.exposureUs == req.exposureUs) {
+      out.secondLaserOff = copy(f->view);
+      ++out.laserOffFrames;
+    } else {
+      out.note = "no laser-off frame at the second exposure: one exposure per stop";
+      out.decision.secondExposureUs = 0;
+    }
   }
   laser = true;
   return out;
@@ -221,6 +237,11 @@ int processMain(const Args& args) {
         const image::ImageView laserOffView{metered.laserOff.data, metered.laserOff.cols, metered.laserOff.rows,
                                             metered.laserOff.step[0], image::PixelFormat::kBgr888};
         const image::ImageView* laserOff = metered.laserOff.empty() ? nullptr : &laserOffView;
+        const image::ImageView secondOffView{metered.secondLaserOff.data, metered.secondLaserOff.cols,
+                                             metered.secondLaserOff.rows, metered.secondLaserOff.step[0],
+                                             image::PixelFormat::kBgr888};
+        const int64_t secondUs = metered.decision.secondExposureUs;
+        if (secondUs > 0) o["second_exposure_us"] = secondUs;
         image::LleWorkspace ws;
         double observeMs = 0.0;
         // One frame through the camera port and the localizer, as the scan worker does.
@@ -249,6 +270,23 @@ int processMain(const Args& args) {
             fo["error"] = ob.status().reason();
             frameJson.push_back(std::move(fo));
             return ob;
+          }
+          if (secondUs > 0) {
+            // The stop's second exposure, as the scan worker takes it: its rows join where
+            // the first frame's LLE found none (`rows` and `curve` below are the first's).
+            req.exposureUs = secondUs;
+            Result<ports::CapturedFrame> f2 = (*src)->capture(req, {});
+            if (!f2 || f2->info.exposureUs != secondUs || std::abs((*src)->lastSlideMm() - recorded) > 0.05) {
+              fo["second_error"] =
+                  f2 ? "the scan holds no laser frame at the second exposure here" : f2.status().reason();
+            } else {
+              Result<localize::LineObservation> ob2 =
+                  loc.observe(f2->view, *plan, (*src)->lastSlideMm(), ws, &secondOffView, 0.0, true);
+              if (ob2) {
+                fo["second_frame"] = (*src)->lastFrame();
+                fo["second_joined"] = localize::Localizer::mergeSecondExposure(*ob, *ob2);
+              }
+            }
           }
           const image::LaserLine& line = ob->line;
           fo["valid"] = line.valid;

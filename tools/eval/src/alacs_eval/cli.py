@@ -93,6 +93,8 @@ def _diagnose(a: argparse.Namespace) -> int:
     extra = tuple(x for x in a.process_args if x != "--")
     gen = (("follow-up-unseen-max-stops", str(a.follow_up_unseen_max_stops)),) \
         if a.follow_up_unseen_max_stops is not None else ()
+    if a.second_exposure is not None:
+        gen += (("meter-second-exposure", repr(a.second_exposure)),)
     cfg = diagnose.Config(world=a.world, seed=a.seed, count=a.count, work=work, twin=twin.find_twin(a.twin),
                           jobs=a.jobs, process_args=extra, generate_args=gen, worst=a.worst, quiet=a.quiet,
                           read=a.read)
@@ -209,6 +211,10 @@ def main(argv: list[str] | None = None) -> int:
     g.add_argument("--follow-up-unseen-max-stops", type=int,
                    help="--loc: ScanParams::followUpUnseenMaxStops, for the scans rendered and their processing "
                         "(use another --work: the scans are rendered again)")
+    g.add_argument("--second-exposure", type=float, metavar="F",
+                   help="--loc: metering.second_exposure_factor for the scans rendered and their processing (use "
+                        "another --work: the scans are rendered again); `-- --meter-second-exposure 0` then "
+                        "processes them with one exposure per stop")
     g.add_argument("process_args", nargs=argparse.REMAINDER,
                    help="after --: options for `alacs-twin process` (e.g. --lle-subtracted-line-pct 20)")
     g.set_defaults(func=_diagnose)

@@ -102,7 +102,7 @@ def _paper_loc_case(task: tuple[str, str | None]) -> dict[str, Any]:
     expected = tuple(cal.project(scan.rough_mm[None, :])[0])
     stops, aimed = [], []
     for f in scan.frames:
-        if not f.laser_on:
+        if not f.laser_on or f.tag == "second":  # the paper takes one exposure per stop
             continue
         line = _paper()(scan.region(f, roi))
         cand = paper_method.candidate(line, roi, f.slide_mm, expected)

@@ -252,8 +252,8 @@ def reach_text(reach: dict) -> str:
 
 def _is_stop(frame: Frame) -> bool:
     """A stop of either pass with its truth: laser on, not the aimed frame (the five-line
-    result does not use it)."""
-    return frame.laser_on and bool(frame.truth) and frame.tag != "aimed"
+    result does not use it) nor a stop's second exposure (merged into its first by `process`)."""
+    return frame.laser_on and bool(frame.truth) and frame.tag not in ("aimed", "second")
 
 
 def stop_frames(scan: Scan, processed: dict) -> Iterator[tuple[int, dict]]:
