@@ -65,7 +65,8 @@ struct WorkerEvent {
   bool laserOffSubtracted = false;
   bool brightAmbient = false;  // the metering found the ambient bright (MeteringDecision::bright)
   // Each stop's second exposure (MeteringDecision::secondExposureUs, its laser-off frame
-  // taken), us; 0: one exposure per stop.
+  // taken), us; 0: one exposure per stop (also when a sweep was paced for one: metered in
+  // its run-up after a scan without).
   int64_t secondExposureUs = 0;
   // A continuous scan's result is posted as soon as it is known, while the slide still
   // brakes past the last stop; if that braking then ends badly (limit switch, I/O error,

@@ -947,6 +947,12 @@ Status ScanWorker::sweepStops(const localize::ScanPlan& plan, ports::CaptureRequ
     runUp();
     if (cancel_.load()) status = aborted(ev);
   }
+  if (ev.secondExposureUs > 0 && !pacedForTwo) {
+    // Metered in the run-up of a sweep paced for one capture a stop: none this scan (the
+    // next one is paced for two).
+    ALACS_LOG_INFO("scan", "sweep paced for one exposure a stop: no second exposure in this scan");
+    ev.secondExposureUs = 0;
+  }
   for (size_t i = 0; i < stops.size() && status.isOk(); ++i) {
     const TimeNs passNs = awaitStop(*sw, moveStart, from, lim, stops[i], plan.roi, capture.exposureUs);
     const SweptStop at{*sw, from, forward, lim, plan.roi, i, passNs};

@@ -528,6 +528,22 @@ TEST_CASE("In sun a sweep takes each stop's second exposure at the next frame, p
       }
     }
   }
+  // The sun comes out between two sweeps: the one that finds it meters in its run-up,
+  // paced for one capture a stop, and takes no second exposure (and says so); the next does.
+  rig.deps.metering.brightDnPerMs = 150.0;
+  app::ScanWorker worker(rig.deps, loc, rig.efd);
+  rig.home(worker);
+  for (const auto& [red, takes] :
+       {std::pair{uint8_t{100}, 0}, std::pair{uint8_t{200}, 0}, std::pair{uint8_t{200}, 3}}) {
+    rig.camera.setRed(red);  // 100 DN at 1000 us: 100 DN/ms, not bright; 200: bright
+    rig.camera.requestedUs.clear();
+    worker.submit(threeStopSweep());
+    std::optional<app::WorkerEvent> ev = rig.next(worker);
+    REQUIRE(ev);
+    CHECK(ev->status.isOk());
+    CHECK(ev->secondExposureUs == (takes > 0 ? 2 * ev->exposureUs : 0));
+    CHECK(ev->exposures.size() == static_cast<size_t>(3 + takes));
+  }
 }
 
 TEST_CASE("The frame pipeline merges a stop's second exposure into its first, or keeps it as a line of its own",
